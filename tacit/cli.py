@@ -1,0 +1,68 @@
+"""The ``tacit`` command: one entry point that joins the apps.
+
+Each subcommand lives in the module that owns its concept and exposes ``add_arguments(parser)`` and
+``run(args) -> int``. Modules are imported only when their command is chosen, so an agent-only
+install (no web stack) can run ``tacit agent``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+# name: (module, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "demo": ("tacit.demo", "Start the whole system on simulators and open the operator's screen"),
+    "serve": ("server.app", "Run the shore control center (API, dashboard, 3D map, shore modem)"),
+    "agent": ("vehicle_agent.agent", "Run the vehicle agent between ArduSub and the vehicle's modem"),
+    "sim": ("tacit.sim.run", "Start simulated Micro-Modems, acoustic channel and BlueROV2"),
+    "replay": ("tacit.replay", "Run a real .tlog through the agent and the simulated link"),
+    "eval-compression": ("tacit.evaluate", "Measure the compressor on a CSV or .tlog file"),
+    "modem-log": ("tacit.modemlog", "Decode a Micro-Modem NMEA log: sentences, frames, packets"),
+}
+
+
+def _parser() -> argparse.ArgumentParser:
+    listing = "\n".join(f"  {name:<18}{text}" for name, (_, text) in COMMANDS.items())
+    parser = argparse.ArgumentParser(
+        prog="tacit",
+        description="Tacit: compressed acoustic communications for underwater vehicles.\n\n"
+        f"commands:\n{listing}",
+        epilog="Run 'tacit COMMAND --help' for a command's options.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--log-level", default="INFO", help="logging level (default INFO)")
+    parser.add_argument("command", choices=list(COMMANDS), metavar="COMMAND", help="the command to run")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    top = _parser()
+    first = next((i for i, a in enumerate(argv) if a in COMMANDS), None)
+    if first is None:
+        top.parse_args(argv)  # prints help or the error for an unknown command
+        return 2
+    options = top.parse_args(argv[: first + 1])
+    module_name, help_text = COMMANDS[options.command]
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        print(f"tacit {options.command}: needs {exc.name!r}, which is not installed "
+              f"(install the matching extra, e.g. pip install 'tacit[all]')", file=sys.stderr)  # fmt: skip
+        return 2
+    parser = argparse.ArgumentParser(prog=f"tacit {options.command}", description=help_text)
+    module.add_arguments(parser)
+    args = parser.parse_args(argv[first + 1 :])
+    logging.basicConfig(level=options.log_level.upper(),
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")  # fmt: skip
+    try:
+        return int(module.run(args) or 0)
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

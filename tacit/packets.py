@@ -1,0 +1,450 @@
+"""The 32-byte packets of the Tacit protocol: control, check-point and priority.
+
+Every packet is exactly one rate-0 Micro-Modem frame (32 bytes). Integers are big-endian.
+Byte 0 is a header common to all packets::
+
+    bit 7-6  version (1)
+    bit 5-4  type: 0 control (shore -> vehicle), 1 check-point, 2 priority (vehicle -> shore)
+    bit 3-0  type-specific: control flags; priority: priority level (bits 3-2) and stream (bits 1-0)
+
+Control packet (shore -> vehicle), authenticated (see ``tacit.auth``):
+
+==========  ====  =================  ==========================  ============  ==========
+field       off   type               range                       resolution    unit
+==========  ====  =================  ==========================  ============  ==========
+header      0     u8                 flags: bit0 absolute angle, bit1 delay-sensitive
+command     1     u8                 ``Command``
+seq         2     u32                0 .. 4294967295             1             -
+time        6     u32                0 .. 4294967295             1             s (UNIX)
+distance    10    u16                0 .. 6553.5                 0.1           m
+angle       12    i16                -180 .. 180                 0.01          deg
+depth       14    i16                -327.68 .. 327.67           0.01          m
+speed       16    u8                 0 .. 2.55 (0 = default)     0.01          m/s
+param_id    17    u8                 0 .. 255                    1             -
+param_value 18    f32                finite float32                            -
+reserved    22    2 bytes, zero
+mac         24    8 bytes            truncated HMAC-SHA256 (64 bits)
+==========  ====  =================  ==========================  ============  ==========
+
+``angle`` is the heading change relative to the vehicle's heading (the paper's control packet),
+or a true bearing from north when the absolute-angle flag is set. ``depth`` is the vertical
+difference for MOVE (positive = deeper) and the target depth for GOTO_DEPTH.
+
+Check-point packet (vehicle -> shore): "still here, still predictable", and the state the shore's
+predictors resynchronise on:
+
+==============  ====  ====  ==========================  ============  ==========
+field           off   type  range                       resolution    unit
+==============  ====  ====  ==========================  ============  ==========
+header          0     u8    type 1, low bits 0
+seq             1     u8    0 .. 255 (vehicle packet counter, wraps)
+time            2     u32   0 .. 4294967295             1             s (UNIX)
+state           6     u8    ``MissionState``
+mission_id      7     u8    0 .. 255                    1             -
+waypoint        8     u8    0 .. 255                    1             -
+north           9     i16   -3276.8 .. 3276.7           0.1           m from home
+east            11    i16   -3276.8 .. 3276.7           0.1           m from home
+depth           13    u16   0 .. 655.35                 0.01          m
+heading         15    u16   0 .. 359.99                 0.01          deg
+battery         17    u8    0 .. 25.5                   0.1           V
+last_command    18    u32   0 .. 4294967295             1             control seq
+command_status  22    u8    ``CommandStatus``
+reason          23    u8    ``Reason``
+temperature     24    i16   -327.68 .. 327.67           0.01          degC
+oxygen          26    u16   0 .. 655.34 (655.35 = none) 0.01          mg/L
+priority_count  28    u16   0 .. 65535 (wraps)          1             packets
+flags           30    u8    bit0 position fix, bit1 armed, bit2 link-lost mode
+reserved        31    1 byte, zero
+==============  ====  ====  ==========================  ============  ==========
+
+Priority packet (vehicle -> shore), the paper's "two bytes of priority/type, thirty bytes of
+samples": byte 0 header (priority level 0-3, stream 0-3), byte 1 seq (u8, shared counter with
+check-points), bytes 2-31 the samples as encoded by the sample codec.
+
+Decoding never raises anything but ``PacketError`` subclasses; encoding an out-of-range value
+raises ``FieldRangeError`` (no silent wrap or clamp).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+import struct
+from dataclasses import dataclass, fields, replace
+from typing import ClassVar
+
+PACKET_SIZE = 32
+VERSION = 1
+MAC_SIZE = 8
+PAYLOAD_SIZE = 30
+OXYGEN_NONE = 655.35
+
+
+class PacketError(ValueError):
+    """A frame that is not a valid Tacit packet."""
+
+
+class FieldRangeError(PacketError):
+    """A value outside the documented range of its field."""
+
+    def __init__(self, field: str, value: object, lo: float, hi: float, unit: str) -> None:
+        self.field, self.value, self.lo, self.hi, self.unit = field, value, lo, hi, unit
+        super().__init__(f"{field}={value!r} is outside {lo} .. {hi} {unit}".rstrip())
+
+
+class PacketType(enum.IntEnum):
+    CONTROL = 0
+    CHECKPOINT = 1
+    PRIORITY = 2
+
+
+class Command(enum.IntEnum):
+    """What a control packet asks of the vehicle."""
+
+    MOVE = 1  # distance, angle, depth change
+    GOTO_DEPTH = 2  # depth = target depth
+    HOLD = 3
+    RESUME = 4  # resume the pre-programmed mission
+    START_MISSION = 5  # param_id = mission id
+    ABORT_MISSION = 6
+    RETURN_HOME = 7
+    SET_PARAM = 8  # param_id, param_value
+    REQUEST_CHECKPOINT = 9
+
+
+class ControlFlag(enum.IntFlag):
+    ABSOLUTE_ANGLE = 1
+    DELAY_SENSITIVE = 2
+
+
+class MissionState(enum.IntEnum):
+    """States of the vehicle's mission state machine (the paper's Algorithm 2)."""
+
+    WAITING = 0
+    PREPROGRAMMED = 1
+    SELF_DETERMINED = 2
+    AWAITING_COMMAND = 3
+    COMMANDED = 4
+    HOLDING = 5
+    RETURNING = 6
+    LINK_LOST = 7
+    FINISHED = 8
+    ABORTED = 9
+
+
+class CommandStatus(enum.IntEnum):
+    NONE = 0
+    EXECUTING = 1
+    EXECUTED = 2
+    REFUSED = 3
+    SUPERSEDED = 4
+
+
+class Reason(enum.IntEnum):
+    OK = 0
+    OUT_OF_LIMITS = 1
+    GEOFENCE = 2
+    NO_POSITION_FIX = 3
+    UNKNOWN_MISSION = 4
+    UNKNOWN_PARAM = 5
+    NOT_ARMED = 6
+    VEHICLE_REFUSED = 7
+    TIMEOUT = 8
+
+
+class Priority(enum.IntEnum):
+    ROUTINE = 0
+    NOTABLE = 1
+    IMPORTANT = 2
+    TIME_SENSITIVE = 3
+
+
+class Stream(enum.IntEnum):
+    ENVIRONMENTAL = 0
+    KINEMATIC = 1
+    POSITION = 2
+    MIXED = 3
+
+
+@dataclass(frozen=True)
+class Field:
+    """One fixed-point field: stored integer = round(value / resolution)."""
+
+    name: str
+    fmt: str
+    lo: float
+    hi: float
+    resolution: float = 1.0
+    unit: str = ""
+    enum: type[enum.IntEnum] | None = None
+
+    @property
+    def size(self) -> int:
+        return struct.calcsize(">" + self.fmt)
+
+    def encode(self, value: float) -> int | float:
+        if self.enum is not None:
+            try:
+                return int(self.enum(value))
+            except ValueError:
+                raise FieldRangeError(self.name, value, min(self.enum), max(self.enum), "") from None
+        if self.fmt == "f":
+            if not math.isfinite(value) or abs(value) > 3.4028234e38:
+                raise FieldRangeError(self.name, value, self.lo, self.hi, self.unit)
+            return float(value)
+        if not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise FieldRangeError(self.name, value, self.lo, self.hi, self.unit)
+        if not (self.lo - self.resolution / 2 <= value <= self.hi + self.resolution / 2):
+            raise FieldRangeError(self.name, value, self.lo, self.hi, self.unit)
+        raw = round(value / self.resolution)
+        lo_raw, hi_raw = round(self.lo / self.resolution), round(self.hi / self.resolution)
+        if not lo_raw <= raw <= hi_raw:
+            raise FieldRangeError(self.name, value, self.lo, self.hi, self.unit)
+        return raw
+
+    def decode(self, raw: int | float) -> float | int | enum.IntEnum:
+        if self.enum is not None:
+            try:
+                return self.enum(raw)
+            except ValueError:
+                raise PacketError(f"{self.name}: unknown value {raw}") from None
+        if self.fmt == "f":
+            return raw
+        if self.resolution == 1.0:
+            return int(raw)
+        value = raw * self.resolution
+        if not self.lo - self.resolution / 2 <= value <= self.hi + self.resolution / 2:
+            raise PacketError(f"{self.name}: {value} outside {self.lo} .. {self.hi} {self.unit}")
+        return round(value, 10)
+
+
+def _u(
+    name: str, fmt: str, res: float = 1.0, unit: str = "", lo: float = 0, hi: float | None = None
+) -> Field:
+    """An unsigned/signed integer field whose range is the format's, unless given."""
+    bits = struct.calcsize(">" + fmt) * 8
+    if fmt.islower():
+        lo_raw, hi_raw = -(2 ** (bits - 1)), 2 ** (bits - 1) - 1
+        lo = lo_raw * res if lo == 0 else lo
+    else:
+        hi_raw = 2**bits - 1
+    return Field(name, fmt, lo, hi_raw * res if hi is None else hi, res, unit)
+
+
+def _e(name: str, kind: type[enum.IntEnum]) -> Field:
+    return Field(name, "B", min(kind), max(kind), enum=kind)
+
+
+@dataclass(frozen=True)
+class _Packet:
+    """Base of the three packet kinds: a header byte plus a table of fixed-point fields."""
+
+    TYPE: ClassVar[PacketType]
+    FIELDS: ClassVar[tuple[Field, ...]]
+    TAIL: ClassVar[int]  # bytes after the fields (reserved zero, MAC or payload)
+
+    def _header_low(self) -> int:
+        return 0
+
+    def _body(self) -> bytes:
+        values = [f.encode(getattr(self, f.name)) for f in self.FIELDS]
+        fmt = ">" + "".join(f.fmt for f in self.FIELDS)
+        header = (VERSION << 6) | (int(self.TYPE) << 4) | self._header_low()
+        return bytes([header]) + struct.pack(fmt, *values)
+
+    @classmethod
+    def _unpack_fields(cls, frame: bytes) -> dict[str, object]:
+        fmt = ">" + "".join(f.fmt for f in cls.FIELDS)
+        size = struct.calcsize(fmt)
+        raws = struct.unpack(fmt, frame[1 : 1 + size])
+        return {f.name: f.decode(raw) for f, raw in zip(cls.FIELDS, raws, strict=True)}
+
+    @classmethod
+    def body_size(cls) -> int:
+        return 1 + struct.calcsize(">" + "".join(f.fmt for f in cls.FIELDS))
+
+
+@dataclass(frozen=True)
+class ControlPacket(_Packet):
+    """Shore -> vehicle: the paper's command, distance, angle and vertical difference."""
+
+    command: Command
+    seq: int
+    time: int
+    distance: float = 0.0
+    angle: float = 0.0
+    depth: float = 0.0
+    speed: float = 0.0
+    param_id: int = 0
+    param_value: float = 0.0
+    flags: ControlFlag = ControlFlag(0)
+
+    TYPE: ClassVar = PacketType.CONTROL
+    FIELDS: ClassVar = (
+        _e("command", Command),
+        _u("seq", "I"),
+        _u("time", "I", unit="s"),
+        _u("distance", "H", 0.1, "m"),
+        Field("angle", "h", -180.0, 180.0, 0.01, "deg"),
+        _u("depth", "h", 0.01, "m"),
+        _u("speed", "B", 0.01, "m/s"),
+        _u("param_id", "B"),
+        Field("param_value", "f", -3.4e38, 3.4e38),
+    )
+    TAIL: ClassVar = 2 + MAC_SIZE
+
+    def _header_low(self) -> int:
+        return int(self.flags) & 0x0F
+
+    def signed_part(self) -> bytes:
+        """The 24 bytes the MAC covers."""
+        return self._body() + bytes(2)
+
+
+@dataclass(frozen=True)
+class CheckpointPacket(_Packet):
+    """Vehicle -> shore heartbeat and predictor resynchronisation point."""
+
+    seq: int
+    time: int
+    state: MissionState
+    mission_id: int = 0
+    waypoint: int = 0
+    north: float = 0.0
+    east: float = 0.0
+    depth: float = 0.0
+    heading: float = 0.0
+    battery: float = 0.0
+    last_command: int = 0
+    command_status: CommandStatus = CommandStatus.NONE
+    reason: Reason = Reason.OK
+    temperature: float = 0.0
+    oxygen: float = OXYGEN_NONE
+    priority_count: int = 0
+    flags: int = 0
+
+    TYPE: ClassVar = PacketType.CHECKPOINT
+    FIELDS: ClassVar = (
+        _u("seq", "B"),
+        _u("time", "I", unit="s"),
+        _e("state", MissionState),
+        _u("mission_id", "B"),
+        _u("waypoint", "B"),
+        _u("north", "h", 0.1, "m"),
+        _u("east", "h", 0.1, "m"),
+        _u("depth", "H", 0.01, "m"),
+        Field("heading", "H", 0.0, 359.99, 0.01, "deg"),
+        _u("battery", "B", 0.1, "V"),
+        _u("last_command", "I"),
+        _e("command_status", CommandStatus),
+        _e("reason", Reason),
+        _u("temperature", "h", 0.01, "degC"),
+        _u("oxygen", "H", 0.01, "mg/L"),
+        _u("priority_count", "H"),
+        _u("flags", "B", hi=7),
+    )
+    TAIL: ClassVar = 1
+
+    def encode(self) -> bytes:
+        return self._body() + bytes(self.TAIL)
+
+
+@dataclass(frozen=True)
+class PriorityPacket(_Packet):
+    """Vehicle -> shore: unpredictable samples (30 bytes, as the sample codec packs them)."""
+
+    seq: int
+    priority: Priority
+    stream: Stream
+    payload: bytes
+
+    TYPE: ClassVar = PacketType.PRIORITY
+    FIELDS: ClassVar = (_u("seq", "B"),)
+    TAIL: ClassVar = PAYLOAD_SIZE
+
+    def _header_low(self) -> int:
+        return (int(self.priority) << 2) | int(self.stream)
+
+    def encode(self) -> bytes:
+        Priority(self.priority), Stream(self.stream)
+        if len(self.payload) > PAYLOAD_SIZE:
+            raise FieldRangeError("payload", f"{len(self.payload)} bytes", 0, PAYLOAD_SIZE, "bytes")
+        return self._body() + bytes(self.payload).ljust(PAYLOAD_SIZE, b"\0")
+
+
+VehiclePacket = CheckpointPacket | PriorityPacket
+Packet = ControlPacket | CheckpointPacket | PriorityPacket
+
+
+def packet_type(frame: bytes) -> PacketType:
+    """The type of a frame, after checking its length and version."""
+    if not isinstance(frame, (bytes, bytearray)):
+        raise PacketError(f"a packet is bytes, not {type(frame).__name__}")
+    if len(frame) != PACKET_SIZE:
+        raise PacketError(f"a packet is {PACKET_SIZE} bytes, got {len(frame)}")
+    version = frame[0] >> 6
+    if version != VERSION:
+        raise PacketError(f"unknown packet version {version}")
+    try:
+        return PacketType((frame[0] >> 4) & 0x03)
+    except ValueError:
+        raise PacketError(f"unknown packet type {(frame[0] >> 4) & 0x03}") from None
+
+
+def _check_zero(frame: bytes, start: int, end: int) -> None:
+    if any(frame[start:end]):
+        raise PacketError(f"reserved bytes {start}..{end - 1} are not zero")
+
+
+def decode_control(frame: bytes) -> ControlPacket:
+    """Decode a control packet's fields. The MAC is checked by ``tacit.auth``, not here."""
+    values = ControlPacket._unpack_fields(frame)
+    flags = frame[0] & 0x0F
+    if flags & ~int(ControlFlag.ABSOLUTE_ANGLE | ControlFlag.DELAY_SENSITIVE):
+        raise PacketError(f"unknown control flags {flags:#x}")
+    if not math.isfinite(values["param_value"]):
+        raise PacketError("param_value is not finite")
+    _check_zero(frame, 22, 24)
+    return ControlPacket(flags=ControlFlag(flags), **values)
+
+
+def decode(frame: bytes) -> Packet:
+    """Decode any 32-byte frame; raises ``PacketError`` for anything that is not a valid packet."""
+    kind = packet_type(frame)
+    frame = bytes(frame)
+    if kind is PacketType.CONTROL:
+        return decode_control(frame)
+    if kind is PacketType.CHECKPOINT:
+        if frame[0] & 0x0F:
+            raise PacketError("check-point header low bits are not zero")
+        _check_zero(frame, 31, 32)
+        return CheckpointPacket(**CheckpointPacket._unpack_fields(frame))
+    return PriorityPacket(
+        seq=frame[1],
+        priority=Priority((frame[0] >> 2) & 0x03),
+        stream=Stream(frame[0] & 0x03),
+        payload=frame[2:],
+    )
+
+
+def with_seq(packet: VehiclePacket, seq: int) -> VehiclePacket:
+    """A copy of a vehicle packet with another sequence number (u8, wraps)."""
+    return replace(packet, seq=seq % 256)
+
+
+def as_dict(packet: Packet) -> dict[str, object]:
+    """A JSON-friendly view of a packet (enums by name, payload as hex)."""
+    out: dict[str, object] = {"type": packet.TYPE.name.lower()}
+    for f in fields(packet):
+        value = getattr(packet, f.name)
+        if isinstance(value, enum.Enum):
+            value = value.name.lower() if not isinstance(value, enum.IntFlag) else int(value)
+        elif isinstance(value, bytes):
+            value = value.hex()
+        out[f.name] = value
+    return out
+
+
+assert ControlPacket.body_size() == 22 and ControlPacket.body_size() + ControlPacket.TAIL == PACKET_SIZE
+assert CheckpointPacket.body_size() + CheckpointPacket.TAIL == PACKET_SIZE
+assert PriorityPacket.body_size() + PriorityPacket.TAIL == PACKET_SIZE
