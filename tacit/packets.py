@@ -78,6 +78,7 @@ VERSION = 1
 MAC_SIZE = 8
 PAYLOAD_SIZE = 30
 OXYGEN_NONE = 655.35
+FLOAT32_MAX = struct.unpack(">f", b"\x7f\x7f\xff\xff")[0]
 
 
 class PacketError(ValueError):
@@ -189,7 +190,11 @@ class Field:
             except ValueError:
                 raise FieldRangeError(self.name, value, min(self.enum), max(self.enum), "") from None
         if self.fmt == "f":
-            if not math.isfinite(value) or abs(value) > 3.4028234e38:
+            try:
+                struct.pack(">f", value)
+            except (OverflowError, struct.error):
+                raise FieldRangeError(self.name, value, self.lo, self.hi, self.unit) from None
+            if not math.isfinite(value):
                 raise FieldRangeError(self.name, value, self.lo, self.hi, self.unit)
             return float(value)
         if not isinstance(value, (int, float)) or not math.isfinite(value):
@@ -289,7 +294,7 @@ class ControlPacket(_Packet):
         _u("depth", "h", 0.01, "m"),
         _u("speed", "B", 0.01, "m/s"),
         _u("param_id", "B"),
-        Field("param_value", "f", -3.4e38, 3.4e38),
+        Field("param_value", "f", -FLOAT32_MAX, FLOAT32_MAX),
     )
     TAIL: ClassVar = 2 + MAC_SIZE
 
