@@ -349,7 +349,7 @@ class ModemDriver:
         sid, sent, future = self._pending
         if future.done():
             return
-        if isinstance(sentence, nmea.Error) and sentence.module == "NMEA":
+        if isinstance(sentence, nmea.Error) and sentence.module in ("NMEA", sent.SID):
             future.set_exception(ModemError(f"modem refused {sent.SID}: {sentence.message}"))
         elif sentence.SID == sid and nmea.MODEM in sentence.TALKERS and _echo_matches(sent, sentence):
             future.set_result(sentence)
@@ -454,7 +454,7 @@ class ModemDriver:
                     raise
                 try:
                     echo = await asyncio.wait_for(future, self.settings.echo_timeout)
-                except asyncio.TimeoutError:
+                except TimeoutError:
                     self.counters["resends"] += attempt < self.settings.tries
                     log.info("modem %s: no echo for CC%s (try %d/%d)", self._name, sentence.SID, attempt,
                              self.settings.tries)  # fmt: skip
@@ -477,7 +477,7 @@ class ModemDriver:
         for name, value in self.settings.config.items():
             await self.command(nmea.Config(name, str(value)))
         if self.settings.set_clock:
-            now = dt.datetime.now(dt.timezone.utc)
+            now = dt.datetime.now(dt.UTC)
             await self.command(nmea.Clock(now.year, now.month, now.day, now.hour, now.minute, now.second))
         self._set_state(LinkState.READY)
 
@@ -521,7 +521,7 @@ class ModemDriver:
             await self.command(nmea.Cycle(self.settings.address, tx.dest, rate, tx.ack, len(tx.frames)))
             await asyncio.wait_for(tx.requested.wait(), self.settings.drq_timeout)
             await asyncio.wait_for(tx.finished.wait(), self.settings.transmit_timeout)
-        except (ModemError, asyncio.TimeoutError) as exc:
+        except (TimeoutError, ModemError) as exc:
             return replace(result, error=str(exc) or "timed out waiting for the modem")
         if self._port is None:
             return replace(result, error="port lost during the cycle")
@@ -547,7 +547,7 @@ class ModemDriver:
             try:
                 await self.command(nmea.Ping(self.settings.address, dest))
                 return await asyncio.wait_for(waiter, timeout)
-            except (asyncio.TimeoutError, ModemError):
+            except (TimeoutError, ModemError):
                 return None
             finally:
                 self._ping_waiters.pop(dest, None)

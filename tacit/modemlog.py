@@ -34,7 +34,7 @@ class ModemLog:
         self._lock = threading.Lock()
 
     def write(self, direction: str, line: str) -> None:
-        stamp = dt.datetime.now(dt.timezone.utc).isoformat(timespec="microseconds").replace("+00:00", "Z")
+        stamp = dt.datetime.now(dt.UTC).isoformat(timespec="microseconds").replace("+00:00", "Z")
         text = line.rstrip("\r\n")
         with self._lock:
             self._file.write(f"{stamp} {direction} {text}\n")

@@ -383,7 +383,7 @@ class RxStats(Sentence):
     pkt_type: int
     nframes: int
     nbad: int
-    snr_rss: float
+    snr_rss: int
     snr_in: float
     snr_out: float
     snr_sym: float

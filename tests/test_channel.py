@@ -1,0 +1,198 @@
+"""The simulated acoustic channel and Micro-Modem emulators, in virtual (exact) time."""
+
+from __future__ import annotations
+
+import pytest
+
+from tacit import nmea
+from tacit.sim import acoustics
+from tacit.sim.acoustics import ChannelParameters
+from tacit.sim.channel import Channel, Kind, Reception, Transmission
+from tacit.sim.clock import VirtualScheduler
+from tacit.sim.micromodem import MicroModemEmulator
+
+
+def channel_with(positions: dict[str, tuple[float, float, float]], **params: object):  # noqa: ANN201
+    sched = VirtualScheduler()
+    channel = Channel(sched, ChannelParameters(**params))  # type: ignore[arg-type]
+    heard: dict[str, list[tuple[float, Reception]]] = {name: [] for name in positions}
+    for name, pos in positions.items():
+        channel.add_node(name, lambda p=pos: p, lambda rec, n=name: heard[n].append((sched.now(), rec)))
+    return sched, channel, heard
+
+
+def data(src: int = 1, dest: int = 2, frames: int = 1) -> Transmission:
+    return Transmission(Kind.DATA, src, dest, 0, acoustics.data_airtime_s(0, frames), [b"x" * 32] * frames)
+
+
+@pytest.mark.parametrize("distance", [100.0, 1000.0, 3000.0])
+def test_delay_is_range_over_sound_speed_plus_airtime(distance: float) -> None:
+    sched, channel, heard = channel_with({"a": (0, 0, 0), "b": (distance, 0, 0)}, fading_sigma_db=0)
+    tx = data()
+    channel.transmit("a", tx)
+    sched.run()
+    ((when, rec),) = heard["b"]
+    assert when == pytest.approx(distance / 1500.0 + tx.airtime, abs=1e-3)
+    assert rec.range_m == pytest.approx(distance)
+
+
+def loss_fraction(distance: float, trials: int = 300, seed: int = 7) -> float:
+    sched, channel, heard = channel_with({"a": (0, 0, 0), "b": (distance, 0, 0)}, seed=seed)
+    for i in range(trials):
+        sched.call_later(i * 10.0, lambda: channel.transmit("a", data()))
+    sched.run()
+    return sum(not rec.frames_ok[0] for _, rec in heard["b"]) / trials
+
+
+def test_frame_error_rate_rises_with_range() -> None:
+    near, mid, far = loss_fraction(500), loss_fraction(3000), loss_fraction(4500)
+    assert near < 0.02 and near < mid < far and far > 0.5
+
+
+def test_collision_loses_both_frames() -> None:
+    sched, channel, heard = channel_with({"a": (0, 0, 0), "b": (100, 0, 0), "c": (0, 100, 0)})
+    channel.transmit("a", data(1, 3))
+    sched.call_later(0.5, lambda: channel.transmit("b", data(2, 3)))
+    sched.run()
+    at_c = [rec for _, rec in heard["c"]]
+    assert len(at_c) == 2 and all(rec.collided and not any(rec.frames_ok) for rec in at_c)
+    assert channel.stats["collisions"] == 2
+
+
+def test_half_duplex_a_transmitting_modem_is_deaf() -> None:
+    sched, channel, heard = channel_with({"a": (0, 0, 0), "b": (100, 0, 0)})
+    channel.transmit("a", data(1, 2))
+    channel.transmit("b", data(2, 1))
+    sched.run()
+    assert not any(rec.frames_ok[0] for _, rec in heard["a"] + heard["b"])
+    assert channel.stats["half_duplex"] == 2
+
+
+def test_extra_loss_drops_the_configured_fraction() -> None:
+    sched, channel, heard = channel_with({"a": (0, 0, 0), "b": (100, 0, 0)}, extra_loss=0.3, seed=3)
+    for i in range(1000):
+        sched.call_later(i * 10.0, lambda: channel.transmit("a", data()))
+    sched.run()
+    lost = sum(not rec.frames_ok[0] for _, rec in heard["b"]) / 1000
+    assert 0.25 < lost < 0.35
+
+
+def run_log(seed: int) -> list[dict[str, object]]:
+    sched, channel, _ = channel_with({"a": (0, 0, 0), "b": (3200, 0, 0)}, seed=seed)
+    for i in range(50):
+        sched.call_later(i * 10.0, lambda: channel.transmit("a", data()))
+    sched.run()
+    return channel.log
+
+
+def test_same_seed_same_outcome() -> None:
+    assert run_log(5) == run_log(5)
+    assert run_log(5) != run_log(6)
+
+
+class Pair:
+    """Two emulated modems in virtual time, with their host-side output captured."""
+
+    def __init__(self, distance: float, **params: object) -> None:
+        self.sched = VirtualScheduler()
+        self.channel = Channel(self.sched, ChannelParameters(fading_sigma_db=0, **params))  # type: ignore[arg-type]
+        self.out: dict[int, list[tuple[float, nmea.Sentence]]] = {1: [], 2: []}
+        self.modems = {
+            1: MicroModemEmulator("shore", 1, self.channel, self.sched, lambda: (0.0, 0.0, 1.0)),
+            2: MicroModemEmulator("vehicle", 2, self.channel, self.sched, lambda: (distance, 0.0, 1.0)),
+        }
+        for address, modem in self.modems.items():
+            modem.output = lambda line, a=address: self.out[a].append((self.sched.now(), nmea.parse(line)))
+
+    def host(self, address: int, sentence: nmea.Sentence) -> None:
+        self.modems[address].handle_line(sentence.line(nmea.HOST).encode())
+
+    def send_frame(self, src: int, dest: int, ack: bool, data: bytes) -> None:
+        """What a host does: start the cycle, wait for the data request, answer it."""
+        self.host(src, nmea.Cycle(src, dest, 0, ack, 1))
+        while not self.of(src, nmea.DataRequest):
+            self.sched.run(until=self.sched.now() + 1e-4)
+        self.host(src, nmea.TxData(src, dest, ack, data))
+
+    def of(self, address: int, kind: type) -> list[tuple[float, nmea.Sentence]]:
+        return [(t, s) for t, s in self.out[address] if isinstance(s, kind)]
+
+
+@pytest.mark.parametrize("distance", [100.0, 1000.0, 3000.0])
+def test_data_cycle_with_ack_end_to_end(distance: float) -> None:
+    pair = Pair(distance, noise_level_db=80.0)  # a quiet channel: timing, not loss, is under test
+    pair.send_frame(1, 2, True, bytes(range(32)))
+    ((drq_time, drq),) = pair.of(1, nmea.DataRequest)
+    assert (drq.src, drq.dest, drq.maxbytes, drq.frame) == (1, 2, 32, 1)
+    ((init_done, _),) = [(t, s) for t, s in pair.out[1] if isinstance(s, nmea.TxFinished) and s.nbytes == 0]
+    assert drq_time == init_done == pytest.approx(acoustics.airtime_s(acoustics.CYCLE_INIT_BITS, 0))
+    pair.sched.run()
+    ((_, rxd),) = pair.of(2, nmea.RxData)
+    assert rxd.data == bytes(range(32)) and (rxd.src, rxd.dest) == (1, 2)
+    assert [type(s).__name__ for _, s in pair.out[2]][:2] == ["RxStarted", "Cycle"]
+    ((when, ack),) = pair.of(1, nmea.Ack)
+    assert (ack.src, ack.dest, ack.frame) == (2, 1, 1)
+    assert when == pytest.approx(acoustics.cycle_with_ack_s(distance), abs=1e-3)
+    ((_, cst),) = pair.of(2, nmea.RxStats)
+    assert cst.mode == 0 and cst.snr_in > 0
+
+
+def test_ping_travel_time_matches_range() -> None:
+    pair = Pair(1234.0)
+    pair.host(1, nmea.Ping(1, 2))
+    pair.sched.run()
+    ((_, reply),) = pair.of(1, nmea.PingReply)
+    assert reply.travel_time == pytest.approx(1234.0 / 1500.0, rel=0.01)
+    assert pair.of(2, nmea.PingHeard)
+
+
+def test_third_party_poll_makes_the_vehicle_ask_its_host() -> None:
+    pair = Pair(500.0)
+    pair.host(1, nmea.Cycle(2, 1, 0, False, 1))
+    pair.sched.run(until=5.0)
+    ((_, drq),) = pair.of(2, nmea.DataRequest)
+    assert (drq.src, drq.dest) == (2, 1)
+    pair.host(2, nmea.TxData(2, 1, False, b"\x07" * 32))
+    pair.sched.run()
+    ((_, rxd),) = pair.of(1, nmea.RxData)
+    assert rxd.data == b"\x07" * 32
+    cycles = [s for _, s in pair.out[1] if isinstance(s, nmea.Cycle)]
+    assert cycles[-1] == nmea.Cycle(2, 1, 0, False, 1)  # printed as the polled data arrives
+
+
+def test_lost_data_is_reported_as_bad_crc_and_no_ack() -> None:
+    pair = Pair(100.0, extra_loss_by_kind={"data": 1.0})
+    pair.send_frame(1, 2, True, b"z" * 32)
+    pair.sched.run()
+    assert not pair.of(2, nmea.RxData) and not pair.of(1, nmea.Ack)
+    assert any(m.type == "BAD_CRC" for _, m in pair.of(2, nmea.Message))
+    assert pair.of(2, nmea.RxStats)[0][1].mode == 1
+
+
+def test_poll_unanswered_by_the_vehicle_host_times_out_at_the_shore() -> None:
+    pair = Pair(100.0)
+    pair.host(1, nmea.Cycle(2, 1, 0, False, 1))  # the vehicle's host never answers its DRQ
+    pair.sched.run()
+    assert any(e.message == "DATA_TIMEOUT" for _, e in pair.of(2, nmea.Error))
+    assert any(m.type == "PACKET_TIMEOUT" for _, m in pair.of(1, nmea.Message))
+    assert pair.of(1, nmea.RxStats)[-1][1].mode == 2
+
+
+def test_bad_host_input_gets_caerr_and_changes_nothing() -> None:
+    pair = Pair(100.0)
+    modem = pair.modems[1]
+    for line in (b"$CCXYZ,1*00", b"garbage", b"$CCCYC,0,1,2,9,0,1", b"$CCTXD,1,2,0,AB", b"$CACFG,SRC,5"):
+        modem.handle_line(line)
+    errors = pair.of(1, nmea.Error)
+    assert len(errors) == 5 and modem.address == 1 and modem._cycle is None
+
+
+def test_config_query_all_and_reboot() -> None:
+    pair = Pair(100.0)
+    pair.host(1, nmea.Config("CST", "0"))
+    pair.host(1, nmea.ConfigQuery("ALL"))
+    configs = {s.name: s.value for _, s in pair.of(1, nmea.Config)}
+    assert configs["SRC"] == "1" and configs["CST"] == "0"
+    pair.host(1, nmea.Sleep(1, 1, 0))
+    pair.sched.run()
+    assert [s.ident for _, s in pair.of(1, nmea.Revision)] == ["INIT", "AUV"]
