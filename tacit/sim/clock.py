@@ -63,7 +63,12 @@ class VirtualScheduler:
 
 
 class RealtimeScheduler:
-    """Simulated time = wall time x ``scale`` on the running asyncio loop."""
+    """Simulated time = wall time x ``scale`` on the running asyncio loop.
+
+    While a scheduled event runs, ``now()`` is the simulated time it was due at, not the (slightly
+    later) time the loop got to it: chains of events (a ping, its reply, the travel time computed from
+    both) stay exact in simulated time however late the wall clock runs them.
+    """
 
     def __init__(self, loop: asyncio.AbstractEventLoop, scale: float = 1.0) -> None:
         if scale <= 0:
@@ -71,9 +76,21 @@ class RealtimeScheduler:
         self.loop = loop
         self.scale = scale
         self._origin = loop.time()
+        self._current: float | None = None
 
     def now(self) -> float:
+        if self._current is not None:
+            return self._current
         return (self.loop.time() - self._origin) * self.scale
 
     def call_later(self, delay: float, callback: Callable[[], None]) -> asyncio.TimerHandle:
-        return self.loop.call_later(max(0.0, delay) / self.scale, callback)
+        due = self.now() + max(0.0, delay)
+
+        def run() -> None:
+            self._current = due
+            try:
+                callback()
+            finally:
+                self._current = None
+
+        return self.loop.call_at(self._origin + due / self.scale, run)
