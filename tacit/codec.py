@@ -207,12 +207,19 @@ class StreamEncoder:
     """The vehicle's side: ticks in, priority packets out, re-based on the last delivered packet."""
 
     def __init__(
-        self, spec: StreamSpec, max_latency: float = 10.0, urgent_threshold: float | None = None
+        self,
+        spec: StreamSpec,
+        max_latency: float = 10.0,
+        urgent_threshold: float | None = None,
+        max_silence: float = 60.0,
     ) -> None:
-        """``urgent_threshold``: a tick with any |q| at or above it (a surprise of that many 2-eps
-        steps) is time-sensitive and makes its packet leave at once."""
+        """An unpredictable sample (q != 0) leaves within ``max_latency`` seconds; a predictable one
+        (the paper's silence) only needs confirming within ``max_silence``, so a quiet stream does not
+        pay a packet per latency period. ``urgent_threshold``: a tick with any |q| at or above it (a
+        surprise of that many 2-eps steps) is time-sensitive and makes its packet leave at once."""
         self.spec = spec
         self.max_latency = max_latency
+        self.max_silence = max(max_silence, max_latency)
         self.urgent_threshold = urgent_threshold
         self.predictor = spec.predictor()
         self.initial = _Chain(None, self.predictor.state(), _Coder.new(len(spec.channels)))
@@ -221,7 +228,8 @@ class StreamEncoder:
         self.in_flight: _Chain | None = None
         self.seq = 0
         self._draft = _Draft(self.initial, self.initial.coder.copy())
-        self._last_index: int | None = None
+        self._last_index: int | None = None  # the last tick accepted (duplicates are dropped)
+        self._predicted_to: int | None = None  # the last tick the predictor has processed
 
     # --- ticks in -------------------------------------------------------------------------------
 
@@ -238,17 +246,18 @@ class StreamEncoder:
             self.predictor.state(),
             urgent,
         )
-        self._process(tick, self._last_index)
+        self._process(tick)
         if self.urgent_threshold is not None and np.any(np.abs(tick.q) >= self.urgent_threshold):
             tick.urgent = True
         self._last_index = index
         return True
 
-    def _process(self, tick: _Tick, last_index: int | None) -> None:
-        """Skip the ticks since ``last_index`` (None: none), quantise, update, add to the draft."""
+    def _process(self, tick: _Tick) -> None:
+        """Skip the ticks the predictor has not seen, quantise, update, add to the draft."""
         tick.state_after_previous = self.predictor.state()
-        for _ in range(0 if last_index is None else tick.index - last_index - 1):
+        for _ in range(0 if self._predicted_to is None else tick.index - self._predicted_to - 1):
             self.predictor.skip()
+        self._predicted_to = tick.index
         prediction = self.predictor.predict()
         tick.q = np.round((tick.values - prediction) / self.spec.step).astype(np.int64)
         self.predictor.update(prediction + tick.q * self.spec.step)
@@ -282,16 +291,20 @@ class StreamEncoder:
         self.predictor.restore(base.predictor)
         ticks, self.pending = self.pending, []
         self._draft = _Draft(base, base.coder.copy())
-        last = None if base.end is None else base.end - 1
+        self._predicted_to = None if base.end is None else base.end - 1
         for tick in ticks:
-            self._process(tick, last)
-            last = tick.index
+            self._process(tick)
 
     # --- packets out ----------------------------------------------------------------------------
 
     def deadline(self) -> float | None:
-        """When the oldest pending sample reaches the latency bound (None: nothing pending)."""
-        return self.pending[0].time + self.max_latency if self.pending else None
+        """When a packet must leave: the oldest unpredictable sample's latency bound, or the oldest
+        predictable one's silence bound, whichever comes first (None: nothing pending)."""
+        if not self.pending:
+            return None
+        silence = self.pending[0].time + self.max_silence
+        surprise = next((t.time + self.max_latency for t in self.pending if t.q.any()), silence)
+        return min(silence, surprise)
 
     def ready(self, now: float) -> bool:
         """A packet should go out now: one is full, a sample is urgent, or latency is due."""

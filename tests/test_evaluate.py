@@ -1,0 +1,64 @@
+"""`tacit eval-compression` on the real ArduSub logs: the issue's bar, and the report's shape."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+KEYS = {
+    "samples",
+    "packets",
+    "link_bits",
+    "bits_per_sample",
+    "max_error_ratio",
+    "rms_error_ratio",
+    "max_latency_s",
+}
+
+
+def evaluate(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "tacit.cli", "eval-compression", *args],
+                          capture_output=True, text=True, timeout=300)  # fmt: skip
+
+
+@pytest.mark.parametrize("log", ["small.tlog", "2023-04-18_11-03-34.tlog"])
+def test_raw_imu_fits_rate_zero_within_the_bound(shared_data: Path, log: str) -> None:
+    result = evaluate(str(shared_data / "ardusub" / log), "--eps", "0.5", "--relative", "--max-latency", "10",
+                      "--json")  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout)
+    assert KEYS <= set(report) and set(report["baselines"]) == {"send-all", "send-on-delta"}
+    assert all(KEYS <= set(b) for b in report["baselines"].values())
+    assert (
+        report["samples"] == len(report["channels"]) * (report["samples"] // 9)
+        and len(report["channels"]) == 9
+    )
+    assert report["link_bits"] == report["packets"] * 256
+    assert report["bits_per_sample"] <= 2.86  # the rate-0 budget for the paper's IMU stream
+    assert report["max_error_ratio"] <= 1.0
+    assert report["max_latency_s"] <= 10.0 + 1e-9
+    assert report["bits_per_sample"] < report["baselines"]["send-all"]["bits_per_sample"] / 5
+
+
+def test_csv_with_loss_marks_samples_and_writes_a_plot(shared_data: Path, tmp_path: Path) -> None:
+    png = tmp_path / "plot.png"
+    result = evaluate(str(shared_data / "ardusub" / "small_raw_imu.csv"), "--columns", "xacc,ymag,zmag",
+                      "--eps", "0.5", "--relative", "--loss", "0.3", "--plot", str(png), "--json")  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout)
+    assert report["unbounded_samples"] > 0 and report["max_error_ratio"] <= 1.0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_human_table_and_clear_errors(shared_data: Path, tmp_path: Path) -> None:
+    result = evaluate(str(shared_data / "ardusub" / "small_bar30.csv"), "--columns", "temperature_cdegC",
+                      "--eps", "5")  # fmt: skip
+    assert result.returncode == 0 and "send-on-delta" in result.stdout and "tacit (kalman)" in result.stdout
+    bad = evaluate(str(shared_data / "ardusub" / "small_bar30.csv"), "--columns", "nope", "--eps", "1")
+    assert bad.returncode == 2 and "no column(s) ['nope']" in bad.stderr
+    missing = evaluate(str(tmp_path / "none.csv"), "--eps", "1")
+    assert missing.returncode == 2 and "none.csv" in missing.stderr
