@@ -1,12 +1,20 @@
 """Micro-Modem packet rates: frames, frame sizes and nominal bit rates (REFERENCE §1).
 
-Shared by the simulator (airtime) and the link policy (which rate to use for a transmission).
+Shared by the simulator (airtime) and the link policy (which rate to use, how long a slot lasts).
+Airtime of a transmission = its bits / the rate's nominal bit rate + a fixed acquisition overhead.
 Rate 6's figures are not verified against a manual.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+# Transmission timing (the simulator models it; the link engine sizes its slots and timeouts with it).
+ACQUISITION_S = 0.4  # detection probe and guard per transmission
+CYCLE_INIT_BITS = 21  # src, dest, rate, ack, frames of an FSK cycle-init
+ACK_BITS = 13  # an acknowledgement is a mini-packet
+PING_BITS = 13
+TURNAROUND_S = 0.1  # a modem's processing between hearing and answering
 
 
 @dataclass(frozen=True)
@@ -39,3 +47,13 @@ def rate(number: int) -> Rate:
         return RATES[number]
     except KeyError:
         raise ValueError(f"unknown Micro-Modem rate {number} (0-6)") from None
+
+
+def airtime_s(bits: int, rate_number: int) -> float:
+    """Seconds one transmission of ``bits`` occupies the channel, acquisition included."""
+    return ACQUISITION_S + bits / rate(rate_number).bits_per_second
+
+
+def data_airtime_s(rate_number: int, nframes: int) -> float:
+    r = rate(rate_number)
+    return airtime_s(r.frame_bytes * 8 * nframes, rate_number)

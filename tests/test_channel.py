@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from tacit import nmea
+from tacit import nmea, rates
 from tacit.sim import acoustics
 from tacit.sim.acoustics import ChannelParameters
 from tacit.sim.channel import Channel, Kind, Reception, Transmission
@@ -22,7 +22,7 @@ def channel_with(positions: dict[str, tuple[float, float, float]], **params: obj
 
 
 def data(src: int = 1, dest: int = 2, frames: int = 1) -> Transmission:
-    return Transmission(Kind.DATA, src, dest, 0, acoustics.data_airtime_s(0, frames), [b"x" * 32] * frames)
+    return Transmission(Kind.DATA, src, dest, 0, rates.data_airtime_s(0, frames), [b"x" * 32] * frames)
 
 
 @pytest.mark.parametrize("distance", [100.0, 1000.0, 3000.0])
@@ -125,7 +125,7 @@ def test_data_cycle_with_ack_end_to_end(distance: float) -> None:
     ((drq_time, drq),) = pair.of(1, nmea.DataRequest)
     assert (drq.src, drq.dest, drq.maxbytes, drq.frame) == (1, 2, 32, 1)
     ((init_done, _),) = [(t, s) for t, s in pair.out[1] if isinstance(s, nmea.TxFinished) and s.nbytes == 0]
-    assert drq_time == init_done == pytest.approx(acoustics.airtime_s(acoustics.CYCLE_INIT_BITS, 0))
+    assert drq_time == init_done == pytest.approx(rates.airtime_s(rates.CYCLE_INIT_BITS, 0))
     pair.sched.run()
     ((_, rxd),) = pair.of(2, nmea.RxData)
     assert rxd.data == bytes(range(32)) and (rxd.src, rxd.dest) == (1, 2)

@@ -19,15 +19,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from tacit.rates import rate
+from tacit.rates import ACK_BITS, CYCLE_INIT_BITS, TURNAROUND_S, airtime_s, data_airtime_s
 
 SOUND_SPEED_SEA = 1500.0
 SOUND_SPEED_FRESH = 1480.0
-ACQUISITION_S = 0.4  # detection probe and guard per transmission
-CYCLE_INIT_BITS = 21  # src, dest, rate, ack, frames of an FSK cycle-init
-ACK_BITS = 13  # an acknowledgement is a mini-packet
-PING_BITS = 13
-TURNAROUND_S = 0.1  # a modem's processing between hearing and answering
 
 # SNR (dB) at which a frame of each rate is lost half the time.
 SNR_THRESHOLD_DB: dict[int, float] = {0: 2.0, 1: 8.0, 2: 5.0, 3: 7.0, 4: 9.0, 5: 14.0, 6: 5.0}
@@ -49,16 +44,6 @@ def frame_error_rate(snr_db: float, rate_number: int, width_db: float = 1.5) -> 
     if x > 40:
         return 0.0
     return 1.0 / (1.0 + math.exp(x))
-
-
-def airtime_s(bits: int, rate_number: int) -> float:
-    """Seconds one transmission of ``bits`` occupies the channel, acquisition included."""
-    return ACQUISITION_S + bits / rate(rate_number).bits_per_second
-
-
-def data_airtime_s(rate_number: int, nframes: int) -> float:
-    r = rate(rate_number)
-    return airtime_s(r.frame_bytes * 8 * nframes, rate_number)
 
 
 @dataclass

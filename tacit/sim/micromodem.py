@@ -15,9 +15,8 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from tacit import nmea
+from tacit import nmea, rates
 from tacit.rates import RATES
-from tacit.sim import acoustics
 from tacit.sim.channel import Channel, Kind, Reception, Transmission
 from tacit.sim.clock import Cancellable, Scheduler
 
@@ -64,6 +63,7 @@ class MicroModemEmulator:
         self._cycle: _Outgoing | None = None
         self._expecting: Cancellable | None = None
         self._announced = False  # a cycle-init for us was heard and printed
+        self._ack_until = 0.0  # an acknowledgement is due or on the air until then
         self._ping: _Ping | None = None
         self.counters = {"host_lines": 0, "errors": 0, "tx": 0, "rx_frames": 0, "bad_frames": 0}
         channel.add_node(name, position, self._receive)
@@ -126,7 +126,7 @@ class MicroModemEmulator:
     def _on_cycle(self, cyc: nmea.Cycle) -> None:
         if cyc.rate not in RATES or not 0 <= cyc.dest <= 127 or not 0 <= cyc.src <= 127:
             return self._error("CYC", 3, "bad rate or address")
-        if self._cycle is not None or self.channel.busy(self.name):
+        if self._cycle is not None or self.channel.busy(self.name) or self.scheduler.now() < self._ack_until:
             return self._error("CYC", 4, "BUSY")
         self._emit(cyc)
         if cyc.src != self.address:  # third-party poll: ask cyc.src to send to cyc.dest
@@ -162,13 +162,13 @@ class MicroModemEmulator:
         if self.channel.busy(self.name):
             return self._error("MPC", 4, "BUSY")
         self._emit(mpc)
-        airtime = acoustics.airtime_s(acoustics.PING_BITS, 0)
+        airtime = rates.airtime_s(rates.PING_BITS, 0)
         self._ping = _Ping(mpc.dest, self.scheduler.now(), airtime)
         self._send(Transmission(Kind.PING, self.address, mpc.dest, 0, airtime))
 
     def _on_mini(self, muc: nmea.MiniPacket) -> None:
         self._emit(muc)
-        airtime = acoustics.airtime_s(acoustics.PING_BITS, 0)
+        airtime = rates.airtime_s(rates.PING_BITS, 0)
         self._send(Transmission(Kind.MINI, self.address, muc.dest, 0, airtime, info={"data": muc.data}))
 
     def _on_sleep(self, msc: nmea.Sleep) -> None:
@@ -205,7 +205,7 @@ class MicroModemEmulator:
     def _transmit_cycle_init(self, src: int, dest: int, rate: int, ack: bool, nframes: int,
                              then: Callable[[], None] | None = None) -> None:  # fmt: skip
         info = {"src": src, "dest": dest, "rate": rate, "ack": ack, "nframes": nframes}
-        airtime = acoustics.airtime_s(acoustics.CYCLE_INIT_BITS, 0)
+        airtime = rates.airtime_s(rates.CYCLE_INIT_BITS, 0)
         if src != self.address:  # we polled: the answer comes to us
             self._expect_data()
         self._send(
@@ -216,7 +216,7 @@ class MicroModemEmulator:
 
     def _transmit_data(self, cycle: _Outgoing) -> None:
         nbytes = sum(len(f) for f in cycle.frames)
-        airtime = acoustics.data_airtime_s(cycle.rate, len(cycle.frames))
+        airtime = rates.data_airtime_s(cycle.rate, len(cycle.frames))
         tx = Transmission(
             Kind.DATA, cycle.src, cycle.dest, cycle.rate, airtime, list(cycle.frames), cycle.ack
         )
@@ -311,9 +311,10 @@ class MicroModemEmulator:
             "CST", self._cst(0 if not nbad else 1, tx.rate, tx.src, tx.dest, len(tx.frames), nbad, rec.snr_db)
         )
         if tx.ack and good and tx.dest == self.address:
-            airtime = acoustics.airtime_s(acoustics.ACK_BITS, 0)
+            airtime = rates.airtime_s(rates.ACK_BITS, 0)
             ack = Transmission(Kind.ACK, self.address, tx.src, 0, airtime, info={"frames": good})
-            self.scheduler.call_later(acoustics.TURNAROUND_S, lambda: self._send(ack))
+            self._ack_until = self.scheduler.now() + rates.TURNAROUND_S + airtime
+            self.scheduler.call_later(rates.TURNAROUND_S, lambda: self._send(ack))
 
     def _heard_ack(self, rec: Reception) -> None:
         tx = rec.transmission
@@ -326,16 +327,16 @@ class MicroModemEmulator:
         if not rec.heard or tx.dest != self.address:
             return
         self._emit(nmea.PingHeard(tx.src, tx.dest))
-        airtime = acoustics.airtime_s(acoustics.PING_BITS, 0)
+        airtime = rates.airtime_s(rates.PING_BITS, 0)
         reply = Transmission(Kind.PING_REPLY, self.address, tx.src, 0, airtime)
-        self.scheduler.call_later(acoustics.TURNAROUND_S, lambda: self._send(reply))
+        self.scheduler.call_later(rates.TURNAROUND_S, lambda: self._send(reply))
 
     def _heard_ping_reply(self, rec: Reception) -> None:
         tx, ping = rec.transmission, self._ping
         if not rec.heard or tx.dest != self.address or ping is None or ping.dest != tx.src:
             return
         self._ping = None
-        round_trip = self.scheduler.now() - ping.start - ping.airtime - acoustics.TURNAROUND_S - tx.airtime
+        round_trip = self.scheduler.now() - ping.start - ping.airtime - rates.TURNAROUND_S - tx.airtime
         self._emit(nmea.PingReply(tx.src, self.address, round(round_trip / 2, 4)))
 
     def _heard_mini(self, rec: Reception) -> None:

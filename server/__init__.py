@@ -1,0 +1,1 @@
+"""The shore control center: FastAPI app, link engine, storage, operator's screen."""

@@ -1,0 +1,1 @@
+"""REST API v1 routes: thin, each delegating to ``server.services``."""

@@ -1,0 +1,130 @@
+"""Packets, reconstructed telemetry (JSON pages and CSV export), link status, the live event stream."""
+
+from __future__ import annotations
+
+import asyncio
+import csv
+import io
+from collections.abc import AsyncIterator, Iterator
+
+from fastapi import APIRouter, Depends, HTTPException, Query, Request
+from fastapi.responses import StreamingResponse
+from sqlalchemy import func
+from sqlmodel import Session, select
+
+from server.api.deps import db
+from server.auth import _matches, require_read
+from server.models import Packet, Telemetry
+from server.schemas import PacketOut, Page, TelemetryOut
+
+router = APIRouter(prefix="/api/v1", tags=["data"])
+
+
+def _page(s: Session, query, limit: int, offset: int, model) -> Page:  # noqa: ANN001
+    total = s.exec(select(func.count()).select_from(query.subquery())).one()
+    rows = s.exec(query.offset(offset).limit(limit)).all()
+    return Page(
+        total=total,
+        limit=limit,
+        offset=offset,
+        items=[model.model_validate(r, from_attributes=True) for r in rows],
+    )
+
+
+@router.get("/packets", response_model=Page, dependencies=[Depends(require_read)])
+def packets(s: Session = Depends(db), vehicle_id: int | None = None,
+            type: str | None = Query(None, pattern="^(checkpoint|priority)$"), since: float | None = None,
+            until: float | None = None, limit: int = Query(100, ge=1, le=1000), offset: int = Query(0, ge=0)) -> Page:  # fmt: skip
+    query = select(Packet).order_by(Packet.id.desc())  # type: ignore[union-attr]
+    if vehicle_id is not None:
+        query = query.where(Packet.vehicle_id == vehicle_id)
+    if type is not None:
+        query = query.where(Packet.type == type)
+    if since is not None:
+        query = query.where(Packet.at >= since)
+    if until is not None:
+        query = query.where(Packet.at <= until)
+    return _page(s, query, limit, offset, PacketOut)
+
+
+def _telemetry_query(vehicle_id: int | None, stream: str | None, since: float | None, until: float | None):  # noqa: ANN202
+    query = select(Telemetry).order_by(Telemetry.time)
+    if vehicle_id is not None:
+        query = query.where(Telemetry.vehicle_id == vehicle_id)
+    if stream is not None:
+        query = query.where(Telemetry.stream == stream)
+    if since is not None:
+        query = query.where(Telemetry.time >= since)
+    if until is not None:
+        query = query.where(Telemetry.time <= until)
+    return query
+
+
+@router.get("/telemetry", response_model=Page, dependencies=[Depends(require_read)])
+def telemetry(s: Session = Depends(db), vehicle_id: int | None = None, stream: str | None = None,
+              since: float | None = None, until: float | None = None, limit: int = Query(500, ge=1, le=5000),
+              offset: int = Query(0, ge=0)) -> Page:  # fmt: skip
+    """Reconstructed samples, one row per tick; ``certain`` false marks a span the shore cannot vouch for."""
+    return _page(s, _telemetry_query(vehicle_id, stream, since, until), limit, offset, TelemetryOut)
+
+
+@router.get("/telemetry.csv", dependencies=[Depends(require_read)], response_class=StreamingResponse)
+def telemetry_csv(request: Request, vehicle_id: int, stream: str, since: float | None = None,
+                  until: float | None = None) -> StreamingResponse:  # fmt: skip
+    streams = {spec.name: spec for spec in request.app.state.ingest.streams.values()}
+    if stream not in streams:
+        raise HTTPException(
+            422, {"detail": f"no stream {stream!r}; one of {sorted(streams)}", "field": "stream"}
+        )
+    channels = streams[stream].channels
+    query = _telemetry_query(vehicle_id, stream, since, until)
+
+    def rows() -> Iterator[str]:
+        out = io.StringIO()
+        writer = csv.writer(out)
+        writer.writerow(["time", "tick", "certain", *channels])
+        with Session(request.app.state.db) as s:
+            for row in s.exec(query.execution_options(yield_per=1000)):
+                writer.writerow([row.time, row.tick, int(row.certain), *(row.values or [""] * len(channels))])
+                yield out.getvalue()
+                out.seek(0)
+                out.truncate()
+        yield out.getvalue()
+
+    return StreamingResponse(rows(), media_type="text/csv",
+                             headers={"Content-Disposition": f"attachment; filename={stream}-{vehicle_id}.csv"})  # fmt: skip
+
+
+@router.get("/link", dependencies=[Depends(require_read)])
+def link_status(request: Request) -> dict:
+    """The shore modem's state and, per vehicle: last heard, SNR, range, packets per hour, bytes saved."""
+    return request.app.state.link.status()
+
+
+@router.get("/events")
+async def events(request: Request, token: str | None = None) -> StreamingResponse:
+    """Server-sent events (packet, command, telemetry, link, vehicle). Browsers' EventSource cannot set
+    headers, so the token may come as ``?token=``."""
+    settings = request.app.state.settings
+    if (settings.write_tokens or settings.read_tokens) and not (
+        token and _matches(token, settings.write_tokens + settings.read_tokens)
+    ):
+        header = request.headers.get("authorization", "")
+        if not _matches(header.removeprefix("Bearer ").strip(), settings.write_tokens + settings.read_tokens):
+            raise HTTPException(401, "a valid token is required", headers={"WWW-Authenticate": "Bearer"})
+    bus = request.app.state.bus
+    queue = bus.subscribe()
+
+    async def stream() -> AsyncIterator[str]:
+        try:
+            yield ": connected\n\n"
+            while True:
+                try:
+                    event = await asyncio.wait_for(queue.get(), 15)
+                    yield bus.sse(event)
+                except TimeoutError:
+                    yield ": keep-alive\n\n"
+        finally:
+            bus.unsubscribe(queue)
+
+    return StreamingResponse(stream(), media_type="text/event-stream", headers={"Cache-Control": "no-cache"})

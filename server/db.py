@@ -1,0 +1,63 @@
+"""The database: engine with SQLite's pragmas, schema by alembic migrations applied at start-up."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from alembic import command
+from alembic.config import Config
+from sqlalchemy import Engine, event
+from sqlmodel import Session, create_engine
+
+IMMEDIATE = "tacit_begin_immediate"
+MIGRATIONS = Path(__file__).resolve().parent.parent / "migrations"
+
+
+def make_engine(url: str) -> Engine:
+    """An engine; for a SQLite file: WAL, synchronous=NORMAL, foreign keys, busy timeout. Sessions
+    opened with ``writing`` begin IMMEDIATE: a deferred transaction that reads, then writes, fails at
+    once with SQLITE_BUSY if another connection wrote in between (busy_timeout cannot help it), while
+    IMMEDIATE takes the write lock up front and waits its turn. Reads stay deferred and, in WAL mode,
+    never wait for a writer."""
+    if url.startswith("sqlite:///") and url != "sqlite:///:memory:":
+        Path(url.removeprefix("sqlite:///")).parent.mkdir(parents=True, exist_ok=True)
+    engine = create_engine(url, connect_args={"check_same_thread": False} if url.startswith("sqlite") else {})
+    if url.startswith("sqlite"):
+
+        @event.listens_for(engine, "connect")
+        def _pragmas(dbapi_connection, _record) -> None:  # noqa: ANN001
+            dbapi_connection.isolation_level = None  # SQLAlchemy's "begin" event below opens transactions
+            cursor = dbapi_connection.cursor()
+            cursor.execute("PRAGMA journal_mode=WAL")
+            cursor.execute("PRAGMA synchronous=NORMAL")
+            cursor.execute("PRAGMA foreign_keys=ON")
+            cursor.execute("PRAGMA busy_timeout=5000")
+            cursor.close()
+
+        @event.listens_for(engine, "begin")
+        def _begin(connection) -> None:  # noqa: ANN001
+            immediate = connection.get_execution_options().get(IMMEDIATE, False)
+            connection.exec_driver_sql("BEGIN IMMEDIATE" if immediate else "BEGIN")
+
+    return engine
+
+
+def alembic_config(url: str) -> Config:
+    config = Config()
+    config.set_main_option("script_location", str(MIGRATIONS))
+    config.set_main_option("sqlalchemy.url", url)
+    return config
+
+
+def migrate(url: str, revision: str = "head") -> None:
+    command.upgrade(alembic_config(url), revision)
+
+
+@contextmanager
+def writing(engine: Engine) -> Iterator[Session]:
+    """A session for a transaction that writes (IMMEDIATE on SQLite; ordinary elsewhere)."""
+    with Session(engine, expire_on_commit=False) as s:
+        s.connection(execution_options={IMMEDIATE: True})
+        yield s

@@ -1,0 +1,1 @@
+"""The shore half of the protocol: ingest of what the vehicles send, and the link engine."""

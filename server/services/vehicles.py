@@ -1,0 +1,70 @@
+"""Vehicles: registration, keys (rotation), limits."""
+
+from __future__ import annotations
+
+from sqlmodel import Session, select
+
+from server.models import Vehicle
+from server.schemas import Limits, VehicleIn
+from tacit import auth
+
+
+class Conflict(ValueError):
+    def __init__(self, field: str, message: str) -> None:
+        super().__init__(message)
+        self.field = field
+
+
+class NotFound(LookupError):
+    pass
+
+
+def create(s: Session, body: VehicleIn) -> Vehicle:
+    if s.exec(select(Vehicle).where(Vehicle.name == body.name)).first():
+        raise Conflict("name", f"a vehicle named {body.name!r} exists")
+    if s.exec(select(Vehicle).where(Vehicle.address == body.address)).first():
+        raise Conflict("address", f"modem address {body.address} is taken")
+    try:
+        key = auth.parse_key(body.key) if body.key else auth.new_key()
+    except ValueError as exc:
+        raise Conflict("key", str(exc)) from None
+    vehicle = Vehicle(name=body.name, address=body.address, key_hex=key.hex(),
+                      **body.model_dump(include=set(Limits.model_fields)))  # fmt: skip
+    s.add(vehicle)
+    s.commit()
+    s.refresh(vehicle)
+    return vehicle
+
+
+def get(s: Session, vehicle_id: int) -> Vehicle:
+    vehicle = s.get(Vehicle, vehicle_id)
+    if vehicle is None:
+        raise NotFound(f"no vehicle {vehicle_id}")
+    return vehicle
+
+
+def set_limits(s: Session, vehicle_id: int, limits: Limits) -> Vehicle:
+    vehicle = get(s, vehicle_id)
+    for name, value in limits.model_dump().items():
+        setattr(vehicle, name, value)
+    s.add(vehicle)
+    s.commit()
+    s.refresh(vehicle)
+    return vehicle
+
+
+def rotate_key(s: Session, vehicle_id: int, key_hex: str | None = None) -> Vehicle:
+    """A new key for the vehicle. Commands already queued are re-signed with it when sent; the agent
+    needs the same key in its configuration (done at the surface: an acoustic link must never carry
+    a key)."""
+    vehicle = get(s, vehicle_id)
+    try:
+        key = auth.parse_key(key_hex) if key_hex else auth.new_key()
+    except ValueError as exc:
+        raise Conflict("key", str(exc)) from None
+    vehicle.key_hex = key.hex()
+    vehicle.key_version += 1
+    s.add(vehicle)
+    s.commit()
+    s.refresh(vehicle)
+    return vehicle

@@ -1,0 +1,35 @@
+"""Local-frame geometry shared by the shore (limits, click-to-target) and the vehicle (dead reckoning).
+
+Frame: north, east in metres from home, depth positive down; headings and bearings in degrees
+clockwise from north. A control packet's angle is a heading change, or a bearing when absolute.
+"""
+
+from __future__ import annotations
+
+import math
+
+
+def wrap180(angle: float) -> float:
+    """An angle in (-180, 180]."""
+    wrapped = (angle + 180.0) % 360.0 - 180.0
+    return 180.0 if wrapped == -180.0 else wrapped
+
+
+def course(heading: float, angle: float, absolute: bool) -> float:
+    """The course (deg) a move follows: the bearing itself, or the heading turned by ``angle``."""
+    return (angle if absolute else heading + angle) % 360.0
+
+
+def move_target(north: float, east: float, heading: float, distance: float, angle: float,
+                absolute: bool = False) -> tuple[float, float]:  # fmt: skip
+    c = math.radians(course(heading, angle, absolute))
+    return north + distance * math.cos(c), east + distance * math.sin(c)
+
+
+def distance_and_angle(north: float, east: float, heading: float, to_north: float, to_east: float,
+                       absolute: bool = False) -> tuple[float, float]:  # fmt: skip
+    """The (distance, angle) of a move from here to a point: what clicking the map fills in."""
+    dn, de = to_north - north, to_east - east
+    distance = math.hypot(dn, de)
+    bearing = math.degrees(math.atan2(de, dn)) % 360.0
+    return distance, (wrap180(bearing) if absolute else wrap180(bearing - heading))

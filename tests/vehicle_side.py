@@ -1,0 +1,40 @@
+"""A minimal vehicle host for server tests: the real driver and VehicleLink on a simulated modem's pty,
+in a thread with its own event loop (the agent without MAVLink)."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+from concurrent.futures import Future
+
+from tacit import auth, modem
+from tacit.packets import ControlPacket
+from vehicle_agent.link import VehicleLink
+
+
+class VehicleSide:
+    def __init__(self, pty: str, address: int, key: bytes) -> None:
+        self.loop = asyncio.new_event_loop()
+        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
+        self.thread.start()
+        self.controls: list[ControlPacket] = []
+        self.results: list[bool] = []
+        settings = modem.DriverSettings(
+            url=pty, address=address, echo_timeout=2, reconnect_min=0.2, keepalive=60
+        )
+        self.driver = modem.ModemDriver(settings)
+        self.link = VehicleLink(self.driver, auth.ControlReceiver(key, address))
+        self.link.on_control = self.controls.append
+        self.call(self.driver.start())
+
+    def call(self, coro):  # noqa: ANN001, ANN201
+        future: Future = asyncio.run_coroutine_threadsafe(coro, self.loop)
+        return future.result(timeout=30)
+
+    def send(self, packet: bytes, urgent: bool = False) -> None:
+        self.loop.call_soon_threadsafe(lambda: self.link.send(packet, urgent, self.results.append))
+
+    def close(self) -> None:
+        self.call(self.driver.stop())
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(timeout=5)

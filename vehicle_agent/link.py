@@ -1,0 +1,116 @@
+"""The vehicle's half of the link: answer the shore's polls, take its control packets.
+
+Outgoing packets wait in a queue (time-sensitive first, then in order). When the shore polls, the
+modem asks for data (``$CADRQ``) and gets as many queued packets as the frame holds. A packet is
+delivered when the shore modem's ACK for its frame comes back (``$CAACK``); one still unacknowledged
+at the next poll goes out again, byte for byte, and the shore drops the copy (exactly once). After
+``attempts`` tries it is reported lost, so the compressor can re-base its chain.
+
+Incoming control frames pass the MAC and replay window of ``tacit.auth`` before anyone sees them;
+forged, bit-flipped, replayed and stale packets are logged and dropped.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from tacit import auth, modem, nmea
+from tacit.link import from_frame
+from tacit.packets import PACKET_SIZE, ControlPacket, PacketError, PacketType, packet_type
+
+log = logging.getLogger("tacit.agent.link")
+
+
+@dataclass(order=True)
+class Outgoing:
+    urgency: int  # 0 = time-sensitive, 1 = normal: lower goes first
+    order: int
+    data: bytes = field(compare=False)
+    on_result: Callable[[bool], None] | None = field(default=None, compare=False)
+    tries: int = field(default=0, compare=False)
+
+
+class VehicleLink:
+    def __init__(self, driver: modem.ModemDriver, receiver: auth.ControlReceiver, shore_address: int = 1,
+                 attempts: int = 4, clock: Callable[[], float] = time.time) -> None:  # fmt: skip
+        self.driver = driver
+        self.receiver = receiver
+        self.shore_address = shore_address
+        self.attempts = attempts
+        self.clock = clock
+        self.queue: list[Outgoing] = []
+        self.in_flight: dict[int, list[Outgoing]] = {}  # by frame number of the last poll answer
+        self.on_control: Callable[[ControlPacket], None] = lambda packet: None
+        self._order = itertools.count()
+        self.counters = {"sent": 0, "delivered": 0, "lost": 0, "resent": 0, "controls": 0, "rejected": 0}
+        driver.poll_provider = self._answer_poll
+        driver.add_listener(self._on_event)
+
+    def send(
+        self, packet: bytes, urgent: bool = False, on_result: Callable[[bool], None] | None = None
+    ) -> None:
+        """Queue a 32-byte packet for the next poll; ``on_result(delivered)`` is called once."""
+        if len(packet) != PACKET_SIZE:
+            raise ValueError(f"a packet is {PACKET_SIZE} bytes")
+        self.queue.append(Outgoing(0 if urgent else 1, next(self._order), bytes(packet), on_result))
+        self.queue.sort()
+
+    @property
+    def backlog(self) -> int:
+        return len(self.queue) + sum(len(v) for v in self.in_flight.values())
+
+    def _answer_poll(self, drq: nmea.DataRequest) -> bytes | None:
+        if drq.dest != self.shore_address:
+            return None
+        if drq.frame == 1:
+            self._requeue_unacknowledged()
+        room = max(1, drq.maxbytes // PACKET_SIZE)
+        chosen, self.queue = self.queue[:room], self.queue[room:]
+        if not chosen:
+            return None
+        for item in chosen:
+            item.tries += 1
+        self.in_flight[drq.frame] = chosen
+        self.counters["sent"] += len(chosen)
+        return b"".join(item.data for item in chosen)
+
+    def _requeue_unacknowledged(self) -> None:
+        for items in self.in_flight.values():
+            for item in items:
+                if item.tries >= self.attempts:
+                    self.counters["lost"] += 1
+                    log.warning("packet lost after %d tries", item.tries)
+                    if item.on_result:
+                        item.on_result(False)
+                else:
+                    self.counters["resent"] += 1
+                    self.queue.append(item)
+        self.in_flight.clear()
+        self.queue.sort()
+
+    def _on_event(self, event: modem.Event) -> None:
+        if isinstance(event, modem.AckReceived) and event.src == self.shore_address:
+            for item in self.in_flight.pop(event.frame, []):
+                self.counters["delivered"] += 1
+                if item.on_result:
+                    item.on_result(True)
+        elif isinstance(event, modem.ReceivedFrame) and event.src == self.shore_address:
+            for chunk in from_frame(event.data):
+                self._control(chunk)
+
+    def _control(self, frame: bytes) -> None:
+        try:
+            if packet_type(frame) is not PacketType.CONTROL:
+                raise PacketError("not a control packet")
+            packet = self.receiver.accept(frame, self.clock())
+        except PacketError as exc:
+            self.counters["rejected"] += 1
+            log.warning("control frame rejected: %s (%s)", exc, type(exc).__name__)
+            return
+        self.counters["controls"] += 1
+        log.info("control seq %d accepted: %s", packet.seq, packet.command.name)
+        self.on_control(packet)
