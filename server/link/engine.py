@@ -50,7 +50,8 @@ class LinkEngine:
         self._wake = asyncio.Event()
         self._heard: dict[int, asyncio.Event] = {}
         self._task: asyncio.Task[None] | None = None
-        self._ingest_lock = asyncio.Lock()
+        self._frames: asyncio.Queue[IncomingFrame] = asyncio.Queue()
+        self._worker: asyncio.Task[None] | None = None
         self._last_ping: dict[int, float] = {}
         self.started_at = time.time()
         self.counters = {"commands_sent": 0, "commands_acked": 0, "polls": 0, "pings": 0, "frames_in": 0}
@@ -59,6 +60,7 @@ class LinkEngine:
 
     async def start(self) -> None:
         self.ingest.load_vehicles()
+        self._worker = asyncio.create_task(self._ingest())
         if not self.settings.modem_url:
             log.warning("no shore modem configured (TACIT_MODEM_URL): API and storage only")
             return
@@ -72,10 +74,11 @@ class LinkEngine:
         self._task = asyncio.create_task(self._run())
 
     async def stop(self) -> None:
-        if self._task:
-            self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._task
+        for task in (self._task, self._worker):
+            if task:
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await task
         if self.driver:
             await self.driver.stop()
 
@@ -96,7 +99,7 @@ class LinkEngine:
             frame = IncomingFrame(event.src, event.dest, event.data, stats.rate if stats else 0,
                                   stats.snr_in if stats else None, stats.snr_out if stats else None,
                                   vars(stats) if stats else None, event.time)  # fmt: skip
-            asyncio.ensure_future(self._ingest_frame(frame))
+            self._frames.put_nowait(frame)
         elif isinstance(event, mm.StateChanged):
             self.bus.publish("link", event="modem", state=event.state.value, detail=event.detail)
             self._store(
@@ -106,16 +109,21 @@ class LinkEngine:
             for heard in self._heard.values():
                 heard.set()
 
-    async def _ingest_frame(self, frame: IncomingFrame) -> None:
-        async with self._ingest_lock:
+    async def _ingest(self) -> None:
+        """One worker stores frames in arrival order; what queued up meanwhile goes in one commit."""
+        while True:
+            batch = [await self._frames.get()]
+            while not self._frames.empty() and len(batch) < 500:
+                batch.append(self._frames.get_nowait())
             try:
-                await asyncio.to_thread(self.ingest.handle, frame)
+                await asyncio.to_thread(self.ingest.handle_batch, batch)
             except Exception:  # stored nothing: say so loudly, keep the engine running
-                log.exception("frame from address %d could not be stored", frame.src)
-                return
-        heard = self._heard.get(frame.src)
-        if heard is not None:
-            heard.set()
+                log.exception("%d frame(s) could not be stored", len(batch))
+                continue
+            for frame in batch:
+                heard = self._heard.get(frame.src)
+                if heard is not None:
+                    heard.set()
 
     def _store(self, *rows: object) -> None:
         with writing(self.db) as s:

@@ -1,8 +1,9 @@
 """What happens to a frame from a vehicle: stored first, then de-duplicated, decoded, applied, published.
 
 A frame is committed before anything about it is acknowledged to anyone or shown (events, API,
-command status). Decoding problems are stored and published as such; nothing here raises on bad
-input from the water.
+command status). Frames that arrive together are stored in one transaction (group commit) and their
+events published after it. Decoding problems are stored and published as such; nothing here raises on
+bad input from the water.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ log = logging.getLogger("tacit.server.ingest")
 STATUS_FOR = {CommandStatus.EXECUTING: "executing", CommandStatus.EXECUTED: "executed",
               CommandStatus.REFUSED: "refused", CommandStatus.SUPERSEDED: "superseded"}  # fmt: skip
 ORDER = ["queued", "sent", "acknowledged", "executing", "executed", "refused", "superseded", "failed"]
+Events = list[tuple[str, dict]]
 
 
 @dataclass
@@ -61,6 +63,20 @@ class IncomingFrame:
     at: float = field(default_factory=now)
 
 
+@dataclass
+class _Batch:
+    """Rows gathered while handling frames, inserted together just before the commit."""
+
+    packets: list[dict] = field(default_factory=list)
+    telemetry: list[dict] = field(default_factory=list)
+    events: list[dict] = field(default_factory=list)
+
+    def flush(self, s: Session) -> None:
+        for table, rows in ((Packet, self.packets), (Telemetry, self.telemetry), (LinkEvent, self.events)):
+            if rows:
+                s.execute(insert(table), rows)
+
+
 class Ingest:
     def __init__(self, db: Engine, bus: EventBus, streams: dict[Stream, StreamSpec]) -> None:
         self.db = db
@@ -76,50 +92,54 @@ class Ingest:
         with self._lock:
             for v in rows:
                 if v.address not in self.vehicles or self.vehicles[v.address].id != v.id:
-                    self.vehicles[v.address] = VehicleState(
-                        v.id, v.name, v.address, {k: StreamDecoder(spec) for k, spec in self.streams.items()}
-                    )  # type: ignore[arg-type]
+                    decoders = {k: StreamDecoder(spec) for k, spec in self.streams.items()}
+                    self.vehicles[v.address] = VehicleState(v.id, v.name, v.address, decoders)  # type: ignore[arg-type]
             for address in set(self.vehicles) - {v.address for v in rows}:
                 del self.vehicles[address]
 
     def handle(self, frame: IncomingFrame) -> list[dict]:
         """Store, decode and apply one received frame; returns the events published."""
-        with self._lock:
-            return self._handle(frame)
+        return self.handle_batch([frame])
 
-    def _handle(self, frame: IncomingFrame) -> list[dict]:
-        vehicle = self.vehicles.get(frame.src)
-        self.stats["frames"] += 1
-        with writing(self.db) as s:
-            row = Frame(direction="in", src=frame.src, dest=frame.dest, rate=frame.rate, data=frame.data,
-                        snr_in=frame.snr_in, snr_out=frame.snr_out, stats=frame.stats, at=frame.at)  # fmt: skip
-            s.add(row)
-            if vehicle is None:
-                self.stats["unknown_vehicle"] += 1
-                s.add(LinkEvent(kind="unknown_vehicle", detail={"address": frame.src}, at=frame.at))
+    def handle_batch(self, frames: list[IncomingFrame]) -> list[dict]:
+        """Frames that arrived together, in one transaction: nothing is published before the commit."""
+        with self._lock:
+            pending: Events = []
+            with writing(self.db) as s:
+                batch = _Batch()
+                for frame in frames:
+                    pending.extend(self._frame(s, batch, frame))
+                batch.flush(s)
                 s.commit()
-                log.warning("frame from unknown modem address %d stored, not decoded", frame.src)
-                self.bus.publish("link", event="unknown_vehicle", address=frame.src)
-                return []
-            s.flush()
-            vehicle.frames += 1
-            vehicle.last_heard = frame.at
-            vehicle.snr_in, vehicle.snr_out = frame.snr_in, frame.snr_out
-            pending: list[tuple[str, dict]] = []
-            for chunk in from_frame(frame.data):
-                pending.extend(self._packet(s, vehicle, row, chunk, frame.at))
-            s.commit()  # the frame and all it carried are on disk before anything is published
-        out = []
         for kind, data in pending:
             self.bus.publish(kind, **data)
-            out.append({"kind": kind, **data})
-        self.bus.publish("link", event="heard", vehicle=vehicle.name, address=vehicle.address,
-                         snr_in=frame.snr_in, snr_out=frame.snr_out)  # fmt: skip
+        return [{"kind": kind, **data} for kind, data in pending]
+
+    def _frame(self, s: Session, batch: _Batch, frame: IncomingFrame) -> Events:
+        vehicle = self.vehicles.get(frame.src)
+        self.stats["frames"] += 1
+        row = {"direction": "in", "src": frame.src, "dest": frame.dest, "rate": frame.rate, "data": frame.data,
+               "snr_in": frame.snr_in, "snr_out": frame.snr_out, "stats": frame.stats, "at": frame.at}  # fmt: skip
+        frame_id = s.execute(insert(Frame).returning(Frame.id), [row]).scalar_one()
+        if vehicle is None:
+            self.stats["unknown_vehicle"] += 1
+            batch.events.append({"vehicle_id": None, "kind": "unknown_vehicle", "at": frame.at,
+                                 "detail": {"address": frame.src}})  # fmt: skip
+            log.warning("frame from unknown modem address %d stored, not decoded", frame.src)
+            return [("link", {"event": "unknown_vehicle", "address": frame.src})]
+        vehicle.frames += 1
+        vehicle.last_heard = frame.at
+        vehicle.snr_in, vehicle.snr_out = frame.snr_in, frame.snr_out
+        out: Events = []
+        for chunk in from_frame(frame.data):
+            out.extend(self._packet(s, batch, vehicle, frame_id, chunk, frame.at))
+        out.append(("link", {"event": "heard", "vehicle": vehicle.name, "address": vehicle.address,
+                             "snr_in": frame.snr_in, "snr_out": frame.snr_out}))  # fmt: skip
         return out
 
     def _packet(
-        self, s: Session, v: VehicleState, frame: Frame, chunk: bytes, at: float
-    ) -> list[tuple[str, dict]]:
+        self, s: Session, batch: _Batch, v: VehicleState, frame_id: int, chunk: bytes, at: float
+    ) -> Events:
         if not v.seen.first_time(chunk):
             v.duplicates += 1
             self.stats["duplicates"] += 1
@@ -127,24 +147,13 @@ class Ingest:
             return []
         try:
             packet = packets.decode(chunk)
+            if isinstance(packet, packets.ControlPacket):
+                raise PacketError("a control packet from a vehicle")
         except PacketError as exc:
             self.stats["rejected"] += 1
-            s.add(
-                LinkEvent(
-                    vehicle_id=v.id, kind="bad_packet", detail={"error": str(exc), "hex": chunk.hex()}, at=at
-                )
-            )
+            batch.events.append({"vehicle_id": v.id, "kind": "bad_packet", "at": at,
+                                 "detail": {"error": str(exc), "hex": chunk.hex()}})  # fmt: skip
             log.warning("vehicle %s: undecodable packet: %s", v.name, exc)
-            return []
-        if isinstance(packet, packets.ControlPacket):
-            s.add(
-                LinkEvent(
-                    vehicle_id=v.id,
-                    kind="bad_packet",
-                    detail={"error": "control packet from a vehicle"},
-                    at=at,
-                )
-            )
             return []
         self.stats["packets"] += 1
         v.packets += 1
@@ -152,37 +161,35 @@ class Ingest:
         if isinstance(packet, CheckpointPacket):
             events = self._checkpoint(s, v, packet, body)
         else:
-            events = self._priority(s, v, packet, body, at)
-        row = Packet(frame_id=frame.id, vehicle_id=v.id, type=body["type"], seq=packet.seq,  # type: ignore[arg-type]
-                     priority=int(getattr(packet, "priority", 0)), body=body, at=at)  # fmt: skip
-        s.add(row)
+            events = self._priority(batch, v, packet, body, at)
+        priority = int(getattr(packet, "priority", 0))
+        batch.packets.append({"frame_id": frame_id, "vehicle_id": v.id, "type": body["type"], "seq": packet.seq,
+                              "priority": priority, "body": body, "at": at})  # fmt: skip
         log.info("vehicle %s: %s packet seq %d stored", v.name, body["type"], packet.seq)
         summary = {"vehicle": v.name, "address": v.address, "type": body["type"], "seq": packet.seq,
-                   "priority": row.priority, "size": len(chunk), "snr": v.snr_in, "body": body}  # fmt: skip
+                   "priority": priority, "size": len(chunk), "snr": v.snr_in, "body": body}  # fmt: skip
         return [("packet", summary), *events]
 
-    def _checkpoint(
-        self, s: Session, v: VehicleState, cp: CheckpointPacket, body: dict
-    ) -> list[tuple[str, dict]]:
+    def _checkpoint(self, s: Session, v: VehicleState, cp: CheckpointPacket, body: dict) -> Events:
         v.checkpoint = body
-        events: list[tuple[str, dict]] = [("vehicle", {"vehicle": v.name, "checkpoint": body})]
+        events: Events = [("vehicle", {"vehicle": v.name, "checkpoint": body})]
         status = STATUS_FOR.get(cp.command_status)
-        if status and cp.last_command:
-            command = s.exec(
-                select(Command).where(Command.vehicle_id == v.id, Command.seq == cp.last_command)
-            ).first()
-            if command and ORDER.index(status) > ORDER.index(command.status):
-                reason = cp.reason.name.lower() if cp.command_status is CommandStatus.REFUSED else ""
-                s.exec(update(Command).where(Command.id == command.id).values(status=status, reason=reason,
-                                                                             updated_at=now()))  # fmt: skip
-                s.add(CommandEvent(command_id=command.id, status=status, detail=reason))  # type: ignore[arg-type]
-                events.append(("command", {"id": command.id, "vehicle": v.name, "seq": command.seq,
-                                           "status": status, "reason": reason}))  # fmt: skip
+        if not status or not cp.last_command:
+            return events
+        query = select(Command).where(Command.vehicle_id == v.id, Command.seq == cp.last_command)
+        command = s.exec(query).first()
+        if command and ORDER.index(status) > ORDER.index(command.status):
+            reason = cp.reason.name.lower() if cp.command_status is CommandStatus.REFUSED else ""
+            s.execute(update(Command).where(Command.id == command.id)
+                      .values(status=status, reason=reason, updated_at=now()))  # fmt: skip
+            s.execute(
+                insert(CommandEvent).values(command_id=command.id, status=status, detail=reason, at=now())
+            )
+            events.append(("command", {"id": command.id, "vehicle": v.name, "seq": command.seq,
+                                       "status": status, "reason": reason}))  # fmt: skip
         return events
 
-    def _priority(
-        self, s: Session, v: VehicleState, pp: PriorityPacket, body: dict, at: float
-    ) -> list[tuple[str, dict]]:
+    def _priority(self, batch: _Batch, v: VehicleState, pp: PriorityPacket, body: dict, at: float) -> Events:
         spec = self.streams.get(pp.stream)
         if spec is None:
             body["error"] = f"no stream {pp.stream.name}"
@@ -191,26 +198,18 @@ class Ingest:
             span = v.decoders[pp.stream].decode(pp.payload, at)
         except CodecError as exc:
             body["error"] = str(exc)
-            s.add(
-                LinkEvent(
-                    vehicle_id=v.id,
-                    kind="undecodable",
-                    detail={"stream": spec.name, "error": str(exc)},
-                    at=at,
-                )
-            )
+            batch.events.append({"vehicle_id": v.id, "kind": "undecodable", "at": at,
+                                 "detail": {"stream": spec.name, "error": str(exc)}})  # fmt: skip
             return [
                 ("link", {"event": "undecodable", "vehicle": v.name, "stream": spec.name, "error": str(exc)})
             ]
-        rows = []
-        if span.lost:
-            first, end = span.lost
-            rows += [{"vehicle_id": v.id, "stream": spec.name, "tick": k, "time": k * spec.period, "values": [],
-                      "certain": False} for k in range(first, end)]  # fmt: skip
-        rows += [{"vehicle_id": v.id, "stream": spec.name, "tick": span.first_tick + i,
-                  "time": (span.first_tick + i) * spec.period, "values": [round(float(x), 6) for x in values],
-                  "certain": True} for i, values in enumerate(span.values)]  # fmt: skip
-        s.execute(insert(Telemetry), rows)
+        if span.lost:  # the shore cannot vouch for these ticks: stored as uncertain, without values
+            batch.telemetry.extend({"vehicle_id": v.id, "stream": spec.name, "tick": k, "time": k * spec.period,
+                                    "values": [], "certain": False} for k in range(*span.lost))  # fmt: skip
+        batch.telemetry.extend({"vehicle_id": v.id, "stream": spec.name, "tick": span.first_tick + i,
+                                "time": (span.first_tick + i) * spec.period, "certain": True,
+                                "values": [round(float(x), 6) for x in values]}
+                               for i, values in enumerate(span.values))  # fmt: skip
         v.bytes_saved += max(0, span.values.size * 2 - packets.PACKET_SIZE)
         body.update(stream_name=spec.name, first_tick=span.first_tick, ticks=len(span.values),
                     lost=list(span.lost) if span.lost else None)  # fmt: skip

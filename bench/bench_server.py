@@ -1,0 +1,137 @@
+"""The shore's ingest throughput and API latency under that load.
+
+Frames (check-points and IMU priority packets, as a vehicle sends them) go through the link engine's
+ingest (store, de-duplicate, decode, reconstruct, publish), not through a modem, as fast as one worker
+can; meanwhile HTTP clients read the API of the real server (uvicorn, SQLite file) and we record the
+latency of every request.
+
+Run: .venv/bin/python bench/bench_server.py [--frames 5000] [--clients 4] [--database-url URL]
+"""
+
+from __future__ import annotations
+
+import argparse
+import multiprocessing
+import statistics
+import tempfile
+import threading
+import time
+
+import httpx
+import numpy as np
+import uvicorn
+from tqdm import tqdm
+
+from server.app import create_app
+from server.link.ingest import IncomingFrame
+from server.settings import Settings
+from tacit.codec import StreamEncoder
+from tacit.packets import CheckpointPacket, MissionState
+from tacit.streams import default_streams
+
+TOKEN = "bench-token"
+
+
+def frames(count: int, priority_share: float) -> list[bytes]:
+    """Check-points and real codec output (a noisy IMU stream), in the order a vehicle sends them."""
+    spec = default_streams()[next(iter(default_streams()))]
+    encoder = StreamEncoder(spec, max_latency=1.0)
+    rng = np.random.default_rng(1)
+    out: list[bytes] = []
+    t0 = time.time() - 3600
+    tick = 0
+    bar = tqdm(total=count, desc="encoding frames", unit="frame")
+    while len(out) < count:
+        if rng.random() < priority_share:
+            while not encoder.ready(t0 + tick * spec.period):
+                encoder.push(t0 + tick * spec.period, rng.normal(0, 10, len(spec.channels)))
+                tick += 1
+            encoded = encoder.take()
+            encoder.resolve(True)
+            out.append(encoded.packet.encode())
+        else:
+            cp = CheckpointPacket(seq=len(out) % 256, time=int(t0) + len(out), state=MissionState.PREPROGRAMMED,
+                                  depth=float(len(out) % 100), temperature=20.0)  # fmt: skip
+            out.append(cp.encode())
+        bar.update()
+    bar.close()
+    return out
+
+
+def serve(app, port: int) -> uvicorn.Server:  # noqa: ANN001
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+    threading.Thread(target=server.run, daemon=True).start()
+    while not server.started:
+        time.sleep(0.05)
+    return server
+
+
+def client_process(port: int, stop, results) -> None:  # noqa: ANN001
+    """An API reader in its own process (as a browser would be), reporting its latencies at the end."""
+    latencies: list[float] = []
+    client_loop(port, stop, latencies)
+    results.put(latencies)
+
+
+def client_loop(port: int, stop, latencies: list[float]) -> None:  # noqa: ANN001
+    headers = {"Authorization": f"Bearer {TOKEN}"}
+    paths = ["/api/v1/packets?limit=20", "/api/v1/link", "/api/v1/vehicles", "/api/v1/telemetry?limit=50"]
+    with httpx.Client(base_url=f"http://127.0.0.1:{port}", headers=headers, timeout=10) as http:
+        i = 0
+        while not stop.is_set():
+            start = time.perf_counter()
+            http.get(paths[i % len(paths)]).raise_for_status()
+            latencies.append(time.perf_counter() - start)
+            i += 1
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--frames", type=int, default=5000)
+    parser.add_argument("--priority-share", type=float, default=0.5, help="fraction of priority packets")
+    parser.add_argument("--clients", type=int, default=4, help="concurrent API readers (separate processes)")
+    parser.add_argument("--batch", type=int, default=1, help="frames per group commit (1 = one at a time)")
+    parser.add_argument("--database-url", help="default: a SQLite file in a temporary folder")
+    parser.add_argument("--port", type=int, default=8765)
+    options = parser.parse_args()
+    url = options.database_url or f"sqlite:///{tempfile.mkdtemp()}/bench.db"
+    app = create_app(Settings(database_url=url, map_enabled=False, write_tokens=[TOKEN]))
+    server = serve(app, options.port)
+    http = httpx.Client(
+        base_url=f"http://127.0.0.1:{options.port}", headers={"Authorization": f"Bearer {TOKEN}"}
+    )
+    http.post("/api/v1/vehicles", json={"name": "bench", "address": 2}).raise_for_status()
+    incoming = [
+        IncomingFrame(2, 1, f, 0, 30.0, 33.0, None) for f in frames(options.frames, options.priority_share)
+    ]
+
+    stop, results = multiprocessing.Event(), multiprocessing.Queue()
+    clients = [multiprocessing.Process(target=client_process, args=(options.port, stop, results))
+               for _ in range(options.clients)]  # fmt: skip
+    for c in clients:
+        c.start()
+    time.sleep(1.0)
+    ingest = app.state.ingest
+    start = time.perf_counter()
+    for i in tqdm(range(0, len(incoming), options.batch), desc="ingesting", unit="batch"):
+        ingest.handle_batch(incoming[i : i + options.batch])
+    elapsed = time.perf_counter() - start
+    stop.set()
+    under_load = sorted(x for _ in clients for x in results.get(timeout=30))
+    for c in clients:
+        c.join()
+    server.should_exit = True
+    print(f"\ndatabase: {url.split(':')[0]}   frames: {len(incoming)} ({options.priority_share:.0%} priority), "
+          f"{options.batch} per commit")  # fmt: skip
+    print(f"ingest: {len(incoming) / elapsed:,.0f} packets/s decoded, stored and published "
+          f"({ingest.stats['packets']} stored, {ingest.stats['duplicates']} duplicates)")  # fmt: skip
+    if len(under_load) >= 2:
+        q = statistics.quantiles(under_load, n=100)
+        print(f"API under that load ({options.clients} clients, {len(under_load)} requests): "
+              f"p50 {q[49] * 1000:.1f} ms  p95 {q[94] * 1000:.1f} ms  p99 {q[98] * 1000:.1f} ms")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
