@@ -7,6 +7,9 @@ clockwise from north. A control packet's angle is a heading change, or a bearing
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+
+EARTH_RADIUS = 6_378_137.0
 
 
 def wrap180(angle: float) -> float:
@@ -33,3 +36,21 @@ def distance_and_angle(north: float, east: float, heading: float, to_north: floa
     distance = math.hypot(dn, de)
     bearing = math.degrees(math.atan2(de, dn)) % 360.0
     return distance, (wrap180(bearing) if absolute else wrap180(bearing - heading))
+
+
+@dataclass
+class Origin:
+    """Home, where north = east = 0 (flat-earth conversion: fine over a few kilometres)."""
+
+    lat: float = 40.4862
+    lon: float = -74.4518
+
+    def to_global(self, north: float, east: float) -> tuple[float, float]:
+        lat = self.lat + math.degrees(north / EARTH_RADIUS)
+        lon = self.lon + math.degrees(east / (EARTH_RADIUS * math.cos(math.radians(self.lat))))
+        return lat, lon
+
+    def to_local(self, lat: float, lon: float) -> tuple[float, float]:
+        north = math.radians(lat - self.lat) * EARTH_RADIUS
+        east = math.radians(lon - self.lon) * EARTH_RADIUS * math.cos(math.radians(self.lat))
+        return north, east

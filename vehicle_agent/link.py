@@ -46,7 +46,15 @@ class VehicleLink:
         self.in_flight: dict[int, list[Outgoing]] = {}  # by frame number of the last poll answer
         self.on_control: Callable[[ControlPacket], None] = lambda packet: None
         self._order = itertools.count()
-        self.counters = {"sent": 0, "delivered": 0, "lost": 0, "resent": 0, "controls": 0, "rejected": 0}
+        self.counters = {
+            "polls": 0,
+            "sent": 0,
+            "delivered": 0,
+            "lost": 0,
+            "resent": 0,
+            "controls": 0,
+            "rejected": 0,
+        }
         driver.poll_provider = self._answer_poll
         driver.add_listener(self._on_event)
 
@@ -67,6 +75,7 @@ class VehicleLink:
         if drq.dest != self.shore_address:
             return None
         if drq.frame == 1:
+            self.counters["polls"] += 1
             self._requeue_unacknowledged()
         room = max(1, drq.maxbytes // PACKET_SIZE)
         chosen, self.queue = self.queue[:room], self.queue[room:]

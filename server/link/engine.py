@@ -178,13 +178,23 @@ class LinkEngine:
         return (floor * 1.5 + 2.0) / self.settings.time_scale
 
     async def _send_command(self, vehicle: VehicleState, command: Command) -> None:
-        attempt = command.attempts + 1
+        """One attempt. Only a transmission that went on the air counts: if our own modem refused the
+        cycle (busy acknowledging, say), the command waits for the next slot unchanged."""
         with Session(self.db) as s:
             frame = commands.sign(command, s.get(Vehicle, vehicle.id))  # type: ignore[arg-type]
-        self._set_status(command, "sent", f"attempt {attempt}", attempts=attempt, frame=frame)
+        result = await self.driver.send(vehicle.address, [frame], rate=0, ack=True,  # type: ignore[union-attr]
+                                        ack_timeout=self._ack_timeout(vehicle))  # fmt: skip
+        if not result.transmitted:
+            log.info("vehicle %s: command seq %d not transmitted (%s); next slot", vehicle.name, command.seq,
+                     result.error)  # fmt: skip
+            await asyncio.sleep(self._ack_timeout(vehicle) / 4)
+            return
+        attempt = command.attempts + 1
+        self.counters["commands_sent"] += 1
         self._store(
             Frame(direction="out", src=self.settings.modem_address, dest=vehicle.address, rate=0, data=frame)
         )
+        self._set_status(command, "sent", f"attempt {attempt}", attempts=attempt, frame=frame)
         log.info(
             "vehicle %s: command %s seq %d sent (attempt %d)",
             vehicle.name,
@@ -192,9 +202,6 @@ class LinkEngine:
             command.seq,
             attempt,
         )
-        self.counters["commands_sent"] += 1
-        result = await self.driver.send(vehicle.address, [frame], rate=0, ack=True,  # type: ignore[union-attr]
-                                        ack_timeout=self._ack_timeout(vehicle))  # fmt: skip
         if result.all_acked:
             self.counters["commands_acked"] += 1
             self._set_status(command, "acknowledged", "")

@@ -18,10 +18,10 @@ import logging
 import math
 import random
 from collections.abc import Callable
-from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from tacit.navigation import Origin
 from tacit.sim.bluerov import MODE_NAMES, MODES, BlueROV2
 from tacit.sim.clock import Scheduler
 from tacit.sim.environment import Environment
@@ -31,7 +31,6 @@ log = logging.getLogger("tacit.sim.vehicle")
 SYSTEM_ID = 1
 COMPONENT_ID = 1
 PHYSICS_HZ = 50.0
-EARTH_RADIUS = 6_378_137.0
 WATER_DENSITY = 1000.0  # fresh water (river, lake)
 G = 9.80665
 ATMOSPHERE_HPA = 1013.25
@@ -50,24 +49,6 @@ DEFAULT_RATES_HZ: dict[int, float] = {
     mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 5.0,
     mavlink.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT: 1.0,
 }
-
-
-@dataclass
-class Origin:
-    """Home: where north = east = 0 (the Raritan river, NJ, by default)."""
-
-    lat: float = 40.4862
-    lon: float = -74.4518
-
-    def to_global(self, north: float, east: float) -> tuple[float, float]:
-        lat = self.lat + math.degrees(north / EARTH_RADIUS)
-        lon = self.lon + math.degrees(east / (EARTH_RADIUS * math.cos(math.radians(self.lat))))
-        return lat, lon
-
-    def to_local(self, lat: float, lon: float) -> tuple[float, float]:
-        north = math.radians(lat - self.lat) * EARTH_RADIUS
-        east = math.radians(lon - self.lon) * EARTH_RADIUS * math.cos(math.radians(self.lat))
-        return north, east
 
 
 class Links:

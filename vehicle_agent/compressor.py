@@ -1,0 +1,92 @@
+"""The vehicle's compressor (the paper's Algorithm 1) and its environmental event detector.
+
+Both streams (``tacit.streams``) run the dual predictors of ``tacit.codec``: only what the shore cannot
+predict goes out, as priority packets. The plume detector watches the water temperature: a rise of more
+than ``plume_threshold`` above a slow running baseline is a time-sensitive event, and a least-squares
+fit of temperature over the recent positions gives the direction of warmer water for the vehicle to
+turn towards (the paper's "decide locally").
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from tacit.codec import EncodedPacket, StreamEncoder, StreamSpec
+from tacit.packets import Stream
+
+
+@dataclass
+class PlumeEvent:
+    temperature: float
+    baseline: float
+    bearing: float | None  # deg: towards warmer water, when the fit could tell
+
+
+class PlumeDetector:
+    def __init__(self, threshold: float = 0.5, baseline_tau: float = 120.0, memory: int = 40) -> None:
+        self.threshold = threshold
+        self.baseline_tau = baseline_tau
+        self.baseline: float | None = None
+        self.samples: deque[tuple[float, float, float]] = deque(maxlen=memory)  # north, east, temperature
+        self._last_time: float | None = None
+        self.inside = False
+
+    def add(self, now: float, north: float, east: float, temperature: float) -> PlumeEvent | None:
+        """A new sample; a ``PlumeEvent`` the first time the water is warmer than the baseline allows."""
+        self.samples.append((north, east, temperature))
+        if self.baseline is None:
+            self.baseline, self._last_time = temperature, now
+            return None
+        dt = max(0.0, now - (self._last_time or now))
+        self._last_time = now
+        rise = temperature - self.baseline
+        if not self.inside:
+            self.baseline += (temperature - self.baseline) * min(1.0, dt / self.baseline_tau)
+        if rise > self.threshold and not self.inside:
+            self.inside = True
+            return PlumeEvent(temperature, self.baseline, self.warmer_bearing())
+        if rise < self.threshold / 2:
+            self.inside = False
+        return None
+
+    def warmer_bearing(self) -> float | None:
+        """The direction of the temperature gradient from a plane fit T = a + b n + c e."""
+        if len(self.samples) < 5:
+            return None
+        data = np.array(self.samples)
+        spread = np.ptp(data[:, :2], axis=0)
+        if spread.max() < 1.0:
+            return None
+        design = np.column_stack([np.ones(len(data)), data[:, 0], data[:, 1]])
+        (_, b, c), *_ = np.linalg.lstsq(design, data[:, 2], rcond=None)
+        if math.hypot(b, c) < 1e-6:
+            return None
+        return math.degrees(math.atan2(c, b)) % 360.0
+
+
+class Compressor:
+    def __init__(self, streams: dict[Stream, StreamSpec], max_latency: float = 10.0, max_silence: float = 60.0,
+                 urgent_threshold: float | None = 20.0) -> None:  # fmt: skip
+        self.encoders = {
+            k: StreamEncoder(spec, max_latency, urgent_threshold, max_silence) for k, spec in streams.items()
+        }
+        self.samples = 0
+
+    def add(self, stream: Stream, time: float, values: list[float], urgent: bool = False) -> None:
+        if self.encoders[stream].push(time, values, urgent=urgent):
+            self.samples += 1
+
+    def ready(self, now: float) -> list[tuple[Stream, EncodedPacket]]:
+        """Packets to send now (each stays in flight until ``resolve``)."""
+        out = []
+        for stream, encoder in self.encoders.items():
+            if encoder.ready(now):
+                out.append((stream, encoder.take()))
+        return out
+
+    def resolve(self, stream: Stream, delivered: bool) -> None:
+        self.encoders[stream].resolve(delivered)

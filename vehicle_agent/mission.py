@@ -1,0 +1,302 @@
+"""The mission state machine of the paper's Algorithm 2, as explicit states and transitions.
+
+    WAITING --control--> (check-point) --START_MISSION--> PREPROGRAMMED
+    PREPROGRAMMED --data predictable--> PREPROGRAMMED (check-points at an interval)
+    PREPROGRAMMED --unpredictable, time-sensitive--> SELF_DETERMINED (decide locally, priority packet)
+    PREPROGRAMMED --unpredictable, not time-sensitive--> AWAITING_COMMAND (keep the trajectory)
+    SELF_DETERMINED / AWAITING_COMMAND / any --control packet--> COMMANDED (follow the command)
+    COMMANDED --done, mission time left--> PREPROGRAMMED (back to the trajectory: "go to line 3")
+    COMMANDED --done, no mission--> HOLDING
+    any active --t > T_mission, or waypoints done--> RETURNING --home--> FINISHED
+    any active --shore silent > link_lost_timeout--> LINK_LOST (hold, surface or return)
+    HOLD -> HOLDING; ABORT_MISSION -> ABORTED (holds where it is); RETURN_HOME -> RETURNING
+
+No I/O here: the agent feeds it events and the pose, and gets back the target to steer to and
+whether a check-point is due. Its state is plain data, persisted by the agent after every change.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from tacit import navigation
+from tacit.packets import Command, CommandStatus, ControlFlag, ControlPacket, MissionState, Reason
+from vehicle_agent.navigator import Target
+
+ACTIVE = {MissionState.PREPROGRAMMED, MissionState.SELF_DETERMINED, MissionState.AWAITING_COMMAND,
+          MissionState.COMMANDED, MissionState.HOLDING, MissionState.RETURNING}  # fmt: skip
+PARAMS = {1: "plume_threshold", 2: "checkpoint_interval", 3: "cruise_speed", 4: "link_lost_timeout"}
+
+
+@dataclass
+class MissionPlan:
+    number: int
+    name: str
+    waypoints: list[tuple[float, float, float]]  # north, east, depth
+    duration_s: float = 1800.0
+
+    @classmethod
+    def square(
+        cls, number: int = 1, side: float = 20.0, depth: float = 2.0, duration_s: float = 1800.0
+    ) -> MissionPlan:
+        """The paper's square trajectory (Fig. 5b), starting and ending at home."""
+        corners = [(0, 0), (side, 0), (side, side), (0, side), (0, 0)]
+        return cls(number, "square", [(n, e, depth) for n, e in corners], duration_s)
+
+    @classmethod
+    def lawnmower(cls, number: int = 2, width: float = 40.0, length: float = 40.0, spacing: float = 10.0,
+                  depth: float = 2.0, duration_s: float = 3600.0) -> MissionPlan:  # fmt: skip
+        points, east, forward = [], 0.0, True
+        while east <= width + 1e-9:
+            ends = (0.0, length) if forward else (length, 0.0)
+            points += [(ends[0], east, depth), (ends[1], east, depth)]
+            east += spacing
+            forward = not forward
+        return cls(number, "lawnmower", points, duration_s)
+
+    @classmethod
+    def load(cls, path: str | Path) -> MissionPlan:
+        """A mission file: the JSON the server's missions API takes
+        (``{"name", "number", "waypoints": [{"north", "east", "depth"}], "duration_s"}``)."""
+        data = json.loads(Path(path).read_text())
+        try:
+            waypoints = [(float(w["north"]), float(w["east"]), float(w["depth"])) for w in data["waypoints"]]
+            return cls(int(data["number"]), str(data["name"]), waypoints, float(data.get("duration_s", 1800)))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"{path}: not a mission file ({exc})") from None
+
+
+@dataclass
+class Limits:
+    max_depth: float = 100.0
+    max_distance: float = 500.0
+    geofence_radius: float = 1000.0
+
+
+@dataclass
+class Pose:
+    north: float
+    east: float
+    depth: float
+    heading: float
+
+
+@dataclass
+class MissionStatus:
+    """Everything that must survive a restart (persisted as JSON by the agent)."""
+
+    state: MissionState = MissionState.WAITING
+    mission: int | None = None
+    waypoint: int = 0
+    started_at: float | None = None  # vehicle time the mission started
+    target: tuple[float, float, float] | None = None  # the command's, self-determined, or hold point
+    resume_state: MissionState | None = None
+    last_command: int = 0
+    command_status: CommandStatus = CommandStatus.NONE
+    reason: Reason = Reason.OK
+    params: dict[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        data = asdict(self)
+        data["state"] = self.state.name
+        data["resume_state"] = self.resume_state.name if self.resume_state else None
+        data["command_status"] = self.command_status.name
+        data["reason"] = self.reason.name
+        return data
+
+    @classmethod
+    def from_dict(cls, data: dict) -> MissionStatus:
+        data = dict(data)
+        data["state"] = MissionState[data["state"]]
+        data["resume_state"] = MissionState[data["resume_state"]] if data.get("resume_state") else None
+        data["command_status"] = CommandStatus[data["command_status"]]
+        data["reason"] = Reason[data["reason"]]
+        data["target"] = tuple(data["target"]) if data.get("target") else None
+        return cls(**data)
+
+
+class MissionFSM:
+    def __init__(self, plans: dict[int, MissionPlan], limits: Limits, status: MissionStatus | None = None,
+                 link_lost_timeout: float = 300.0, lost_action: str = "hold",
+                 checkpoint_interval: float = 60.0) -> None:  # fmt: skip
+        if lost_action not in ("hold", "surface", "return"):
+            raise ValueError("lost_action is hold, surface or return")
+        self.plans = plans
+        self.limits = limits
+        self.status = status or MissionStatus()
+        self.status.params.setdefault("link_lost_timeout", link_lost_timeout)
+        self.status.params.setdefault("checkpoint_interval", checkpoint_interval)
+        self.lost_action = lost_action
+        self.checkpoint_due = True
+        self._last_checkpoint = -math.inf
+
+    @property
+    def state(self) -> MissionState:
+        return self.status.state
+
+    def _go(self, state: MissionState) -> None:
+        if state is not self.status.state:
+            self.status.state = state
+            self.checkpoint_due = True
+
+    def _report(self, seq: int, status: CommandStatus, reason: Reason = Reason.OK) -> None:
+        self.status.last_command, self.status.command_status, self.status.reason = seq, status, reason
+        self.checkpoint_due = True
+
+    # --- control packets ------------------------------------------------------------------------
+
+    def on_control(self, packet: ControlPacket, pose: Pose, now: float) -> tuple[CommandStatus, Reason]:
+        """Apply a control packet (already authenticated); returns what the check-point will say."""
+        handler = {
+            Command.MOVE: self._move, Command.GOTO_DEPTH: self._goto_depth, Command.HOLD: self._hold,
+            Command.RESUME: self._resume, Command.START_MISSION: self._start, Command.ABORT_MISSION: self._abort,
+            Command.RETURN_HOME: self._return, Command.SET_PARAM: self._set_param,
+            Command.REQUEST_CHECKPOINT: lambda p, _pose, _now: (CommandStatus.EXECUTED, Reason.OK),
+        }[packet.command]  # fmt: skip
+        status, reason = handler(packet, pose, now)
+        self._report(packet.seq, status, reason)
+        return status, reason
+
+    def _commanded(self, target: tuple[float, float, float]) -> tuple[CommandStatus, Reason]:
+        north, east, depth = target
+        if not 0 <= depth <= self.limits.max_depth:
+            return CommandStatus.REFUSED, Reason.OUT_OF_LIMITS
+        if math.hypot(north, east) > self.limits.geofence_radius:
+            return CommandStatus.REFUSED, Reason.GEOFENCE
+        if self.status.state in (MissionState.PREPROGRAMMED, MissionState.SELF_DETERMINED,
+                                 MissionState.AWAITING_COMMAND):  # fmt: skip
+            self.status.resume_state = MissionState.PREPROGRAMMED
+        self.status.target = target
+        self._go(MissionState.COMMANDED)
+        return CommandStatus.EXECUTING, Reason.OK
+
+    def _move(self, p: ControlPacket, pose: Pose, _now: float) -> tuple[CommandStatus, Reason]:
+        if p.distance > self.limits.max_distance:
+            return CommandStatus.REFUSED, Reason.OUT_OF_LIMITS
+        absolute = bool(p.flags & ControlFlag.ABSOLUTE_ANGLE)
+        north, east = navigation.move_target(
+            pose.north, pose.east, pose.heading, p.distance, p.angle, absolute
+        )
+        return self._commanded((north, east, pose.depth + p.depth))
+
+    def _goto_depth(self, p: ControlPacket, pose: Pose, _now: float) -> tuple[CommandStatus, Reason]:
+        return self._commanded((pose.north, pose.east, p.depth))
+
+    def _hold(self, _p: ControlPacket, pose: Pose, _now: float) -> tuple[CommandStatus, Reason]:
+        self.status.target = (pose.north, pose.east, pose.depth)
+        self._go(MissionState.HOLDING)
+        return CommandStatus.EXECUTED, Reason.OK
+
+    def _resume(self, _p: ControlPacket, _pose: Pose, _now: float) -> tuple[CommandStatus, Reason]:
+        if self.status.mission is None:
+            return CommandStatus.REFUSED, Reason.UNKNOWN_MISSION
+        self._go(MissionState.PREPROGRAMMED)
+        return CommandStatus.EXECUTED, Reason.OK
+
+    def _start(self, p: ControlPacket, _pose: Pose, now: float) -> tuple[CommandStatus, Reason]:
+        if p.param_id not in self.plans:
+            return CommandStatus.REFUSED, Reason.UNKNOWN_MISSION
+        self.status.mission, self.status.waypoint, self.status.started_at = p.param_id, 0, now
+        self.status.resume_state = None
+        self._go(MissionState.PREPROGRAMMED)
+        return CommandStatus.EXECUTED, Reason.OK
+
+    def _abort(self, _p: ControlPacket, pose: Pose, _now: float) -> tuple[CommandStatus, Reason]:
+        self.status.mission, self.status.resume_state = None, None
+        self.status.target = (pose.north, pose.east, pose.depth)
+        self._go(MissionState.ABORTED)
+        return CommandStatus.EXECUTED, Reason.OK
+
+    def _return(self, _p: ControlPacket, _pose: Pose, _now: float) -> tuple[CommandStatus, Reason]:
+        self._go(MissionState.RETURNING)
+        return CommandStatus.EXECUTING, Reason.OK
+
+    def _set_param(self, p: ControlPacket, _pose: Pose, _now: float) -> tuple[CommandStatus, Reason]:
+        name = PARAMS.get(p.param_id)
+        if name is None or not math.isfinite(p.param_value) or p.param_value < 0:
+            return CommandStatus.REFUSED, Reason.UNKNOWN_PARAM
+        self.status.params[name] = p.param_value
+        return CommandStatus.EXECUTED, Reason.OK
+
+    # --- data events ----------------------------------------------------------------------------
+
+    def on_unpredictable(self, time_sensitive: bool, local_target: tuple[float, float, float] | None) -> None:
+        """Unpredictable data was found (and a priority packet queued by the compressor)."""
+        if self.status.state is not MissionState.PREPROGRAMMED:
+            return
+        if time_sensitive and local_target is not None:
+            self.status.target = local_target
+            self._go(MissionState.SELF_DETERMINED)
+        else:
+            self._go(MissionState.AWAITING_COMMAND)
+
+    # --- time -----------------------------------------------------------------------------------
+
+    def step(self, now: float, pose: Pose, arrived: bool, shore_heard_at: float | None) -> Target | None:
+        """Advance on time and arrival; the target to steer to (None: stay idle)."""
+        s = self.status
+        if (
+            now - self._last_checkpoint >= s.params["checkpoint_interval"]
+            and s.state is not MissionState.WAITING
+        ):
+            self.checkpoint_due = True
+        if (
+            s.state in ACTIVE
+            and shore_heard_at is not None
+            and now - shore_heard_at > s.params["link_lost_timeout"]
+        ):
+            self._lost(pose)
+        if s.started_at is not None and s.mission is not None and now - s.started_at > self.plans[s.mission].duration_s \
+                and s.state in ACTIVE and s.state is not MissionState.RETURNING:  # fmt: skip
+            self._go(MissionState.RETURNING)
+        return self._target(pose, arrived)
+
+    def _lost(self, pose: Pose) -> None:
+        targets = {"hold": (pose.north, pose.east, pose.depth), "surface": (pose.north, pose.east, 0.0),
+                   "return": (0.0, 0.0, 0.0)}  # fmt: skip
+        self.status.target = targets[self.lost_action]
+        self._go(MissionState.LINK_LOST)
+
+    def _target(self, pose: Pose, arrived: bool) -> Target | None:
+        s = self.status
+        if s.state is MissionState.WAITING or s.state is MissionState.FINISHED:
+            return None
+        if s.state in (MissionState.PREPROGRAMMED, MissionState.AWAITING_COMMAND):
+            return self._waypoint(arrived)
+        if s.state is MissionState.RETURNING:
+            if arrived and math.hypot(pose.north, pose.east) < 1.0:
+                s.mission = None
+                self._go(MissionState.FINISHED)
+                if s.command_status is CommandStatus.EXECUTING:
+                    self._report(s.last_command, CommandStatus.EXECUTED)
+                return None
+            return Target(0.0, 0.0, 0.0)
+        if s.state is MissionState.COMMANDED and arrived:
+            self._report(s.last_command, CommandStatus.EXECUTED)
+            if s.resume_state is MissionState.PREPROGRAMMED and s.mission is not None:
+                s.resume_state = None
+                self._go(MissionState.PREPROGRAMMED)
+                return self._waypoint(False)
+            self._go(MissionState.HOLDING)
+        return Target(*s.target) if s.target else None
+
+    def _waypoint(self, arrived: bool) -> Target | None:
+        s = self.status
+        plan = self.plans.get(s.mission) if s.mission is not None else None
+        if plan is None:
+            self._go(MissionState.HOLDING)
+            return None
+        if arrived and s.waypoint < len(plan.waypoints):
+            s.waypoint += 1
+            self.checkpoint_due = True
+        if s.waypoint >= len(plan.waypoints):
+            self._go(MissionState.RETURNING)
+            return Target(0.0, 0.0, 0.0)
+        return Target(*plan.waypoints[s.waypoint])
+
+    def checkpoint_sent(self, now: float) -> None:
+        self.checkpoint_due = False
+        self._last_checkpoint = now

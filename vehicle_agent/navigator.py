@@ -1,0 +1,162 @@
+"""Steering the BlueROV2 to a target, with or without a position fix, and knowing where it is.
+
+Without a fix (the usual BlueROV2): depth by ALT_HOLD depth targets, heading by attitude targets re-sent
+twice a second (ArduSub drops them after 5 s), translation by MANUAL_CONTROL forward thrust while the
+position is dead-reckoned: speed = cruise_speed * sqrt(thrust / cruise_thrust) (quadratic drag),
+reached through a first-order lag of ``speed_tau`` seconds, along the measured heading. Calibrate
+cruise_speed once per vehicle (time a run at cruise_thrust). At the surface a GPS fix resets the
+estimate. With a fix (DVL/USBL: LOCAL_POSITION_NED): GUIDED and position targets.
+
+All times are the vehicle's own clock (``Telemetry.time``), so the same code runs against a simulator
+running faster than real time.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from tacit import navigation
+from tacit.navigation import Origin
+from vehicle_agent.mavlink_io import MavlinkLink, Telemetry
+
+ALT_HOLD, GUIDED = 2, 4
+
+
+@dataclass
+class NavConfig:
+    cruise_thrust: int = 400  # MANUAL_CONTROL x, -1000..1000
+    cruise_speed: float = 0.95  # m/s at cruise_thrust (calibrate)
+    speed_tau: float = 0.6  # s
+    arrive_radius: float = 0.5  # m
+    heading_tolerance: float = 8.0  # deg: turn in place before moving when off by more
+    depth_tolerance: float = 0.25  # m
+
+
+@dataclass
+class Target:
+    north: float
+    east: float
+    depth: float
+    heading: float | None = None  # hold this heading when arrived (default: keep the current one)
+
+
+class PositionEstimate:
+    def __init__(self, config: NavConfig, origin: Origin | None = None) -> None:
+        self.config = config
+        self.origin = origin
+        self.north = 0.0
+        self.east = 0.0
+        self.speed = 0.0
+        self.source = "dead_reckoning"
+        self._last_time: float | None = None
+
+    def update(self, tel: Telemetry, thrust: int) -> None:
+        dt = 0.0 if self._last_time is None else max(0.0, min(1.0, tel.time - self._last_time))
+        self._last_time = tel.time
+        wanted = self.config.cruise_speed * math.sqrt(max(0, thrust) / self.config.cruise_thrust)
+        self.speed += (wanted - self.speed) * min(1.0, dt / self.config.speed_tau)
+        if tel.position_fix is not None:
+            self.north, self.east = tel.position_fix[0], tel.position_fix[1]
+            self.source = "position_source"
+        elif tel.gps_fix is not None and tel.depth < 0.3:
+            if self.origin is None:
+                self.origin = Origin(*tel.gps_fix)
+            self.north, self.east = self.origin.to_local(*tel.gps_fix)
+            self.source = "gps"
+        else:
+            self.north += self.speed * math.cos(tel.yaw) * dt
+            self.east += self.speed * math.sin(tel.yaw) * dt
+            self.source = "dead_reckoning"
+
+
+class Navigator:
+    def __init__(self, link: MavlinkLink, config: NavConfig, position: PositionEstimate) -> None:
+        self.link = link
+        self.config = config
+        self.position = position
+        self.target: Target | None = None
+        self.thrust = 0
+        self.arrived = False
+        self._sent: dict[str, float] = {}
+        self._depth_sent: float | None = None
+
+    def set_target(self, target: Target | None) -> None:
+        self.target = target
+        self.arrived = False
+
+    def _due(self, what: str, period: float, now: float) -> bool:
+        if now - self._sent.get(what, -math.inf) >= period or now < self._sent.get(what, 0.0):
+            self._sent[what] = now
+            return True
+        return False
+
+    def step(self) -> None:
+        """One control step (call at 4 Hz or more of vehicle time)."""
+        tel = self.link.telemetry
+        now = tel.time
+        self.position.update(tel, self.thrust)
+        if self.target is None:
+            self._manual(0, now)
+            return
+        if not tel.armed and self._due("arm", 2.0, now):
+            self.link.arm(True)
+        fix = tel.position_fix is not None and tel.depth >= 0.3  # at the surface GPS: ALT_HOLD still steers
+        mode = GUIDED if fix else ALT_HOLD
+        if tel.mode != mode and self._due("mode", 2.0, now):
+            self.link.set_mode(mode)
+        if fix:
+            self._guided(tel, now)
+        else:
+            self._dead_reckoned(tel, now)
+
+    def _depth(self, depth: float, now: float) -> None:
+        if depth != self._depth_sent or self._due("depth", 5.0, now):
+            self.link.depth_target(depth)
+            self._depth_sent = depth
+
+    def _manual(self, thrust: int, now: float) -> None:
+        if thrust != self.thrust or self._due("manual", 0.25, now):
+            self.link.manual(x=thrust)
+        self.thrust = thrust
+
+    def _guided(self, tel: Telemetry, now: float) -> None:
+        target = self.target
+        if self._due("position", 1.0, now):
+            self.link.position_target(target.north, target.east, target.depth)  # type: ignore[union-attr]
+        self._check_arrival(tel)
+
+    def _dead_reckoned(self, tel: Telemetry, now: float) -> None:
+        target = self.target
+        assert target is not None
+        self._depth(target.depth, now)
+        distance = math.hypot(target.north - self.position.north, target.east - self.position.east)
+        if distance <= self.config.arrive_radius or self.arrived:
+            heading = target.heading if target.heading is not None else tel.heading
+            if self._due("heading", 0.5, now):
+                self.link.heading_target(heading)
+            self._manual(0, now)
+            self._check_arrival(tel)
+            return
+        bearing = math.degrees(
+            math.atan2(target.east - self.position.east, target.north - self.position.north)
+        )
+        if self._due("heading", 0.5, now):
+            self.link.heading_target(bearing % 360)
+        error = abs(navigation.wrap180(bearing - tel.heading))
+        if error > self.config.heading_tolerance:
+            self._manual(0, now)
+        else:
+            slow = min(1.0, max(0.25, distance / 3.0))
+            self._manual(int(self.config.cruise_thrust * slow * slow), now)
+
+    def _check_arrival(self, tel: Telemetry) -> None:
+        target = self.target
+        assert target is not None
+        close = (
+            math.hypot(target.north - self.position.north, target.east - self.position.east)
+            <= self.config.arrive_radius
+        )
+        self.arrived = self.arrived or (
+            close and abs(tel.depth - target.depth) <= self.config.depth_tolerance
+        )
