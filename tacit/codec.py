@@ -229,6 +229,7 @@ class StreamEncoder:
         self.seq = 0
         self._draft = _Draft(self.initial, self.initial.coder.copy())
         self._last_index: int | None = None  # the last tick accepted (duplicates are dropped)
+        self._carry_urgent = False
         self._predicted_to: int | None = None  # the last tick the predictor has processed
 
     # --- ticks in -------------------------------------------------------------------------------
@@ -237,15 +238,16 @@ class StreamEncoder:
         """Add one sample per channel taken at ``time``; False if it was a duplicate tick (dropped)."""
         index = self.spec.tick(time)
         if self._last_index is not None and index <= self._last_index:
+            if urgent:  # the sample is dropped, its urgency is not: it rides on this tick's sample
+                if self.pending and self.pending[-1].index == self._last_index:
+                    self.pending[-1].urgent = True
+                else:
+                    self._carry_urgent = True
             return False
-        tick = _Tick(
-            index,
-            time,
-            np.asarray(values, dtype=float),
-            np.zeros(0, np.int64),
-            self.predictor.state(),
-            urgent,
-        )
+        state = self.predictor.state()
+        tick = _Tick(index, time, np.asarray(values, dtype=float), np.zeros(0, np.int64), state,
+                     urgent or self._carry_urgent)  # fmt: skip
+        self._carry_urgent = False
         self._process(tick)
         if self.urgent_threshold is not None and np.any(np.abs(tick.q) >= self.urgent_threshold):
             tick.urgent = True

@@ -215,3 +215,16 @@ def test_any_loss_pattern_leaves_the_shore_exact_or_marked(seed: int, lose: set[
     for tick in set(truth) - set(shore):
         # missing on the shore: declared lost by a later packet, or before anything arrived, or after
         assert tick in marked or first_delivered is None or tick < first_delivered or tick > max(shore)
+
+
+def test_urgency_of_a_dropped_duplicate_sample_is_kept() -> None:
+    s = spec(1, 1.0)
+    enc = StreamEncoder(s, max_latency=30.0)
+    enc.push(T0, [0.0])
+    assert not enc.push(T0 + 0.1, [9.0], urgent=True)  # same tick: the value is dropped...
+    assert enc.ready(T0 + 0.1)  # ...its urgency is not
+    assert enc.take().packet.priority is Priority.TIME_SENSITIVE
+    enc.resolve(True)
+    assert not enc.push(T0 + 0.2, [9.0], urgent=True)  # nothing pending: carried to the next tick
+    enc.push(T0 + 0.5, [0.0])
+    assert enc.ready(T0 + 0.5) and enc.take().packet.priority is Priority.TIME_SENSITIVE

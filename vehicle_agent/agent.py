@@ -118,6 +118,7 @@ class Agent:
         self.shore_heard_at: float | None = None
         self._polls_seen = 0
         self._dirty = True
+        self._persisted_at = -1e9
 
     # --- inputs ---------------------------------------------------------------------------------
 
@@ -229,8 +230,9 @@ class Agent:
         self._send_packets()
         if self.fsm.checkpoint_due and self.link.backlog < 4:
             self._send_checkpoint()
-        if self._dirty or self.fsm.status.to_dict() != before:
-            self._persist()
+        if self._dirty or self.fsm.status.to_dict() != before or tel.time - self._persisted_at >= 1.0:
+            self._persist()  # dead-reckoned position is state too: at least once a second of vehicle time
+            self._persisted_at = tel.time
 
     async def run(self, stop: asyncio.Event) -> None:
         self.mav.start()

@@ -61,7 +61,7 @@ class Telemetry:
 
     @property
     def position_fix(self) -> tuple[float, float, float] | None:
-        return self.local if self.local is not None and self.fresh("LOCAL_POSITION_NED") else None
+        return self.local if self.local is not None and self.fresh("LOCAL_POSITION_NED", 0.8) else None
 
     @property
     def gps_fix(self) -> tuple[float, float] | None:

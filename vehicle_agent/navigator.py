@@ -2,10 +2,13 @@
 
 Without a fix (the usual BlueROV2): depth by ALT_HOLD depth targets, heading by attitude targets re-sent
 twice a second (ArduSub drops them after 5 s), translation by MANUAL_CONTROL forward thrust while the
-position is dead-reckoned: speed = cruise_speed * sqrt(thrust / cruise_thrust) (quadratic drag),
-reached through a first-order lag of ``speed_tau`` seconds, along the measured heading. Calibrate
-cruise_speed once per vehicle (time a run at cruise_thrust). At the surface a GPS fix resets the
-estimate. With a fix (DVL/USBL: LOCAL_POSITION_NED): GUIDED and position targets.
+position is dead-reckoned along the measured heading with the dynamics of a quadratic-drag hull,
+dv/dt = (cruise_speed^2 * thrust / cruise_thrust - v |v|) / drag_length, whose steady speed is
+cruise_speed at cruise_thrust and which coasts for metres when the thrust stops (a BlueROV2 does: it has
+almost no linear drag). On arrival the navigator brakes with reverse thrust until it has stopped. Calibrate
+cruise_speed once per vehicle (time a run at cruise_thrust). At the surface each GPS fix pulls the
+estimate towards it by ``gps_gain`` (a complementary filter: dead reckoning is smooth but drifts, GPS
+does not drift but is noisy by a metre or more), the first fix sets it outright. With a fix (DVL/USBL: LOCAL_POSITION_NED): GUIDED and position targets.
 
 All times are the vehicle's own clock (``Telemetry.time``), so the same code runs against a simulator
 running faster than real time.
@@ -27,10 +30,11 @@ ALT_HOLD, GUIDED = 2, 4
 class NavConfig:
     cruise_thrust: int = 400  # MANUAL_CONTROL x, -1000..1000
     cruise_speed: float = 0.95  # m/s at cruise_thrust (calibrate)
-    speed_tau: float = 0.6  # s
+    drag_length: float = 1.1  # m: effective mass / quadratic drag coefficient (calibrate with a coast-down)
     arrive_radius: float = 0.5  # m
     heading_tolerance: float = 8.0  # deg: turn in place before moving when off by more
     depth_tolerance: float = 0.25  # m
+    gps_gain: float = 0.1  # per fix (1 Hz): a ~10 s time constant
 
 
 @dataclass
@@ -50,24 +54,36 @@ class PositionEstimate:
         self.speed = 0.0
         self.source = "dead_reckoning"
         self._last_time: float | None = None
+        self._gps_used: float | None = None
+        self._fix_used: float | None = None
 
     def update(self, tel: Telemetry, thrust: int) -> None:
         dt = 0.0 if self._last_time is None else max(0.0, min(1.0, tel.time - self._last_time))
         self._last_time = tel.time
-        wanted = self.config.cruise_speed * math.sqrt(max(0, thrust) / self.config.cruise_thrust)
-        self.speed += (wanted - self.speed) * min(1.0, dt / self.config.speed_tau)
-        if tel.position_fix is not None:
+        push = self.config.cruise_speed**2 * thrust / self.config.cruise_thrust
+        steps = max(1, math.ceil(dt / 0.05))
+        for _ in range(steps):
+            self.speed += (push - self.speed * abs(self.speed)) / self.config.drag_length * (dt / steps)
+        self.north += self.speed * math.cos(tel.yaw) * dt
+        self.east += self.speed * math.sin(tel.yaw) * dt
+        self.source = "dead_reckoning"
+        fix_time = tel.seen.get("LOCAL_POSITION_NED")
+        if tel.position_fix is not None and fix_time != self._fix_used:  # a new fix: take it
+            self._fix_used = fix_time
             self.north, self.east = tel.position_fix[0], tel.position_fix[1]
             self.source = "position_source"
-        elif tel.gps_fix is not None and tel.depth < 0.3:
-            if self.origin is None:
+            return
+        gps_time = tel.seen.get("GPS_RAW_INT")
+        if tel.gps_fix is not None and tel.depth < 0.3 and gps_time != self._gps_used:
+            self._gps_used = gps_time
+            first = self.origin is None
+            if first:
                 self.origin = Origin(*tel.gps_fix)
-            self.north, self.east = self.origin.to_local(*tel.gps_fix)
+            north, east = self.origin.to_local(*tel.gps_fix)  # type: ignore[union-attr]
+            gain = 1.0 if first else self.config.gps_gain
+            self.north += gain * (north - self.north)
+            self.east += gain * (east - self.east)
             self.source = "gps"
-        else:
-            self.north += self.speed * math.cos(tel.yaw) * dt
-            self.east += self.speed * math.sin(tel.yaw) * dt
-            self.source = "dead_reckoning"
 
 
 class Navigator:
@@ -135,7 +151,9 @@ class Navigator:
             heading = target.heading if target.heading is not None else tel.heading
             if self._due("heading", 0.5, now):
                 self.link.heading_target(heading)
-            self._manual(0, now)
+            braking = self.position.speed > 0.05
+            self._manual(-int(self.config.cruise_thrust * min(1.0, self.position.speed / self.config.cruise_speed))
+                         if braking else 0, now)  # fmt: skip
             self._check_arrival(tel)
             return
         bearing = math.degrees(
