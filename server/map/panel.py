@@ -1,0 +1,60 @@
+"""The operator panel's logic, without a browser: where a click lands, and what command it makes.
+
+Scene frame: x = east, y = north, z = up (z = -depth), metres from home. A click in viser is a ray;
+it lands where the ray meets the water surface or the chosen depth plane.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from server.models import Vehicle
+from server.schemas import CommandIn
+from server.services.commands import CommandRefused, check_limits
+from tacit import navigation
+
+
+@dataclass(frozen=True)
+class Pose:
+    north: float
+    east: float
+    depth: float
+    heading: float
+
+    @classmethod
+    def from_checkpoint(cls, checkpoint: dict | None) -> Pose:
+        if not checkpoint:
+            return cls(0.0, 0.0, 0.0, 0.0)
+        return cls(checkpoint["north"], checkpoint["east"], checkpoint["depth"], checkpoint["heading"])
+
+
+def ray_to_depth_plane(origin: tuple[float, float, float], direction: tuple[float, float, float],
+                       depth: float) -> tuple[float, float] | None:  # fmt: skip
+    """(north, east) where the ray meets the horizontal plane at ``depth``; None if it never does."""
+    z = -depth
+    if abs(direction[2]) < 1e-9:
+        return None
+    t = (z - origin[2]) / direction[2]
+    if t <= 0:
+        return None
+    return origin[1] + t * direction[1], origin[0] + t * direction[0]
+
+
+def move_to(pose: Pose, north: float, east: float, depth: float, absolute: bool = False) -> CommandIn:
+    """The control packet that takes the vehicle from ``pose`` to a point: distance, angle, depth change."""
+    distance, angle = navigation.distance_and_angle(
+        pose.north, pose.east, pose.heading, north, east, absolute
+    )
+    return CommandIn(command="move", distance=round(min(distance, 6553.5), 1), angle=round(angle, 2),
+                     depth=round(depth - pose.depth, 2), absolute_angle=absolute)  # fmt: skip
+
+
+def refusal(command: CommandIn, vehicle: Vehicle, pose: Pose | None) -> str | None:
+    """Why the vehicle's limits refuse this command (None: it may be sent)."""
+    position = None if pose is None else {"north": pose.north, "east": pose.east, "depth": pose.depth,
+                                          "heading": pose.heading}  # fmt: skip
+    try:
+        check_limits(command, vehicle, position)
+    except CommandRefused as exc:
+        return f"{exc.field}: {exc}"
+    return None

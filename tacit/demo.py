@@ -1,0 +1,201 @@
+"""``tacit demo``: the whole system on simulators, wired together, running the paper's square mission.
+
+Processes: the simulator (two Micro-Modems on ptys joined by the acoustic channel, a BlueROV2 in a river
+with a warm plume next to the square) and the vehicle agent run as children; the server (API,
+dashboard, 3D map, shore modem) runs in this process. Everything lives in ``--data-dir``: the SQLite
+database, the pty links, logs, the agent's state, and ``secrets.json`` (operator token and vehicle key,
+readable only by you). Ctrl-C or SIGTERM stops the agent, then the simulator, then the server, which
+closes the database cleanly.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import logging
+import os
+import secrets
+import signal
+import subprocess
+import sys
+import webbrowser
+from pathlib import Path
+from typing import Any
+
+PLUME_RIVER = {"surface_temp": 21.0, "thermocline_depth": 8.0, "thermocline_drop": 3.0, "front_angle_deg": 45.0,
+               "front_offset": 60.0, "front_width": 8.0, "front_step": 1.0, "plume_north": 24.0, "plume_east": 14.0,
+               "plume_depth": 2.0, "plume_sigma": 6.0, "plume_sigma_z": 3.0, "plume_excess": 3.0,
+               "patches": [[0.05, 0.05, -0.03, 0.4]]}  # fmt: skip
+SQUARE = {"name": "square", "number": 1, "duration_s": 1800,
+          "waypoints": [{"north": n, "east": e, "depth": 2.0} for n, e in ((0, 0), (20, 0), (20, 20), (0, 20), (0, 0))]}  # fmt: skip
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--range", type=float, default=300.0, help="shore modem's distance from home (m)")
+    parser.add_argument("--extra-loss", type=float, default=0.0, help="extra frame loss probability 0..1")
+    parser.add_argument("--time-scale", type=float, default=1.0, help="simulated seconds per wall second")
+    parser.add_argument("--host", default="127.0.0.1", help="bind address (default: this machine only)")
+    parser.add_argument("--port", type=int, default=8000, help="API and dashboard port")
+    parser.add_argument("--map-port", type=int, default=8080, help="3D map port")
+    parser.add_argument("--data-dir", default="data/demo", help="where the demo keeps its files")
+    parser.add_argument("--mission", help="a mission JSON file (default: the paper's 20 m square at 2 m)")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--headless", action="store_true", help="do not open a browser")
+    parser.add_argument(
+        "--json", action="store_true", help="print one JSON object (URLs, token, simulator) first"
+    )
+
+
+def _secrets(data: Path) -> dict[str, str]:
+    path = data / "secrets.json"
+    if path.exists():
+        return json.loads(path.read_text())
+    values = {"token": secrets.token_urlsafe(24), "key": secrets.token_hex(32)}
+    path.write_text(json.dumps(values))
+    path.chmod(0o600)
+    return values
+
+
+def _log_to(path: Path) -> None:
+    """Everything to the log file; only warnings and errors on the terminal."""
+    root = logging.getLogger()
+    for handler in root.handlers:
+        handler.setLevel(logging.WARNING)
+    file_handler = logging.FileHandler(path)
+    file_handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    root.addHandler(file_handler)
+    root.setLevel(logging.INFO)
+
+
+def _spawn(args: list[str], log: Path, capture: bool = False) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "tacit.cli", *args], stdout=subprocess.PIPE if capture else log.open("ab"),
+                            stderr=log.open("ab"), text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})  # fmt: skip
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+
+
+def run(args: argparse.Namespace) -> int:
+    if not 0 <= args.extra_loss <= 1 or args.time_scale <= 0:
+        print("tacit demo: --extra-loss is 0..1 and --time-scale positive", file=sys.stderr)
+        return 2
+    try:
+        mission = json.loads(Path(args.mission).read_text()) if args.mission else SQUARE
+    except (OSError, ValueError) as exc:
+        print(f"tacit demo: cannot read the mission: {exc}", file=sys.stderr)
+        return 2
+    try:
+        return asyncio.run(_demo(args, mission))
+    except DemoError as exc:
+        print(f"tacit demo: {exc}", file=sys.stderr)
+        return 1
+
+
+class DemoError(RuntimeError):
+    pass
+
+
+async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
+    import httpx
+    import uvicorn
+
+    from server.app import create_app
+    from server.settings import Settings
+
+    data = Path(args.data_dir).resolve()
+    (data / "missions").mkdir(parents=True, exist_ok=True)
+    _log_to(data / "server.log")
+    secret = _secrets(data)
+    (data / "environment.json").write_text(json.dumps(PLUME_RIVER))
+    (data / "missions" / "mission.json").write_text(json.dumps(mission))
+    sim_config = {
+        "seed": args.seed, "time_scale": args.time_scale,
+        "channel": {"extra_loss": args.extra_loss}, "environment": {"file": str(data / "environment.json")},
+        "modems": [{"address": 1, "name": "shore", "position": [-args.range, 0.0, 1.0], "link": str(data / "shore.pty")},
+                   {"address": 2, "name": "vehicle", "attach": "rov1", "link": str(data / "vehicle.pty")}],
+        "vehicles": [{"name": "rov1", "tcp_port": 0, "seed": args.seed}],
+    }  # fmt: skip
+    (data / "sim.json").write_text(json.dumps(sim_config))
+    sim = _spawn(["sim", "--config", str(data / "sim.json"), "--json"], data / "sim.log", capture=True)
+    line = await asyncio.to_thread(sim.stdout.readline)  # type: ignore[union-attr]
+    if not line:
+        raise DemoError(f"the simulator did not start; see {data / 'sim.log'}")
+    sim_info = json.loads(line)
+    settings = Settings(database_url=f"sqlite:///{data / 'tacit.db'}", modem_url=str(data / "shore.pty"),
+                        modem_log=str(data / "shore-modem.log"), host=args.host, port=args.port,
+                        map_port=args.map_port, write_tokens=[secret["token"]], time_scale=args.time_scale,
+                        default_range=args.range, poll_interval=2.0)  # fmt: skip
+    app = create_app(settings)
+    server = uvicorn.Server(uvicorn.Config(app, host=args.host, port=args.port, log_config=None))
+    serving = asyncio.create_task(server.serve())
+    agent: subprocess.Popen | None = None
+    try:
+        while not server.started:
+            if serving.done():
+                raise DemoError(f"the server did not start (is port {args.port} free?)")
+            await asyncio.sleep(0.05)
+        api = f"http://{args.host}:{args.port}"
+        async with httpx.AsyncClient(
+            base_url=api, headers={"Authorization": f"Bearer {secret['token']}"}
+        ) as http:
+            vehicle_id = await _register(http, secret["key"])
+            mission_id = (await http.post(f"/api/v1/vehicles/{vehicle_id}/missions", json=mission)).json()[
+                "id"
+            ]
+            agent_config = data / "agent.toml"
+            agent_config.write_text(
+                f'address = 2\nkey = "{secret["key"]}"\nmodem_url = "{data / "vehicle.pty"}"\n'
+                f'mavlink_url = "{sim_info["vehicle"]["mavlink"][0]}"\nstate_file = "{data / "agent-state.json"}"\n'
+                f'tlog_dir = "{data / "tlogs"}"\ntime_scale = {args.time_scale}\ncheckpoint_interval = 20\n'
+                f'missions = [{{file = "missions/mission.json"}}]\n')  # fmt: skip
+            agent = _spawn(["agent", "--config", str(agent_config)], data / "agent.log")
+            info = {"api_url": api + "/api/v1", "dashboard_url": api + "/", "map_url": f"http://{args.host}:{app.state.map.port}",
+                    "token": secret["token"], "modems": sim_info["modems"], "vehicle": sim_info["vehicle"],
+                    "data_dir": str(data)}  # fmt: skip
+            _announce(info, args)
+            await http.post(f"/api/v1/missions/{mission_id}/start")
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, stop.set)
+        waiter = asyncio.create_task(stop.wait())
+        await asyncio.wait({waiter, serving}, return_when=asyncio.FIRST_COMPLETED)
+        return 0
+    finally:
+        if agent is not None:
+            _stop(agent)
+        _stop(sim)
+        server.should_exit = True
+        await serving
+
+
+async def _register(http: Any, key: str) -> int:
+    """The demo's vehicle: created, or found from an earlier run (and given the demo's key)."""
+    created = await http.post(
+        "/api/v1/vehicles", json={"name": "rov1", "address": 2, "key": key, "max_depth": 20.0}
+    )
+    if created.status_code == 201:
+        return created.json()["id"]
+    existing = next(v for v in (await http.get("/api/v1/vehicles")).json() if v["address"] == 2)
+    await http.post(f"/api/v1/vehicles/{existing['id']}/key", json={"key": key})
+    return existing["id"]
+
+
+def _announce(info: dict[str, Any], args: argparse.Namespace) -> None:
+    if args.json:
+        print(json.dumps(info), flush=True)
+    else:
+        print(f"\nTacit demo is running (data in {info['data_dir']}).\n"
+              f"  Dashboard: {info['dashboard_url']}\n  3D map:    {info['map_url']}\n"
+              f"  API:       {info['api_url']}  (docs: {info['dashboard_url']}docs)\n"
+              f"  Operator token: {info['token']}\n"
+              f"The vehicle is starting the square mission. Ctrl-C stops everything.\n", flush=True)  # fmt: skip
+    if not args.headless:
+        webbrowser.open(info["dashboard_url"])
