@@ -14,13 +14,14 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
 
-from fastapi import FastAPI, HTTPException, Request
+from fastapi import Depends, FastAPI, HTTPException, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 
 from server.api import commands, data, missions, vehicles
+from server.auth import require_read
 from server.db import make_engine, migrate
 from server.events import EventBus
 from server.link.engine import LinkEngine
@@ -77,6 +78,11 @@ def create_app(settings: Settings) -> FastAPI:
     @app.get("/api/v1/health", tags=["data"])
     def health() -> dict:
         return {"status": "ok", "modem": app.state.link.status()["modem"]}
+
+    @app.get("/api/v1/whoami", tags=["data"])
+    def whoami(found: str = Depends(require_read)) -> dict:
+        """The caller's role: ``write`` (operator) or ``read`` (observer)."""
+        return {"role": found}
 
     @app.get("/api/v1/config", tags=["data"])
     def config() -> dict:

@@ -124,6 +124,7 @@ class OperatorMap:
             self.confirm_btn = gui.add_button("Confirm", color="red", visible=False)
             self.cancel_btn = gui.add_button("Cancel", visible=False)
             self.suggest_btn = gui.add_button("Go to suggested target", visible=False)
+            self.estimate_cb = gui.add_checkbox("Show temperature estimate", True)
         with gui.add_folder("Commands"):
             self.commands_md = gui.add_markdown("none yet")
         send.on_click(lambda _e: self._send(self._panel_command()))
@@ -136,6 +137,7 @@ class OperatorMap:
             lambda _e: self._fill_from_point(*self.suggestion) if self.suggestion else None
         )
         self.server.scene.on_click()(self._on_click)
+        self.estimate_cb.on_update(lambda _e: self._gaussian_process())
 
     # --- panel actions --------------------------------------------------------------------------
 
@@ -375,7 +377,8 @@ class OperatorMap:
             np.float32
         )
         self.server.scene.add_point_cloud("/temperature/estimate", points, colormap(mean, mean.min(), mean.max()),
-                                          point_size=1.2, point_shape="square")  # fmt: skip
+                                          point_size=0.45, point_shape="circle",
+                                          visible=bool(self.estimate_cb.value))  # fmt: skip
         level = float(np.median(mean))
         field = mean.reshape(grid_n.shape) - level
         crossings = np.argwhere(np.sign(field[:-1, :]) != np.sign(field[1:, :]))
