@@ -46,7 +46,8 @@ class Rig:
                "TACIT_WRITE_TOKENS": TOKEN, "TACIT_TIME_SCALE": str(scale), "TACIT_DEFAULT_RANGE": str(distance),
                "TACIT_MAP_ENABLED": "false", "TACIT_POLL_INTERVAL": "30" if not mission else "2",
                "TACIT_PING_INTERVAL": "100000", "TACIT_COMMAND_ATTEMPTS": str(attempts)}  # fmt: skip
-        self._spawn(["serve", "--port", str(self.port)], "serve.log", env=env)
+        self.server_env = env
+        self.server = self._spawn(["serve", "--port", str(self.port)], "serve.log", env=env)
         self.http = httpx.Client(base_url=f"http://127.0.0.1:{self.port}/api/v1",
                                  headers={"Authorization": f"Bearer {TOKEN}"}, timeout=10)  # fmt: skip
         self._wait(lambda: self._ok("/health"), 30)
@@ -75,6 +76,15 @@ class Rig:
                                 env={**os.environ, **(env or {}), "PYTHONUNBUFFERED": "1"})  # fmt: skip
         self.procs.append(proc)
         return proc
+
+    def kill_server(self) -> None:
+        """SIGKILL: no chance to close anything."""
+        self.server.send_signal(signal.SIGKILL)
+        self.server.wait(timeout=10)
+
+    def start_server(self) -> None:
+        self.server = self._spawn(["serve", "--port", str(self.port)], "serve.log", env=self.server_env)
+        self._wait(lambda: self._ok("/link") and self.http.get("/link").json()["modem"] == "ready", 30)
 
     def _ok(self, path: str) -> bool:
         try:

@@ -70,7 +70,29 @@ async function loadSeries() {
 }
 
 function connect() {
-  const source = new EventSource(`/api/v1/events?token=${encodeURIComponent(state.token)}`);
+  // fetch, not EventSource: it can send the Authorization header (tokens never go in URLs)
+  const source = new EventTarget();
+  (async function read() {
+    try {
+      const response = await fetch("/api/v1/events", { headers: { Authorization: `Bearer ${state.token}` } });
+      if (!response.ok) throw new Error(response.statusText);
+      const reader = response.body.pipeThrough(new TextDecoderStream()).getReader();
+      let buffer = "";
+      for (;;) {
+        const { value, done } = await reader.read();
+        if (done) break;
+        buffer += value;
+        const frames = buffer.split("\n\n");
+        buffer = frames.pop();
+        for (const frame of frames) {
+          const kind = frame.match(/^event: (.*)$/m)?.[1], data = frame.match(/^data: (.*)$/m)?.[1];
+          if (kind && data) source.dispatchEvent(new MessageEvent(kind, { data }));
+        }
+      }
+    } catch (error) { /* fall through to reconnect */ }
+    setBadge("events: reconnecting", "down");
+    setTimeout(read, 3000);
+  })();
   source.addEventListener("packet", (e) => {
     const p = JSON.parse(e.data);
     state.packets.push(packetRow(p));
@@ -93,7 +115,6 @@ function connect() {
     renderPlot();
   });
   source.addEventListener("link", () => refreshLink());
-  source.onerror = () => setBadge("events: reconnecting", "down");
 }
 
 async function refreshLink() {

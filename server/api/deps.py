@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
+from typing import Annotated
 
-from fastapi import Request
+from fastapi import Path, Query, Request
 from sqlmodel import Session
 
 from server.db import writing
@@ -20,3 +21,9 @@ def db_write(request: Request) -> Iterator[Session]:
     """A session whose transaction writes: it holds the write lock from its first statement."""
     with writing(request.app.state.db) as s:
         yield s
+
+
+DB_INT_MAX = 2**31 - 1  # what every database's INTEGER holds: larger ids cannot exist, say 422 not 500
+Id = Annotated[int, Path(ge=1, le=DB_INT_MAX)]
+OptionalId = Annotated[int | None, Query(ge=1, le=DB_INT_MAX)]
+Offset = Annotated[int, Query(ge=0, le=DB_INT_MAX)]

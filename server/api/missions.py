@@ -4,7 +4,7 @@ from fastapi import APIRouter, Depends, HTTPException, Request
 from sqlmodel import Session, select
 
 from server.api.commands import queue_command
-from server.api.deps import db, db_write
+from server.api.deps import Id, db, db_write
 from server.api.vehicles import _get
 from server.auth import require_read, require_write
 from server.models import Mission
@@ -15,7 +15,7 @@ router = APIRouter(prefix="/api/v1", tags=["missions"])
 
 @router.post("/vehicles/{vehicle_id}/missions", status_code=201, response_model=MissionOut,
              dependencies=[Depends(require_write)])  # fmt: skip
-def create_mission(vehicle_id: int, body: MissionIn, s: Session = Depends(db_write)) -> Mission:
+def create_mission(vehicle_id: Id, body: MissionIn, s: Session = Depends(db_write)) -> Mission:
     """Record a mission (the same JSON as the agent's mission file: the vehicle holds the plan; the
     link only says which mission number to start)."""
     _get(s, vehicle_id)
@@ -30,12 +30,12 @@ def create_mission(vehicle_id: int, body: MissionIn, s: Session = Depends(db_wri
 @router.get(
     "/vehicles/{vehicle_id}/missions", response_model=list[MissionOut], dependencies=[Depends(require_read)]
 )
-def list_missions(vehicle_id: int, s: Session = Depends(db)) -> list[Mission]:
+def list_missions(vehicle_id: Id, s: Session = Depends(db)) -> list[Mission]:
     _get(s, vehicle_id)
     return list(s.exec(select(Mission).where(Mission.vehicle_id == vehicle_id).order_by(Mission.id)))
 
 
-def _transition(request: Request, s: Session, mission_id: int, command: str, status: str) -> CommandOut:
+def _transition(request: Request, s: Session, mission_id: Id, command: str, status: str) -> CommandOut:
     mission = s.get(Mission, mission_id)
     if mission is None:
         raise HTTPException(404, {"detail": f"no mission {mission_id}", "field": "mission_id"})
@@ -50,11 +50,11 @@ def _transition(request: Request, s: Session, mission_id: int, command: str, sta
 
 @router.post("/missions/{mission_id}/start", status_code=202, response_model=CommandOut,
              dependencies=[Depends(require_write)])  # fmt: skip
-def start_mission(mission_id: int, request: Request, s: Session = Depends(db_write)) -> CommandOut:
+def start_mission(mission_id: Id, request: Request, s: Session = Depends(db_write)) -> CommandOut:
     return _transition(request, s, mission_id, "start_mission", "started")
 
 
 @router.post("/missions/{mission_id}/abort", status_code=202, response_model=CommandOut,
              dependencies=[Depends(require_write)])  # fmt: skip
-def abort_mission(mission_id: int, request: Request, s: Session = Depends(db_write)) -> CommandOut:
+def abort_mission(mission_id: Id, request: Request, s: Session = Depends(db_write)) -> CommandOut:
     return _transition(request, s, mission_id, "abort_mission", "aborted")

@@ -4,7 +4,7 @@ from fastapi import APIRouter, Depends, HTTPException, Request
 from pydantic import BaseModel, Field
 from sqlmodel import Session, select
 
-from server.api.deps import db, db_write
+from server.api.deps import Id, db, db_write
 from server.auth import require_read, require_write
 from server.models import Vehicle
 from server.schemas import Limits, VehicleCreated, VehicleIn, VehicleOut
@@ -39,18 +39,18 @@ def list_vehicles(s: Session = Depends(db)) -> list[VehicleOut]:
 
 
 @router.get("/{vehicle_id}", response_model=VehicleOut, dependencies=[Depends(require_read)])
-def get_vehicle(vehicle_id: int, s: Session = Depends(db)) -> VehicleOut:
+def get_vehicle(vehicle_id: Id, s: Session = Depends(db)) -> VehicleOut:
     return _out(_get(s, vehicle_id))
 
 
 @router.put("/{vehicle_id}/limits", response_model=VehicleOut, dependencies=[Depends(require_write)])
-def set_limits(vehicle_id: int, body: Limits, s: Session = Depends(db_write)) -> VehicleOut:
+def set_limits(vehicle_id: Id, body: Limits, s: Session = Depends(db_write)) -> VehicleOut:
     _get(s, vehicle_id)
     return _out(vehicles.set_limits(s, vehicle_id, body))
 
 
 @router.post("/{vehicle_id}/key", response_model=VehicleCreated, dependencies=[Depends(require_write)])
-def rotate_key(vehicle_id: int, body: KeyIn, s: Session = Depends(db_write)) -> VehicleCreated:
+def rotate_key(vehicle_id: Id, body: KeyIn, s: Session = Depends(db_write)) -> VehicleCreated:
     """Rotate the vehicle's key (at the surface: put the new key in the agent's configuration too)."""
     _get(s, vehicle_id)
     try:
@@ -60,7 +60,7 @@ def rotate_key(vehicle_id: int, body: KeyIn, s: Session = Depends(db_write)) -> 
     return VehicleCreated(**_out(vehicle).model_dump(), key=vehicle.key_hex)
 
 
-def _get(s: Session, vehicle_id: int) -> Vehicle:
+def _get(s: Session, vehicle_id: Id) -> Vehicle:
     try:
         return vehicles.get(s, vehicle_id)
     except vehicles.NotFound as exc:
