@@ -60,9 +60,10 @@ class Rig:
             f'state_file = "{self.dir / "agent.json"}"\ntime_scale = {scale}\ntlog_dir = "{self.dir / "tlogs"}"\n'
             f"checkpoint_interval = 60\n{missions}\n")  # fmt: skip
         self.quiet = None
-        if agent:
-            self._spawn(["agent", "--config", str(self.dir / "agent.toml")], "agent.log")
-        else:  # a vehicle with nothing to say: the paper's silence, so the link is idle between commands
+        self.agent = self.start_agent() if agent else None
+        if (
+            not agent
+        ):  # a vehicle with nothing to say: the paper's silence, so the link is idle between commands
             self.quiet = VehicleSide(str(self.dir / "vehicle"), 2, bytes.fromhex(KEY))
         self._wait(lambda: self._ok("/link") and self.http.get("/link").json()["modem"] == "ready", 30)
         time.sleep(3.0)
@@ -76,6 +77,14 @@ class Rig:
                                 env={**os.environ, **(env or {}), "PYTHONUNBUFFERED": "1"})  # fmt: skip
         self.procs.append(proc)
         return proc
+
+    def start_agent(self) -> subprocess.Popen:
+        self.agent = self._spawn(["agent", "--config", str(self.dir / "agent.toml")], "agent.log")
+        return self.agent
+
+    def kill_agent(self) -> None:
+        self.agent.send_signal(signal.SIGKILL)  # type: ignore[union-attr]
+        self.agent.wait(timeout=10)  # type: ignore[union-attr]
 
     def kill_server(self) -> None:
         """SIGKILL: no chance to close anything."""

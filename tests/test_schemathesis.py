@@ -3,6 +3,7 @@ gets an answer below 500, never a crash."""
 
 from __future__ import annotations
 
+import os
 import tempfile
 
 import schemathesis
@@ -19,7 +20,11 @@ schema = schemathesis.openapi.from_asgi("/openapi.json", APP).exclude(path="/api
 
 
 @schema.parametrize()
-@settings(max_examples=12, deadline=None, suppress_health_check=list(HealthCheck))
+@settings(
+    max_examples=int(os.environ.get("TACIT_API_EXAMPLES", "12")),
+    deadline=None,
+    suppress_health_check=list(HealthCheck),
+)
 def test_no_request_crashes_the_server(case) -> None:  # noqa: ANN001
     case.headers = {**(case.headers or {}), "Authorization": "Bearer fuzz-operator"}
     response = case.call()

@@ -1,0 +1,242 @@
+"""Robustness, measured: fuzz cases and crashes, attacks accepted, faults injected and what they cost.
+
+Every row has a test in the suite at a small budget (named in the last column); this runs them bigger.
+  fuzz      random and mutated input to each parser: anything but its typed error is a crash
+  attacks   forged, bit-flipped, replayed and stale control packets through the vehicle's gate
+  api       schemathesis over the server's OpenAPI (every operation, --api-examples each): 5xx = failure
+  faults    the running system (sim, serve, agent as processes): 50 % frame loss, the server SIGKILLed
+            mid-mission, the agent SIGKILLed mid-mission: stored packets lost, commands executed twice
+
+Run: .venv/bin/python bench/bench_robustness.py [--cases 20000] [--api-examples 50] [--no-faults]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import os
+import random
+import re
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from tqdm import tqdm
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from tacit import auth, nmea, packets  # noqa: E402
+from tacit.codec import CodecError, StreamDecoder  # noqa: E402
+from tacit.packets import CheckpointPacket, Command, ControlPacket, MissionState  # noqa: E402
+from tacit.streams import default_streams  # noqa: E402
+
+rows: list[tuple[str, str, str, str, str]] = []
+
+
+def row(area: str, target: str, cases: str, bad: str, test: str) -> None:
+    rows.append((area, target, cases, bad, test))
+
+
+def fuzz(name: str, cases: int, make: Callable[[random.Random], object], call: Callable[[object], object],
+         expected: type[Exception], test: str) -> None:  # fmt: skip
+    rng, crashes = random.Random(1), 0
+    for _ in tqdm(range(cases), desc=name, leave=False):
+        try:
+            call(make(rng))
+        except expected:
+            pass
+        except Exception:  # noqa: BLE001 - counting crashes is the point
+            crashes += 1
+    row("fuzz", name, f"{cases:,}", str(crashes), test)
+
+
+def mutate(rng: random.Random, data: bytes) -> bytes:
+    out = bytearray(data)
+    for _ in range(rng.randint(1, 4)):
+        if out and rng.random() < 0.7:
+            out[rng.randrange(len(out))] = rng.randrange(256)
+        else:
+            out.insert(rng.randrange(len(out) + 1), rng.randrange(256))
+    return bytes(out)
+
+
+VALID_LINES = [s.encode() for s in ("$CACYC,0,1,2,0,1,1*58", "$CAMPR,2,1,0.0101*7C", "$CAREV,000052,AUV,0.93.0.09*07",
+                                    nmea.RxData(2, 1, True, 1, bytes(32)).line())]  # fmt: skip
+VALID_FRAME = CheckpointPacket(
+    seq=3, time=1_800_000_000, state=MissionState.PREPROGRAMMED, depth=2.0
+).encode()
+
+
+def fuzzing(cases: int) -> None:
+    fuzz("NMEA reader (random bytes)", cases, lambda r: r.randbytes(r.randint(0, 120)), nmea.parse, nmea.NmeaError,
+         "test_nmea: random_bytes, mutated_sentences")  # fmt: skip
+    fuzz("NMEA reader (mutated sentences)", cases, lambda r: mutate(r, r.choice(VALID_LINES)), nmea.parse,
+         nmea.NmeaError, "test_nmea: mutated_sentences")  # fmt: skip
+    fuzz("packet decoder (random frames)", cases, lambda r: r.randbytes(r.choice((31, 32, 32, 33))), packets.decode,
+         packets.PacketError, "test_packets: random_bytes")  # fmt: skip
+    fuzz("packet decoder (bit-flipped)", cases, lambda r: mutate(r, VALID_FRAME)[:32], packets.decode,
+         packets.PacketError, "test_packets: bit_flipped")  # fmt: skip
+    spec = default_streams()[next(iter(default_streams()))]
+    fuzz("sample decoder (random payloads)", cases // 10, lambda r: r.randbytes(30),
+         lambda p: StreamDecoder(spec).decode(p, time.time()), CodecError, "test_codec: garbage_is_a_codec_error")  # fmt: skip
+    row(
+        "fuzz",
+        "modem driver (garbage on a live pty)",
+        *driver_garbage(cases // 20),
+        "test_modem: garbage_from_modem",
+    )
+
+
+def driver_garbage(lines: int) -> tuple[str, str]:
+    """Feed the running driver garbage over a real pty; it must stay ready and still answer a ping."""
+    import tempfile
+
+    from tacit.modem import DriverSettings, LinkState, ModemDriver
+    from tests.scripted_modem import ScriptedModem
+
+    def rule(m, s):  # noqa: ANN001, ANN202
+        from tests.scripted_modem import default_rule
+
+        replies = default_rule(m, s)
+        if isinstance(s, nmea.Ping):
+            replies.append(nmea.PingReply(s.dest, s.src, 0.5).line())
+        return replies
+
+    modem = ScriptedModem(Path(tempfile.mkdtemp()) / "modem", rule)
+    rng = random.Random(2)
+
+    async def run() -> bool:
+        driver = ModemDriver(DriverSettings(url=str(modem.path), address=1, keepalive=600))
+        await driver.start()
+        for _ in range(lines):
+            modem.send(rng.randbytes(rng.randint(1, 80)).replace(b"\n", b"") + b"\r\n")
+            if rng.random() < 0.3:
+                modem.send(mutate(rng, rng.choice(VALID_LINES)).replace(b"\n", b"") + b"\r\n")
+        await asyncio.sleep(1.0)
+        alive = driver.state is LinkState.READY and await driver.ping(2, timeout=5) is not None
+        await driver.stop()
+        return alive
+
+    alive = asyncio.run(run())
+    modem.close()
+    return f"{lines:,} lines", "0" if alive else "1 (driver stopped answering)"
+
+
+def attacks(cases: int) -> None:
+    key, address, now = bytes(range(32)), 2, time.time()
+    gate = auth.ControlReceiver(key, address)
+    genuine = [
+        auth.sign(ControlPacket(Command.HOLD, seq=i + 1, time=int(now)), key, address) for i in range(cases)
+    ]
+    for frame in genuine:
+        gate.accept(frame, now)
+    rng = random.Random(3)
+    kinds = {
+        "forged (a stranger's key)": lambda i: auth.sign(
+            ControlPacket(Command.MOVE, seq=10**6 + i, time=int(now), distance=50), rng.randbytes(32), address
+        ),  # fmt: skip
+        "bit-flipped": lambda i: mutate(rng, genuine[i % len(genuine)])[:32],
+        "replayed": lambda i: genuine[i % len(genuine)],
+        "out of window (stale)": lambda i: auth.sign(
+            ControlPacket(Command.HOLD, seq=2 * 10**6 + i, time=int(now) - 3600), key, address
+        ),  # fmt: skip
+    }
+    for name, make in kinds.items():
+        accepted = 0
+        for i in range(cases):
+            try:
+                gate.accept(make(i), now)
+                accepted += 1
+            except packets.PacketError:
+                pass
+        row(
+            "attacks",
+            name,
+            f"{cases:,}",
+            f"{accepted} accepted",
+            "test_auth; test_agent_system: forged_and_replayed",
+        )
+
+
+def api(examples: int) -> None:
+    result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "tests/test_schemathesis.py"],
+                            cwd=ROOT, capture_output=True, text=True, env={**os.environ, "TACIT_API_EXAMPLES": str(examples)})  # fmt: skip
+    passed = int(m.group(1)) if (m := re.search(r"(\d+) passed", result.stdout)) else 0
+    failed = int(m.group(1)) if (m := re.search(r"(\d+) failed", result.stdout)) else 0
+    row("api", "schemathesis, every operation", f"{passed + failed} ops x {examples}", f"{failed} failed",
+        "test_schemathesis")  # fmt: skip
+
+
+def faults() -> None:
+    from tests.rig import Rig
+
+    rig = Rig(300.0, scale=10.0, extra_loss=0.5, attempts=10)
+    try:
+        results = [rig.command({"command": "hold"}, timeout=150) for _ in range(8)]
+        time.sleep(2)
+        executed = rig.executed_per_seq()
+    finally:
+        rig.close()
+    failed = sum(1 for status, _ in results if status == "failed")
+    row("faults", "50 % frame loss, 8 commands", "8", f"{failed} undelivered, {sum(n - 1 for n in executed.values())} "
+        "executed twice", "bench_link delivery; test_channel: extra_loss")  # fmt: skip
+
+    for victim in ("server", "agent"):
+        kill_mid_mission(victim)
+
+
+def kill_mid_mission(victim: str) -> None:
+    """SIGKILL the server or the agent mid-mission with a command queued; count what it cost."""
+    from tests.rig import Rig
+    from tests.system import wait_for
+
+    rig = Rig(200.0, scale=5.0, mission=True)
+    try:
+        http = rig.http
+        http.post("/vehicles/1/missions", json={"name": "square", "number": 1, "waypoints": []})
+        http.post("/missions/1/start")
+        wait_for(lambda: http.get("/packets", params={"limit": 1}).json()["total"] >= 5, 60, what="packets")
+        queued = http.post("/vehicles/1/commands", json={"command": "goto_depth", "depth": 3.0}).json()
+        before = {p["id"] for p in http.get("/packets", params={"limit": 1000}).json()["items"]}
+        if victim == "server":
+            rig.kill_server()
+            rig.start_server()
+        else:
+            rig.kill_agent()
+            rig.start_agent()
+        wait_for(lambda: http.get(f"/commands/{queued['id']}").json()["status"] in ("executing", "executed"), 120,
+                 what="queued command executed")  # fmt: skip
+        after = {p["id"] for p in http.get("/packets", params={"limit": 1000}).json()["items"]}
+        twice = sum(n - 1 for n in rig.executed_per_seq().values())
+        row("faults", f"{victim} SIGKILLed mid-mission", "1", f"{len(before - after)} packets lost, {twice} executed twice",
+            "test_faults" if victim == "server" else "test_agent_system: survives_an_agent_restart")  # fmt: skip
+    finally:
+        rig.close()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--cases", type=int, default=20_000, help="fuzz cases per parser")
+    parser.add_argument("--api-examples", type=int, default=50, help="schemathesis examples per operation")
+    parser.add_argument(
+        "--no-faults", action="store_true", help="skip the fault runs (they start the system)"
+    )
+    options = parser.parse_args()
+    fuzzing(options.cases)
+    attacks(max(100, options.cases // 20))
+    api(options.api_examples)
+    if not options.no_faults:
+        faults()
+    widths = [max(len(r[i]) for r in [("area", "target", "cases", "bad outcomes", "test in the suite"), *rows])
+              for i in range(5)]  # fmt: skip
+    for r in [("area", "target", "cases", "bad outcomes", "test in the suite"), *rows]:
+        print("  ".join(cell.ljust(w) for cell, w in zip(r, widths, strict=True)))
+
+
+if __name__ == "__main__":
+    main()
