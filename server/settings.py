@@ -12,6 +12,8 @@ import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
+from tacit.config import check_keys
+
 
 class SettingsError(ValueError):
     pass
@@ -44,10 +46,11 @@ class Settings:
         if path:
             values.update(tomllib.loads(Path(path).read_text()))
         env = dict(os.environ if env is None else env)
+        try:
+            check_keys(str(path), values, cls)
+        except ValueError as exc:
+            raise SettingsError(str(exc)) from None
         known = {f.name: f for f in fields(cls)}
-        unknown = set(values) - set(known)
-        if unknown:
-            raise SettingsError(f"unknown settings {sorted(unknown)}")
         for name, f in known.items():
             raw = env.get(f"TACIT_{name.upper()}")
             if raw is not None:

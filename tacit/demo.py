@@ -73,15 +73,6 @@ def _spawn(args: list[str], log: Path, capture: bool = False) -> subprocess.Pope
                             stderr=log.open("ab"), text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})  # fmt: skip
 
 
-def _stop(proc: subprocess.Popen) -> None:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-
-
 def run(args: argparse.Namespace) -> int:
     if not 0 <= args.extra_loss <= 1 or args.time_scale <= 0:
         print("tacit demo: --extra-loss is 0..1 and --time-scale positive", file=sys.stderr)
@@ -170,8 +161,8 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
         return 0
     finally:
         if agent is not None:
-            _stop(agent)
-        _stop(sim)
+            stop(agent)
+        stop(sim)
         server.should_exit = True
         await serving
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -13,6 +12,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+
+from tacit.processes import stop
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
@@ -30,12 +31,7 @@ def tacit_process(
             raise RuntimeError(f"tacit {args[0]} exited: {proc.stderr.read()}")  # type: ignore[union-attr]
         yield proc, json.loads(line)
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
+        stop(proc)
 
 
 POSTGRES = os.environ.get("TACIT_TEST_POSTGRES", "postgresql+psycopg://postgres@127.0.0.1:5432/test")

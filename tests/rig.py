@@ -15,6 +15,7 @@ from pathlib import Path
 
 import httpx
 
+from tacit.processes import stop
 from tests.vehicle_side import VehicleSide
 
 KEY = "3c" * 32
@@ -136,9 +137,4 @@ class Rig:
             self.quiet.close()
         self.http.close()
         for proc in reversed(self.procs):
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
-                try:
-                    proc.wait(timeout=10)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
+            stop(proc)

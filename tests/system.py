@@ -23,6 +23,7 @@ from pymavlink import mavutil
 from server.app import create_app
 from server.settings import Settings
 from tacit.navigation import Origin
+from tacit.processes import stop
 
 OP = {"Authorization": "Bearer operator"}
 KEY = "5a" * 32
@@ -152,12 +153,7 @@ class System:
             self.truth.close()
         self.client.__exit__(None, None, None)
         for proc in reversed(self.procs):
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
-                try:
-                    proc.wait(timeout=10)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
+            stop(proc)
 
 
 def angle_between(a: float, b: float) -> float:

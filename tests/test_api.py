@@ -14,6 +14,7 @@ from server.app import create_app
 from server.settings import Settings
 from tacit.packets import CheckpointPacket, CommandStatus, MissionState
 from tests.conftest import tacit_process
+from tests.system import wait_for
 from tests.vehicle_side import VehicleSide
 
 OP = {"Authorization": "Bearer operator-token"}
@@ -36,16 +37,6 @@ def app_settings(tmp_path: Path, modem_url: str = "", database_url: str | None =
                     modem_log=str(tmp_path / "shore-modem.log"),
                     write_tokens=["operator-token"], read_tokens=["observer-token"], time_scale=SCALE,
                     poll_interval=2.0, default_range=300.0, ping_interval=3600)  # fmt: skip
-
-
-def wait_for(predicate, timeout: float = 60.0, every: float = 0.2):  # noqa: ANN001, ANN201
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(every)
-    raise AssertionError("condition not met in time")
 
 
 def status_of(client: TestClient, command_id: int) -> str:

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from tacit import auth, modem
+from tacit.config import check_keys
 from tacit.packets import (
     OXYGEN_NONE,
     CheckpointPacket,
@@ -66,9 +67,7 @@ class AgentConfig:
     @classmethod
     def load(cls, path: str | Path) -> AgentConfig:
         data = tomllib.loads(Path(path).read_text())
-        unknown = set(data) - set(cls.__dataclass_fields__)
-        if unknown:
-            raise ValueError(f"{path}: unknown settings {sorted(unknown)}")
+        check_keys(str(path), data, cls)
         limits = Limits(**data.pop("limits", {}))
         nav = NavConfig(**data.pop("nav", {}))
         config = cls(**data, limits=limits, nav=nav)
@@ -98,7 +97,10 @@ class Agent:
             tlog.parent.mkdir(parents=True, exist_ok=True)
         self.mav = MavlinkLink(config.mavlink_url, tlog)
         self.position = PositionEstimate(config.nav)
-        self.position.north, self.position.east = self.state.north, self.state.east
+        if self.state.time is not None:
+            self.position.resume(
+                self.state.north, self.state.east, self.state.speed, self.state.thrust, self.state.time
+            )
         self.navigator = Navigator(self.mav, config.nav, self.position)
         status = MissionStatus.from_dict(self.state.mission) if self.state.mission else None
         self.fsm = MissionFSM(plans, config.limits, status, config.link_lost_timeout, config.lost_action,
@@ -206,6 +208,8 @@ class Agent:
     def _persist(self) -> None:
         self.state.mission = self.fsm.status.to_dict()
         self.state.north, self.state.east = self.position.north, self.position.east
+        self.state.speed, self.state.thrust = self.position.speed, self.navigator.thrust
+        self.state.time = self.mav.telemetry.time if self.mav.telemetry.time else self.state.time
         self.state.save(self.state_path)
         self._dirty = False
 

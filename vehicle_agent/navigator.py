@@ -24,6 +24,7 @@ from tacit.navigation import Origin
 from vehicle_agent.mavlink_io import MavlinkLink, Telemetry
 
 ALT_HOLD, GUIDED = 2, 4
+PILOT_TIMEOUT = 3.0  # s: ArduSub's FS_PILOT_TIMEOUT default; manual control older than this is neutral
 
 
 @dataclass
@@ -56,16 +57,31 @@ class PositionEstimate:
         self._last_time: float | None = None
         self._gps_used: float | None = None
         self._fix_used: float | None = None
+        self._resumed_thrust: int | None = None
 
-    def update(self, tel: Telemetry, thrust: int) -> None:
-        dt = 0.0 if self._last_time is None else max(0.0, min(1.0, tel.time - self._last_time))
-        self._last_time = tel.time
+    def _integrate(self, dt: float, thrust: int, yaw: float) -> None:
         push = self.config.cruise_speed**2 * thrust / self.config.cruise_thrust
         steps = max(1, math.ceil(dt / 0.05))
         for _ in range(steps):
             self.speed += (push - self.speed * abs(self.speed)) / self.config.drag_length * (dt / steps)
-        self.north += self.speed * math.cos(tel.yaw) * dt
-        self.east += self.speed * math.sin(tel.yaw) * dt
+            self.north += self.speed * math.cos(yaw) * (dt / steps)
+            self.east += self.speed * math.sin(yaw) * (dt / steps)
+
+    def resume(self, north: float, east: float, speed: float, thrust: int, time: float) -> None:
+        """Start from a persisted estimate (an agent restart): the gap until the next update is
+        integrated too, at the last thrust until ArduSub's pilot-input timeout, then coasting."""
+        self.north, self.east, self.speed, self._last_time = north, east, speed, time
+        self._resumed_thrust = thrust
+
+    def update(self, tel: Telemetry, thrust: int) -> None:
+        gap = 0.0 if self._last_time is None else max(0.0, tel.time - self._last_time)
+        self._last_time = tel.time
+        if gap > 1.0 and self._resumed_thrust is not None:  # the agent was down: what did the vehicle do?
+            self._integrate(min(gap, PILOT_TIMEOUT), self._resumed_thrust, tel.yaw)
+            self._integrate(max(0.0, gap - PILOT_TIMEOUT), 0, tel.yaw)
+        else:
+            self._integrate(min(gap, 1.0), thrust, tel.yaw)
+        self._resumed_thrust = None
         self.source = "dead_reckoning"
         fix_time = tel.seen.get("LOCAL_POSITION_NED")
         if tel.position_fix is not None and fix_time != self._fix_used:  # a new fix: take it

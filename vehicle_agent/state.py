@@ -20,6 +20,9 @@ class AgentState:
     priority_count: int = 0
     north: float = 0.0
     east: float = 0.0
+    speed: float = 0.0  # dead-reckoned speed, thrust and vehicle time: a restart integrates the gap
+    thrust: int = 0
+    time: float | None = None
 
     @classmethod
     def load(cls, path: Path) -> AgentState:

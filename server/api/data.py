@@ -35,29 +35,30 @@ def _page(s: Session, query, limit: int, offset: int, model) -> Page:  # noqa: A
 def packets(s: Session = Depends(db), vehicle_id: OptionalId = None,
             type: str | None = Query(None, pattern="^(checkpoint|priority)$"), since: float | None = None,
             until: float | None = None, limit: int = Query(100, ge=1, le=1000), offset: Offset = 0) -> Page:  # fmt: skip
-    query = select(Packet).order_by(Packet.id.desc())  # type: ignore[union-attr]
-    if vehicle_id is not None:
-        query = query.where(Packet.vehicle_id == vehicle_id)
+    query = _filtered(select(Packet).order_by(Packet.id.desc()), Packet.vehicle_id, Packet.at,  # type: ignore[union-attr]
+                      vehicle_id, since, until)  # fmt: skip
     if type is not None:
         query = query.where(Packet.type == type)
-    if since is not None:
-        query = query.where(Packet.at >= since)
-    if until is not None:
-        query = query.where(Packet.at <= until)
     return _page(s, query, limit, offset, PacketOut)
 
 
-def _telemetry_query(vehicle_id: int | None, stream: str | None, since: float | None, until: float | None):  # noqa: ANN202
-    query = select(Telemetry).order_by(Telemetry.time)
+def _filtered(
+    query, vehicle_column, time_column, vehicle_id: int | None, since: float | None, until: float | None
+):  # noqa: ANN001, ANN202  (a select and its columns)
+    """The filters every data route shares: one vehicle, a time window."""
     if vehicle_id is not None:
-        query = query.where(Telemetry.vehicle_id == vehicle_id)
-    if stream is not None:
-        query = query.where(Telemetry.stream == stream)
+        query = query.where(vehicle_column == vehicle_id)
     if since is not None:
-        query = query.where(Telemetry.time >= since)
+        query = query.where(time_column >= since)
     if until is not None:
-        query = query.where(Telemetry.time <= until)
+        query = query.where(time_column <= until)
     return query
+
+
+def _telemetry_query(vehicle_id: int | None, stream: str | None, since: float | None, until: float | None):  # noqa: ANN202
+    query = _filtered(select(Telemetry).order_by(Telemetry.time), Telemetry.vehicle_id, Telemetry.time,
+                      vehicle_id, since, until)  # fmt: skip
+    return query.where(Telemetry.stream == stream) if stream is not None else query
 
 
 @router.get("/telemetry", response_model=Page, dependencies=[Depends(require_read)])

@@ -18,6 +18,8 @@ import random
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from tacit.config import check_keys
+
 
 @dataclass
 class Environment:
@@ -63,9 +65,7 @@ class Environment:
     @classmethod
     def load(cls, path: str | Path) -> Environment:
         data = json.loads(Path(path).read_text())
-        unknown = set(data) - set(cls.__dataclass_fields__)
-        if unknown:
-            raise ValueError(f"{path}: unknown environment fields {sorted(unknown)}")
+        check_keys(str(path), data, cls)
         if "plume_drift" in data:
             data["plume_drift"] = tuple(data["plume_drift"])
         if "patches" in data:

@@ -44,6 +44,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from tacit.config import check_keys
 from tacit.sim.acoustics import ChannelParameters
 from tacit.sim.channel import Channel
 from tacit.sim.clock import RealtimeScheduler
@@ -103,7 +104,7 @@ class SimConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> SimConfig:
-        _check_keys("config", data, cls)
+        check_keys("config", data, cls)
         modems = [ModemSpec(**_checked("modem", m, ModemSpec)) for m in data.pop("modems", [])]
         vehicles = [VehicleSpec(**_checked("vehicle", v, VehicleSpec)) for v in data.pop("vehicles", [])]
         config = cls(**data, modems=modems, vehicles=vehicles)
@@ -127,14 +128,8 @@ class SimConfig:
             raise ValueError("time_scale must be positive")
 
 
-def _check_keys(what: str, data: dict[str, Any], cls: type) -> None:
-    unknown = set(data) - {f.name for f in fields(cls)}
-    if unknown:
-        raise ValueError(f"unknown {what} keys {sorted(unknown)}")
-
-
 def _checked(what: str, data: dict[str, Any], cls: type) -> dict[str, Any]:
-    _check_keys(what, data, cls)
+    check_keys(what, data, cls)
     return {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
 
 

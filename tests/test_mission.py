@@ -1,0 +1,101 @@
+"""The mission state machine (Algorithm 2) and dead reckoning, without I/O."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from tacit.packets import Command, CommandStatus, ControlFlag, ControlPacket, MissionState, Reason
+from vehicle_agent.mavlink_io import Telemetry
+from vehicle_agent.mission import Limits, MissionFSM, MissionPlan, MissionStatus, Pose
+from vehicle_agent.navigator import NavConfig, PositionEstimate
+
+HOME = Pose(0.0, 0.0, 0.0, 0.0)
+
+
+def fsm(**kw: object) -> MissionFSM:
+    return MissionFSM(
+        {1: MissionPlan.square(1, side=10.0, depth=2.0, duration_s=600)}, Limits(max_depth=20), **kw
+    )  # type: ignore[arg-type]
+
+
+def control(command: Command, seq: int, **kw: object) -> ControlPacket:
+    return ControlPacket(command, seq, 0, **kw)  # type: ignore[arg-type]
+
+
+def test_waits_then_follows_the_mission_and_resumes_after_a_command() -> None:
+    m = fsm()
+    assert m.step(0, HOME, False, 0) is None and m.state is MissionState.WAITING
+    assert m.on_control(control(Command.START_MISSION, 1, param_id=1), HOME, 0) == (
+        CommandStatus.EXECUTED,
+        Reason.OK,
+    )
+    target = m.step(1, HOME, False, 1)
+    assert m.state is MissionState.PREPROGRAMMED and (target.north, target.depth) == (0.0, 2.0)
+    m.step(2, HOME, True, 2)  # reached waypoint 0
+    assert m.status.waypoint == 1
+    status, _ = m.on_control(control(Command.MOVE, 2, distance=5, angle=90), Pose(3, 0, 2, 0), 3)
+    assert status is CommandStatus.EXECUTING and m.state is MissionState.COMMANDED
+    assert m.status.target == pytest.approx((3.0, 5.0, 2.0))
+    m.step(4, Pose(3, 5, 2, 90), True, 4)  # the command done: back to the trajectory ("go to line 3")
+    assert m.state is MissionState.PREPROGRAMMED and m.status.command_status is CommandStatus.EXECUTED
+
+
+def test_unpredictable_data_time_sensitive_or_not() -> None:
+    m = fsm()
+    m.on_control(control(Command.START_MISSION, 1, param_id=1), HOME, 0)
+    m.on_unpredictable(False, None)
+    assert m.state is MissionState.AWAITING_COMMAND  # keeps the trajectory meanwhile
+    assert m.step(1, HOME, False, 1) is not None
+    m._go(MissionState.PREPROGRAMMED)
+    m.on_unpredictable(True, (4.0, 4.0, 2.0))
+    assert m.state is MissionState.SELF_DETERMINED and m.step(2, HOME, False, 2).east == 4.0
+
+
+def test_limits_unknown_missions_and_parameters_are_refused_with_a_reason() -> None:
+    m = fsm()
+    assert m.on_control(control(Command.GOTO_DEPTH, 1, depth=50), HOME, 0) == (
+        CommandStatus.REFUSED,
+        Reason.OUT_OF_LIMITS,
+    )
+    assert m.on_control(control(Command.MOVE, 2, distance=2000), HOME, 0)[1] is Reason.OUT_OF_LIMITS
+    assert m.on_control(control(Command.MOVE, 3, distance=500, angle=0, flags=ControlFlag.ABSOLUTE_ANGLE),
+                        Pose(600, 0, 1, 0), 0)[1] is Reason.GEOFENCE  # fmt: skip
+    assert m.on_control(control(Command.START_MISSION, 4, param_id=9), HOME, 0)[1] is Reason.UNKNOWN_MISSION
+    assert m.on_control(control(Command.SET_PARAM, 5, param_id=200), HOME, 0)[1] is Reason.UNKNOWN_PARAM
+    assert (
+        m.on_control(control(Command.SET_PARAM, 6, param_id=1, param_value=0.8), HOME, 0)[0]
+        is CommandStatus.EXECUTED
+    )
+    assert m.status.params["plume_threshold"] == 0.8 and m.state is MissionState.WAITING
+
+
+def test_mission_time_link_loss_and_finish() -> None:
+    m = fsm(link_lost_timeout=30.0, lost_action="surface")
+    m.on_control(control(Command.START_MISSION, 1, param_id=1), HOME, 0)
+    m.step(10, Pose(5, 0, 2, 0), False, 10)
+    m.step(50, Pose(5, 0, 2, 0), False, 10)  # 40 s without hearing the shore
+    assert m.state is MissionState.LINK_LOST and m.status.target == (5.0, 0.0, 0.0)
+    m.on_control(control(Command.RESUME, 2), Pose(5, 0, 0, 0), 51)
+    m.step(700, Pose(5, 0, 2, 0), False, 700)  # past T_mission
+    assert m.state is MissionState.RETURNING
+    m.step(710, Pose(0.2, 0.1, 0.0, 0), True, 710)
+    assert m.state is MissionState.FINISHED
+
+
+def test_status_survives_a_round_trip_through_json() -> None:
+    m = fsm()
+    m.on_control(control(Command.START_MISSION, 7, param_id=1), HOME, 0)
+    restored = MissionStatus.from_dict(m.status.to_dict())
+    assert restored == m.status
+
+
+def test_dead_reckoning_integrates_the_gap_of_a_restart() -> None:
+    """Killed at 0.95 m/s under cruise thrust: ArduSub keeps that thrust 3 s, then the hull coasts."""
+    config = NavConfig()
+    estimate = PositionEstimate(config)
+    estimate.resume(0.0, 0.0, 0.95, config.cruise_thrust, time=100.0)
+    estimate.update(Telemetry(time=110.0), 0)
+    coast = config.drag_length * math.log(1 + 0.95 * 7.0 / config.drag_length)  # quadratic drag, 7 s
+    assert estimate.north == pytest.approx(0.95 * 3.0 + coast, rel=0.05) and estimate.speed < 0.2
