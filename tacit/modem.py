@@ -425,7 +425,9 @@ class ModemDriver:
             self._spawn(self._reconfigure())
 
     def _on_err(self, err: nmea.Error) -> None:
-        log.warning("modem %s: error %s %s %s", self._name, err.module, err.number, err.message)
+        # BUSY is routine (our modem still owes an acknowledgement): the caller retries in the next slot
+        level = logging.INFO if err.message == "BUSY" else logging.WARNING
+        log.log(level, "modem %s: error %s %s %s", self._name, err.module, err.number, err.message)
         self._emit(ModemReported(err))
 
     _HANDLERS: dict[type, Callable[[ModemDriver, nmea.Sentence], None]] = {

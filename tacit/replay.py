@@ -1,0 +1,136 @@
+"""``tacit replay FILE.tlog``: what the protocol would have sent during a real dive.
+
+The simulator streams the log as the vehicle (its own MAVLink frames), the agent compresses what it
+hears and answers the shore's polls through the simulated link, and the server stores what arrives, as
+in a mission; the dashboard shows it live. At the end a summary compares what the shore reconstructed
+with what the vehicle measured (the agent's own tlog): the keys of ``tacit eval-compression --json``
+for the IMU stream, plus ``packets_by_type``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import math
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+
+from tacit.demo import _log_to, _register, _secrets, _spawn
+from tacit.processes import stop
+from tacit.streams import IMU_CHANNELS, default_streams
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("tlog", help="a MAVLink .tlog from ArduSub (e.g. ../shared/data/ardusub/small.tlog)")
+    parser.add_argument("--time-scale", type=float, default=4.0, help="log seconds per wall second")
+    parser.add_argument("--range", type=float, default=300.0, help="shore modem's distance (m)")
+    parser.add_argument("--extra-loss", type=float, default=0.0, help="extra frame loss probability 0..1")
+    parser.add_argument("--data-dir", default="data/replay", help="database, logs and the agent's tlog")
+    parser.add_argument("--port", type=int, default=8010, help="API and dashboard port (to watch it live)")
+    parser.add_argument(
+        "--settle", type=float, default=25.0, help="seconds after the log ends for the last packets"
+    )
+    parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+
+
+def run(args: argparse.Namespace) -> int:
+    from tacit.sim.tlog_replay import read_tlog
+
+    try:
+        frames = read_tlog(args.tlog)
+    except (OSError, ValueError) as exc:
+        print(f"tacit replay: {exc}", file=sys.stderr)
+        return 2
+    duration = (frames[-1][0] - frames[0][0]) / args.time_scale
+    summary = asyncio.run(_replay(args, duration))
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        for key, value in summary.items():
+            print(f"{key:>18}: {value}")
+    return 0
+
+
+async def _replay(args: argparse.Namespace, duration: float) -> dict:
+    import httpx
+    import uvicorn
+
+    from server.app import create_app
+    from server.settings import Settings
+
+    data = Path(args.data_dir).resolve()
+    data.mkdir(parents=True, exist_ok=True)
+    _log_to(data / "server.log")
+    secret = _secrets(data)
+    sim_config = {"seed": 1, "time_scale": args.time_scale, "channel": {"extra_loss": args.extra_loss},
+                  "modems": [{"address": 1, "name": "shore", "position": [-args.range, 0, 1], "link": str(data / "shore.pty")},
+                             {"address": 2, "name": "vehicle", "attach": "rov1", "link": str(data / "vehicle.pty")}],
+                  "vehicles": [{"name": "rov1", "tcp_port": 0, "replay": str(Path(args.tlog).resolve())}]}  # fmt: skip
+    (data / "sim.json").write_text(json.dumps(sim_config))
+    for old in (data / "tlogs").glob("*.tlog"):
+        old.unlink()
+    sim = _spawn(["sim", "--config", str(data / "sim.json"), "--json"], data / "sim.log", capture=True)
+    mavlink = json.loads(await asyncio.to_thread(sim.stdout.readline))["vehicle"]["mavlink"][0]  # type: ignore[union-attr]
+    app = create_app(Settings(database_url=f"sqlite:///{data / 'tacit.db'}", modem_url=str(data / "shore.pty"),
+                              port=args.port, map_enabled=False, write_tokens=[secret["token"]],
+                              time_scale=args.time_scale, default_range=args.range))  # fmt: skip
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=args.port, log_config=None))
+    serving = asyncio.create_task(server.serve())
+    agent = None
+    started = time.time()
+    try:
+        while not server.started:
+            await asyncio.sleep(0.05)
+        async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{args.port}",
+                                     headers={"Authorization": f"Bearer {secret['token']}"}) as http:  # fmt: skip
+            await _register(http, secret["key"])
+        (data / "agent.toml").write_text(
+            f'address = 2\nkey = "{secret["key"]}"\nmodem_url = "{data / "vehicle.pty"}"\nmavlink_url = "{mavlink}"\n'
+            f'state_file = "{data / "agent-state.json"}"\ntlog_dir = "{data / "tlogs"}"\nmax_silence = 20\n')  # fmt: skip
+        (data / "agent-state.json").unlink(missing_ok=True)
+        agent = _spawn(["agent", "--config", str(data / "agent.toml")], data / "agent.log")
+        await asyncio.sleep(
+            duration + args.settle
+        )  # the dive, then the last packets' latency and a poll or two
+        return _summary(app.state.db, data, started)
+    finally:
+        if agent is not None:
+            stop(agent)
+        stop(sim)
+        server.should_exit = True
+        await serving
+
+
+def _summary(db, data: Path, started: float) -> dict:  # noqa: ANN001
+    """The shore's reconstruction against the vehicle's own log of what it measured."""
+    from pymavlink import mavutil
+    from sqlmodel import Session, select
+
+    from server.models import Packet, Telemetry
+
+    spec = next(s for s in default_streams().values() if s.name == "imu")
+    measured: dict[int, list[float]] = {}
+    for tlog in (data / "tlogs").glob("*.tlog"):
+        conn = mavutil.mavlink_connection(str(tlog))
+        while (msg := conn.recv_match(type="RAW_IMU", blocking=False)) is not None:
+            measured.setdefault(spec.tick(msg._timestamp), [float(getattr(msg, c)) for c in IMU_CHANNELS])
+    with Session(db) as s:
+        packets = s.exec(select(Packet).where(Packet.at >= started)).all()
+        rows = s.exec(select(Telemetry).where(Telemetry.stream == "imu", Telemetry.certain)).all()
+    ratios = [abs(v - m) / e for r in rows if r.tick in measured
+              for v, m, e in zip(r.values, measured[r.tick], spec.eps, strict=True)]  # fmt: skip
+    imu = [p for p in packets if p.type == "priority" and p.body.get("stream") == "kinematic"]
+    latencies = [p.at - p.body["first_tick"] * spec.period for p in imu if "first_tick" in p.body]
+    samples = len(measured) * len(IMU_CHANNELS)
+    return {
+        "samples": samples, "packets": len(imu), "link_bits": len(imu) * 256,
+        "bits_per_sample": round(len(imu) * 256 / samples, 3) if samples else None,
+        "max_error_ratio": round(max(ratios), 4) if ratios else None,
+        "rms_error_ratio": round(math.sqrt(sum(r * r for r in ratios) / len(ratios)), 4) if ratios else None,
+        "max_latency_s": round(max(latencies), 2) if latencies else None,
+        "packets_by_type": dict(Counter(f"{p.type}/{p.body.get('stream', '-')}" if p.type == "priority" else p.type
+                                        for p in packets)),
+    }  # fmt: skip
