@@ -186,6 +186,26 @@ def faults() -> None:
 
     for victim in ("server", "agent"):
         kill_mid_mission(victim)
+    suite_row(
+        "faults",
+        "MAVLink link dropped and restored",
+        "tests/test_faults.py::test_mavlink_link_drops_and_the_agent_reconnects",
+    )
+    suite_row(
+        "faults",
+        "modem rebooted mid-cycle",
+        "tests/test_modem.py::test_modem_rebooting_mid_cycle_fails_the_cycle_then_recovers",
+    )
+    suite_row(
+        "faults", "serial port vanished and returned", "tests/test_modem.py::test_vanished_port_comes_back"
+    )
+
+
+def suite_row(area: str, target: str, test: str) -> None:
+    """A fault whose injection lives in a test: run it and report its outcome."""
+    result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", test], cwd=ROOT,
+                            capture_output=True, text=True)  # fmt: skip
+    row(area, target, "1", "0" if result.returncode == 0 else "1 (test failed)", test.split("::")[-1])
 
 
 def kill_mid_mission(victim: str) -> None:

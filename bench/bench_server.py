@@ -73,6 +73,18 @@ def client_process(port: int, stop, results) -> None:  # noqa: ANN001
     results.put(latencies)
 
 
+def sse_process(port: int, stop, results) -> None:  # noqa: ANN001
+    """A browser on the live event stream: counts the events it receives."""
+    events = 0
+    with httpx.Client(base_url=f"http://127.0.0.1:{port}", headers={"Authorization": f"Bearer {TOKEN}"},
+                      timeout=None) as http, http.stream("GET", "/api/v1/events") as stream:  # fmt: skip
+        for line in stream.iter_lines():
+            events += line.startswith("event:")
+            if stop.is_set():
+                break
+    results.put(events)
+
+
 def client_loop(port: int, stop, latencies: list[float]) -> None:  # noqa: ANN001
     headers = {"Authorization": f"Bearer {TOKEN}"}
     paths = ["/api/v1/packets?limit=20", "/api/v1/link", "/api/v1/vehicles", "/api/v1/telemetry?limit=50"]
@@ -93,6 +105,7 @@ def main() -> None:
     parser.add_argument("--priority-share", type=float, default=0.5, help="fraction of priority packets")
     parser.add_argument("--clients", type=int, default=4, help="concurrent API readers (separate processes)")
     parser.add_argument("--batch", type=int, default=1, help="frames per group commit (1 = one at a time)")
+    parser.add_argument("--sse-clients", type=int, default=3, help="browsers on the live event stream")
     parser.add_argument("--database-url", help="default: a SQLite file in a temporary folder")
     parser.add_argument("--port", type=int, default=8765)
     options = parser.parse_args()
@@ -110,7 +123,10 @@ def main() -> None:
     stop, results = multiprocessing.Event(), multiprocessing.Queue()
     clients = [multiprocessing.Process(target=client_process, args=(options.port, stop, results))
                for _ in range(options.clients)]  # fmt: skip
-    for c in clients:
+    sse_results = multiprocessing.Queue()
+    browsers = [multiprocessing.Process(target=sse_process, args=(options.port, stop, sse_results))
+                for _ in range(options.sse_clients)]  # fmt: skip
+    for c in clients + browsers:
         c.start()
     time.sleep(1.0)
     ingest = app.state.ingest
@@ -120,13 +136,19 @@ def main() -> None:
     elapsed = time.perf_counter() - start
     stop.set()
     under_load = sorted(x for _ in clients for x in results.get(timeout=30))
-    for c in clients:
-        c.join()
+    time.sleep(0.5)
+    http.post("/api/v1/vehicles", json={"name": "wake", "address": 3})  # one more event wakes the readers up
+    received = [sse_results.get(timeout=30) for _ in browsers]
+    for c in clients + browsers:
+        c.join(timeout=10)
     server.should_exit = True
     print(f"\ndatabase: {url.split(':')[0]}   frames: {len(incoming)} ({options.priority_share:.0%} priority), "
           f"{options.batch} per commit")  # fmt: skip
     print(f"ingest: {len(incoming) / elapsed:,.0f} packets/s decoded, stored and published "
           f"({ingest.stats['packets']} stored, {ingest.stats['duplicates']} duplicates)")  # fmt: skip
+    if received:
+        print(f"event stream: {len(browsers)} browsers received {min(received):,} to {max(received):,} events each "
+              f"({app.state.bus.published:,} published)")  # fmt: skip
     if len(under_load) >= 2:
         q = statistics.quantiles(under_load, n=100)
         print(f"API under that load ({options.clients} clients, {len(under_load)} requests): "

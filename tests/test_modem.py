@@ -228,3 +228,34 @@ def test_unsolicited_data_request_is_answered_from_the_poll_provider(modem: Scri
     run(scenario())
     txd = [s for s in modem.received if isinstance(s, nmea.TxData)][-1]
     assert txd.data == b"\xaa" * 32 and txd.dest == 3
+
+
+def test_modem_rebooting_mid_cycle_fails_the_cycle_then_recovers(tmp_path: Path) -> None:
+    rebooted: list[bool] = []
+
+    def reboot_once(m: ScriptedModem, s: nmea.Sentence) -> list[str]:
+        if (
+            isinstance(s, nmea.Cycle) and not rebooted
+        ):  # echo the cycle, then reboot instead of asking for data
+            rebooted.append(True)
+            return [s.line(nmea.MODEM), nmea.Revision("000001", "INIT", "0.94.0.52").line()]
+        return cycle_rule(m, s)
+
+    modem = ScriptedModem(tmp_path / "modem", reboot_once)
+
+    async def scenario():  # noqa: ANN202
+        driver = ModemDriver(settings(modem.path, keepalive=60, drq_timeout=1.0))
+        await driver.start()
+        configured = len([s for s in modem.received if isinstance(s, nmea.Config) and s.name == "SRC"])
+        first = await driver.send(VEHICLE, [b"a" * 32], ack=True, ack_timeout=2)
+        await wait_until(lambda: len([s for s in modem.received if isinstance(s, nmea.Config)
+                                      and s.name == "SRC"]) > configured)  # fmt: skip
+        await wait_until(lambda: driver.state is LinkState.READY)
+        second = await driver.send(VEHICLE, [b"b" * 32], ack=True, ack_timeout=2)
+        await driver.stop()
+        return first, second
+
+    first, second = run(scenario())
+    modem.close()
+    assert not first.transmitted and first.error  # the lost cycle is reported, not hidden
+    assert second.transmitted and second.all_acked
