@@ -35,6 +35,7 @@ class Settings:
     poll_interval: float = 2.0  # seconds between link slots when idle
     ping_interval: float = 120.0
     command_attempts: int = 4
+    confirm_timeout: float = 120.0  # s: an ACKed command no check-point has confirmed is sent again
     sound_speed: float = 1500.0
     shore_position: tuple[float, float, float] = (0.0, 0.0, 1.0)  # north, east, depth of the shore modem
     default_range: float = 1000.0  # used for slot timing until a ping measures it

@@ -46,7 +46,8 @@ class Rig:
         env = {"TACIT_DATABASE_URL": f"sqlite:///{self.dir}/tacit.db", "TACIT_MODEM_URL": str(self.dir / "shore"),
                "TACIT_WRITE_TOKENS": TOKEN, "TACIT_TIME_SCALE": str(scale), "TACIT_DEFAULT_RANGE": str(distance),
                "TACIT_MAP_ENABLED": "false", "TACIT_POLL_INTERVAL": "30" if not mission else "2",
-               "TACIT_PING_INTERVAL": "100000", "TACIT_COMMAND_ATTEMPTS": str(attempts)}  # fmt: skip
+               "TACIT_PING_INTERVAL": "100000", "TACIT_COMMAND_ATTEMPTS": str(attempts),
+               "TACIT_CONFIRM_TIMEOUT": "60"}  # fmt: skip
         self.server_env = env
         self.server = self._spawn(["serve", "--port", str(self.port)], "serve.log", env=env)
         self.http = httpx.Client(base_url=f"http://127.0.0.1:{self.port}/api/v1",

@@ -58,3 +58,22 @@ def test_mavlink_link_drops_and_the_agent_reconnects(tmp_path) -> None:  # noqa:
     finally:
         link.stop()
     assert (tmp_path / "agent.tlog").stat().st_size > 0
+
+
+def test_command_acknowledged_while_the_agent_was_down_is_delivered_later() -> None:
+    """The vehicle's modem acknowledges in hardware even when the agent is dead: the shore must not take
+    that ACK as delivery. The command goes again until a check-point confirms it, and runs once."""
+    rig = Rig(200.0, scale=5.0, mission=True)
+    try:
+        api = rig.http
+        wait_for(lambda: api.get("/link").json()["vehicles"]["rov1"]["checkpoint"], 60, what="first check-point")
+        rig.kill_agent()
+        command = api.post("/vehicles/1/commands", json={"command": "goto_depth", "depth": 2.0}).json()
+        wait_for(lambda: api.get(f"/commands/{command['id']}").json()["status"] == "acknowledged", 60,
+                 what="the modem's ACK with nobody listening")  # fmt: skip
+        rig.start_agent()
+        wait_for(lambda: api.get(f"/commands/{command['id']}").json()["status"] in ("executing", "executed"), 120,
+                 what="the command executed after the agent came back")  # fmt: skip
+        assert set(rig.executed_per_seq().values()) == {1}
+    finally:
+        rig.close()

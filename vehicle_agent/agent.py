@@ -115,6 +115,8 @@ class Agent:
             self.driver, auth.ControlReceiver(key, config.address, window), config.shore_address
         )
         self.link.on_control = self._on_control
+        self.link.on_repeat = self._on_repeat
+        self._repeat_answered = -1e9
         self.samples: deque[tuple[str, float, tuple]] = deque(maxlen=10_000)
         self.mav.listeners.append(self._on_mavlink)
         self.shore_heard_at: float | None = None
@@ -144,6 +146,14 @@ class Agent:
         log.info("control seq %d %s: %s %s", packet.seq, packet.command.name, status.name, reason.name)
         self.state.replay = self.link.receiver.window.to_dict()
         self._persist()  # the replay window is on disk before anything acts on the command
+
+    def _on_repeat(self, seq: int) -> None:
+        """The shore sent again a command we have: it did not hear our check-point. Say it again
+        (once per 10 s of vehicle time at most: a replaying stranger cannot make us chatter)."""
+        now = self.mav.telemetry.time
+        if seq == self.fsm.status.last_command and now - self._repeat_answered >= 10.0:
+            self._repeat_answered = now
+            self.fsm.checkpoint_due = True
 
     def _drain_samples(self, pose: Pose) -> None:
         while self.samples:

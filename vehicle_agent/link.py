@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 from tacit import auth, modem, nmea
 from tacit.link import from_frame
-from tacit.packets import PACKET_SIZE, ControlPacket, PacketError, PacketType, packet_type
+from tacit.packets import PACKET_SIZE, ControlPacket, PacketError, PacketType, decode_control, packet_type
 
 log = logging.getLogger("tacit.agent.link")
 
@@ -45,6 +45,7 @@ class VehicleLink:
         self.queue: list[Outgoing] = []
         self.in_flight: dict[int, list[Outgoing]] = {}  # by frame number of the last poll answer
         self.on_control: Callable[[ControlPacket], None] = lambda packet: None
+        self.on_repeat: Callable[[int], None] = lambda seq: None  # a genuine command seen before
         self._order = itertools.count()
         self.counters = {
             "polls": 0,
@@ -116,6 +117,11 @@ class VehicleLink:
             if packet_type(frame) is not PacketType.CONTROL:
                 raise PacketError("not a control packet")
             packet = self.receiver.accept(frame, self.clock())
+        except auth.Replayed as exc:  # genuine (the MAC held) but seen before: never executed twice
+            self.counters["rejected"] += 1
+            log.warning("control frame rejected: %s (%s)", exc, type(exc).__name__)
+            self.on_repeat(decode_control(frame).seq)
+            return
         except PacketError as exc:
             self.counters["rejected"] += 1
             log.warning("control frame rejected: %s (%s)", exc, type(exc).__name__)

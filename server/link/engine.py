@@ -165,9 +165,25 @@ class LinkEngine:
         return await self._poll(vehicle)
 
     def _next_command(self, vehicle_id: int) -> Command | None:
+        """The oldest queued or sent command; else the vehicle's latest command if it was acknowledged but no
+        check-point has confirmed it within ``confirm_timeout`` (the modem ACKs in hardware, even when the
+        vehicle's host is down). Only the latest: re-sending an older one could run it after a newer one."""
         with Session(self.db) as s:
-            return s.exec(select(Command).where(Command.vehicle_id == vehicle_id, Command.status.in_(PENDING))
-                          .order_by(Command.id)).first()  # type: ignore[attr-defined]  # fmt: skip
+            pending = s.exec(select(Command).where(Command.vehicle_id == vehicle_id, Command.status.in_(PENDING))
+                             .order_by(Command.id)).first()  # type: ignore[attr-defined]  # fmt: skip
+            if pending is not None:
+                return pending
+            latest = s.exec(select(Command).where(Command.vehicle_id == vehicle_id)
+                            .order_by(Command.id.desc())).first()  # type: ignore[union-attr]  # fmt: skip
+        stale = time.time() - self.settings.confirm_timeout / self.settings.time_scale
+        if latest is not None and latest.status == "acknowledged" and latest.updated_at < stale:
+            log.info(
+                "vehicle %s: command seq %d acknowledged but never confirmed: sending again",
+                vehicle_id,
+                latest.seq,
+            )
+            return latest
+        return None
 
     def _range(self, vehicle: VehicleState) -> float:
         return vehicle.range_m if vehicle.range_m is not None else self.settings.default_range
@@ -215,8 +231,8 @@ class LinkEngine:
             current = s.get(Command, command.id)
             if current is None:
                 return
-            if status == "acknowledged" and current.status not in PENDING:
-                return  # a check-point already said executed/refused: keep the later state
+            if status in ("sent", "acknowledged") and current.status not in (*PENDING, "acknowledged"):
+                return  # a check-point already said executing/executed/refused: keep the later state
             s.exec(update(Command).where(Command.id == command.id)
                    .values(status=status, updated_at=now(), reason=detail if status == "failed" else current.reason,
                            **extra))  # type: ignore[arg-type]  # fmt: skip
