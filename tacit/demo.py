@@ -23,6 +23,8 @@ import webbrowser
 from pathlib import Path
 from typing import Any
 
+from tacit.processes import stop
+
 PLUME_RIVER = {"surface_temp": 21.0, "thermocline_depth": 8.0, "thermocline_drop": 3.0, "front_angle_deg": 45.0,
                "front_offset": 60.0, "front_width": 8.0, "front_step": 1.0, "plume_north": 24.0, "plume_east": 14.0,
                "plume_depth": 2.0, "plume_sigma": 6.0, "plume_sigma_z": 3.0, "plume_excess": 3.0,
@@ -152,19 +154,24 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
                     "data_dir": str(data)}  # fmt: skip
             _announce(info, args)
             await http.post(f"/api/v1/missions/{mission_id}/start")
-        stop = asyncio.Event()
+        interrupted = asyncio.Event()
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGINT, signal.SIGTERM):
-            loop.add_signal_handler(sig, stop.set)
-        waiter = asyncio.create_task(stop.wait())
+            loop.add_signal_handler(sig, interrupted.set)
+        waiter = asyncio.create_task(interrupted.wait())
         await asyncio.wait({waiter, serving}, return_when=asyncio.FIRST_COMPLETED)
         return 0
     finally:
-        if agent is not None:
-            stop(agent)
-        stop(sim)
-        server.should_exit = True
-        await serving
+        await shutdown([agent, sim], server, serving)
+
+
+async def shutdown(children: list[subprocess.Popen | None], server: Any, serving: asyncio.Task) -> None:
+    """Children first (agent, then simulator), then the server, which closes the database cleanly."""
+    for child in children:
+        if child is not None:
+            stop(child)
+    server.should_exit = True
+    await serving
 
 
 async def _register(http: Any, key: str) -> int:

@@ -18,8 +18,7 @@ import time
 from collections import Counter
 from pathlib import Path
 
-from tacit.demo import _log_to, _register, _secrets, _spawn
-from tacit.processes import stop
+from tacit.demo import _log_to, _register, _secrets, _spawn, shutdown
 from tacit.streams import IMU_CHANNELS, default_streams
 
 
@@ -97,11 +96,7 @@ async def _replay(args: argparse.Namespace, duration: float) -> dict:
         )  # the dive, then the last packets' latency and a poll or two
         return _summary(app.state.db, data, started)
     finally:
-        if agent is not None:
-            stop(agent)
-        stop(sim)
-        server.should_exit = True
-        await serving
+        await shutdown([agent, sim], server, serving)
 
 
 def _summary(db, data: Path, started: float) -> dict:  # noqa: ANN001

@@ -66,7 +66,9 @@ def test_command_acknowledged_while_the_agent_was_down_is_delivered_later() -> N
     rig = Rig(200.0, scale=5.0, mission=True)
     try:
         api = rig.http
-        wait_for(lambda: api.get("/link").json()["vehicles"]["rov1"]["checkpoint"], 60, what="first check-point")
+        wait_for(
+            lambda: api.get("/link").json()["vehicles"]["rov1"]["checkpoint"], 60, what="first check-point"
+        )
         rig.kill_agent()
         command = api.post("/vehicles/1/commands", json={"command": "goto_depth", "depth": 2.0}).json()
         wait_for(lambda: api.get(f"/commands/{command['id']}").json()["status"] == "acknowledged", 60,
