@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from tacit.packets import Command, CommandStatus, ControlFlag, ControlPacket, MissionState, Reason
+from vehicle_agent.compressor import PlumeDetector
 from vehicle_agent.mavlink_io import Telemetry
 from vehicle_agent.mission import Limits, MissionFSM, MissionPlan, MissionStatus, Pose
 from vehicle_agent.navigator import NavConfig, PositionEstimate
@@ -95,7 +97,23 @@ def test_dead_reckoning_integrates_the_gap_of_a_restart() -> None:
     """Killed at 0.95 m/s under cruise thrust: ArduSub keeps that thrust 3 s, then the hull coasts."""
     config = NavConfig()
     estimate = PositionEstimate(config)
-    estimate.resume(0.0, 0.0, 0.95, config.cruise_thrust, time=100.0)
-    estimate.update(Telemetry(time=110.0), 0)
+    estimate.resume(0.0, 0.0, 0.95, config.cruise_thrust, time=100.0, yaw=0.0)
+    estimate.update(Telemetry(time=110.0, yaw=1.5), 0)  # the heading now is not the one it coasted on
     coast = config.drag_length * math.log(1 + 0.95 * 7.0 / config.drag_length)  # quadratic drag, 7 s
     assert estimate.north == pytest.approx(0.95 * 3.0 + coast, rel=0.05) and estimate.speed < 0.2
+    assert abs(estimate.east) < 0.05
+
+
+def test_plume_bearing_along_a_straight_leg_is_along_the_track() -> None:
+    """On a straight leg the cross-track gradient cannot be known; the warmer way is ahead or behind."""
+    detector = PlumeDetector(threshold=0.5)
+    rng = np.random.default_rng(4)
+    for i in range(30):  # heading north along east = 0 (+- 5 cm), water warming ahead
+        detector.add(i, 0.5 * i, rng.normal(0, 0.05), 20.0 + 0.02 * i + rng.normal(0, 0.01))
+    bearing = detector.warmer_bearing()
+    assert bearing is not None and min(bearing, 360 - bearing) < 5
+    detector = PlumeDetector(threshold=0.5)
+    for n in range(-5, 6):
+        for e in range(-5, 6):
+            detector.samples.append((float(n), float(e), 20.0 + 0.1 * e))  # a survey grid: warmer to the east
+    assert abs(detector.warmer_bearing() - 90.0) < 1

@@ -98,9 +98,8 @@ class Agent:
         self.mav = MavlinkLink(config.mavlink_url, tlog)
         self.position = PositionEstimate(config.nav)
         if self.state.time is not None:
-            self.position.resume(
-                self.state.north, self.state.east, self.state.speed, self.state.thrust, self.state.time
-            )
+            self.position.resume(self.state.north, self.state.east, self.state.speed, self.state.thrust,
+                                 self.state.time, self.state.yaw)  # fmt: skip
         self.navigator = Navigator(self.mav, config.nav, self.position)
         status = MissionStatus.from_dict(self.state.mission) if self.state.mission else None
         self.fsm = MissionFSM(plans, config.limits, status, config.link_lost_timeout, config.lost_action,
@@ -219,6 +218,7 @@ class Agent:
         self.state.mission = self.fsm.status.to_dict()
         self.state.north, self.state.east = self.position.north, self.position.east
         self.state.speed, self.state.thrust = self.position.speed, self.navigator.thrust
+        self.state.yaw = self.mav.telemetry.yaw
         self.state.time = self.mav.telemetry.time if self.mav.telemetry.time else self.state.time
         self.state.save(self.state_path)
         self._dirty = False
@@ -227,8 +227,8 @@ class Agent:
 
     def tick(self) -> None:
         tel = self.mav.telemetry
-        if not self.mav.connected:
-            return
+        if not self.mav.connected or not tel.fresh("ATTITUDE") or not tel.fresh("SCALED_PRESSURE2", 5.0):
+            return  # never steer, dead-reckon or report on default heading and depth
         self.navigator.step()
         pose = self.pose()
         if self.link.counters["polls"] != self._polls_seen:

@@ -54,18 +54,27 @@ class PlumeDetector:
         return None
 
     def warmer_bearing(self) -> float | None:
-        """The direction of the temperature gradient from a plane fit T = a + b n + c e."""
+        """The direction of the temperature gradient. Along a straight leg only the along-track gradient
+        can be known (a cross-track fit would be noise), so: the track's main direction, signed by the
+        slope of temperature along it; a plane fit T = a + b n + c e only when the track spreads in both
+        directions (over a metre across)."""
         if len(self.samples) < 5:
             return None
         data = np.array(self.samples)
-        spread = np.ptp(data[:, :2], axis=0)
-        if spread.max() < 1.0:
+        xy = data[:, :2] - data[:, :2].mean(axis=0)
+        spreads, axes = np.linalg.eigh(xy.T @ xy / len(xy))
+        if math.sqrt(max(spreads[-1], 0.0)) < 1.0:
+            return None  # it has hardly moved: no direction to speak of
+        if math.sqrt(max(spreads[0], 0.0)) < 1.0:
+            along = axes[:, -1]
+            slope = np.polyfit(xy @ along, data[:, 2], 1)[0]
+            gradient = slope * along
+        else:
+            design = np.column_stack([np.ones(len(data)), xy])
+            gradient = np.linalg.lstsq(design, data[:, 2], rcond=None)[0][1:]
+        if math.hypot(*gradient) < 1e-9:
             return None
-        design = np.column_stack([np.ones(len(data)), data[:, 0], data[:, 1]])
-        (_, b, c), *_ = np.linalg.lstsq(design, data[:, 2], rcond=None)
-        if math.hypot(b, c) < 1e-6:
-            return None
-        return math.degrees(math.atan2(c, b)) % 360.0
+        return math.degrees(math.atan2(gradient[1], gradient[0])) % 360.0
 
 
 class Compressor:

@@ -58,6 +58,7 @@ class PositionEstimate:
         self._gps_used: float | None = None
         self._fix_used: float | None = None
         self._resumed_thrust: int | None = None
+        self._resumed_yaw = 0.0
 
     def _integrate(self, dt: float, thrust: int, yaw: float) -> None:
         push = self.config.cruise_speed**2 * thrust / self.config.cruise_thrust
@@ -67,18 +68,19 @@ class PositionEstimate:
             self.north += self.speed * math.cos(yaw) * (dt / steps)
             self.east += self.speed * math.sin(yaw) * (dt / steps)
 
-    def resume(self, north: float, east: float, speed: float, thrust: int, time: float) -> None:
+    def resume(self, north: float, east: float, speed: float, thrust: int, time: float, yaw: float) -> None:
         """Start from a persisted estimate (an agent restart): the gap until the next update is
-        integrated too, at the last thrust until ArduSub's pilot-input timeout, then coasting."""
+        integrated too, along the saved heading, at the last thrust until ArduSub's pilot-input
+        timeout, then coasting."""
         self.north, self.east, self.speed, self._last_time = north, east, speed, time
-        self._resumed_thrust = thrust
+        self._resumed_thrust, self._resumed_yaw = thrust, yaw
 
     def update(self, tel: Telemetry, thrust: int) -> None:
         gap = 0.0 if self._last_time is None else max(0.0, tel.time - self._last_time)
         self._last_time = tel.time
         if gap > 1.0 and self._resumed_thrust is not None:  # the agent was down: what did the vehicle do?
-            self._integrate(min(gap, PILOT_TIMEOUT), self._resumed_thrust, tel.yaw)
-            self._integrate(max(0.0, gap - PILOT_TIMEOUT), 0, tel.yaw)
+            self._integrate(min(gap, PILOT_TIMEOUT), self._resumed_thrust, self._resumed_yaw)
+            self._integrate(max(0.0, gap - PILOT_TIMEOUT), 0, self._resumed_yaw)
         else:
             self._integrate(min(gap, 1.0), thrust, tel.yaw)
         self._resumed_thrust = None

@@ -22,6 +22,7 @@ class AgentState:
     east: float = 0.0
     speed: float = 0.0  # dead-reckoned speed, thrust and vehicle time: a restart integrates the gap
     thrust: int = 0
+    yaw: float = 0.0  # rad: the heading the vehicle kept while the agent was down
     time: float | None = None
 
     @classmethod
