@@ -23,6 +23,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from tacit.packets import Stream
+from tacit.series import measured_per_tick
 from tacit.sim.acoustics import ChannelParameters, cycle_with_ack_s
 from tacit.streams import default_streams
 
@@ -114,19 +116,10 @@ def square_mission(minutes: float) -> None:
 
 def env_error(folder: Path, rows: list[dict]) -> float:
     """Compare the shore's reconstruction with the vehicle's own tlog (the first sample of each tick)."""
-    from pymavlink import mavutil
-
-    spec = next(s for s in default_streams().values() if s.name == "env")
-    measured: dict[int, float] = {}
-    for tlog in (folder / "tlogs").glob("*.tlog"):
-        conn = mavutil.mavlink_connection(str(tlog))
-        while (msg := conn.recv_match(type="SCALED_PRESSURE2", blocking=False)) is not None:
-            measured.setdefault(spec.tick(msg._timestamp), msg.temperature / 100.0)
-    errors = [
-        abs(r["values"][0] - measured[r["tick"]]) / spec.eps[0]
-        for r in rows
-        if r["certain"] and r["tick"] in measured
-    ]
+    spec = default_streams()[Stream.ENVIRONMENTAL]
+    measured = measured_per_tick(folder / "tlogs", "SCALED_PRESSURE2", ["temperature"], spec, scale=0.01)
+    errors = [abs(r["values"][0] - measured[r["tick"]][0]) / spec.eps[0]
+              for r in rows if r["certain"] and r["tick"] in measured]  # fmt: skip
     return max(errors) if errors else float("nan")
 
 

@@ -188,6 +188,7 @@ class EncodedPacket:
     ticks: int
     gap: int
     sample_times: list[float]
+    surprise_times: list[float]  # the samples the shore could not predict (q != 0)
     nonzero: int
 
 
@@ -329,6 +330,7 @@ class StreamEncoder:
         packet = PriorityPacket(self.seq % 256, Priority.TIME_SENSITIVE if urgent else Priority.ROUTINE,
                                 self.spec.stream, payload)  # fmt: skip
         encoded = EncodedPacket(packet, ticks[0].index, len(ticks), draft.gap, [t.time for t in ticks],
+                                [t.time for t in ticks if t.q.any()],
                                 int(sum(np.count_nonzero(t.q) for t in ticks)))  # fmt: skip
         self.in_flight = chain
         self.seq += 1

@@ -19,6 +19,8 @@ from collections import Counter
 from pathlib import Path
 
 from tacit.demo import _log_to, _register, _secrets, _spawn, shutdown
+from tacit.packets import Stream
+from tacit.series import measured_per_tick
 from tacit.streams import IMU_CHANNELS, default_streams
 
 
@@ -101,17 +103,12 @@ async def _replay(args: argparse.Namespace, duration: float) -> dict:
 
 def _summary(db, data: Path, started: float) -> dict:  # noqa: ANN001
     """The shore's reconstruction against the vehicle's own log of what it measured."""
-    from pymavlink import mavutil
     from sqlmodel import Session, select
 
     from server.models import Packet, Telemetry
 
-    spec = next(s for s in default_streams().values() if s.name == "imu")
-    measured: dict[int, list[float]] = {}
-    for tlog in (data / "tlogs").glob("*.tlog"):
-        conn = mavutil.mavlink_connection(str(tlog))
-        while (msg := conn.recv_match(type="RAW_IMU", blocking=False)) is not None:
-            measured.setdefault(spec.tick(msg._timestamp), [float(getattr(msg, c)) for c in IMU_CHANNELS])
+    spec = default_streams()[Stream.KINEMATIC]
+    measured = measured_per_tick(data / "tlogs", "RAW_IMU", IMU_CHANNELS, spec)
     with Session(db) as s:
         packets = s.exec(select(Packet).where(Packet.at >= started)).all()
         rows = s.exec(select(Telemetry).where(Telemetry.stream == "imu", Telemetry.certain)).all()

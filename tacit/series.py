@@ -3,10 +3,15 @@
 from __future__ import annotations
 
 import csv
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from tacit.codec import StreamSpec
 
 DEFAULT_TLOG_COLUMNS = tuple(f"RAW_IMU.{f}" for f in
                              ("xacc", "yacc", "zacc", "xgyro", "ygyro", "zgyro", "xmag", "ymag", "zmag"))  # fmt: skip
@@ -83,3 +88,22 @@ def load_tlog(path: Path, columns: list[str]) -> Series:
     if not values:
         raise ValueError(f"{path.name}: no {kind} messages")
     return Series(tuple(columns), np.array(times), np.array(values))
+
+
+def measured_per_tick(folder: Path, kind: str, fields: Sequence[str], spec: StreamSpec,
+                      scale: float = 1.0) -> dict[int, list[float]]:  # fmt: skip
+    """What a vehicle measured, from the agent's tlogs in ``folder``: per codec tick, the first sample
+    of ``kind`` (the one the encoder kept; later duplicates of a tick are dropped), fields times ``scale``."""
+    from pymavlink import mavutil
+
+    measured: dict[int, list[float]] = {}
+    for tlog in sorted(folder.glob("*.tlog")):
+        conn = mavutil.mavlink_connection(str(tlog))
+        try:
+            while (msg := conn.recv_match(type=kind, blocking=False)) is not None:
+                measured.setdefault(
+                    spec.tick(msg._timestamp), [float(getattr(msg, f)) * scale for f in fields]
+                )
+        finally:
+            conn.close()
+    return measured

@@ -8,8 +8,8 @@ from __future__ import annotations
 import math
 import time
 
-from pymavlink import mavutil
-
+from tacit.packets import Stream
+from tacit.series import measured_per_tick
 from tacit.streams import default_streams
 from tests.rig import Rig
 from tests.system import TruthWatcher, wait_for
@@ -21,13 +21,9 @@ PLUME = {"surface_temp": 20.0, "thermocline_depth": 40.0, "front_step": 0.0, "pl
 
 def measured_temperatures(rig: Rig) -> dict[int, float]:
     """What the vehicle measured (its agent's tlog), by codec tick."""
-    spec = next(s for s in default_streams().values() if s.name == "env")
-    measured: dict[int, float] = {}
-    for tlog in (rig.dir / "tlogs").glob("*.tlog"):
-        conn = mavutil.mavlink_connection(str(tlog))
-        while (msg := conn.recv_match(type="SCALED_PRESSURE2", blocking=False)) is not None:
-            measured.setdefault(spec.tick(msg._timestamp), msg.temperature / 100.0)
-    return measured
+    spec = default_streams()[Stream.ENVIRONMENTAL]
+    measured = measured_per_tick(rig.dir / "tlogs", "SCALED_PRESSURE2", ["temperature"], spec, scale=0.01)
+    return {tick: values[0] for tick, values in measured.items()}
 
 
 def test_scripted_mission_end_to_end() -> None:
@@ -72,7 +68,7 @@ def test_scripted_mission_end_to_end() -> None:
         assert sorted(executed) == [start["seq"], move["seq"], abort["seq"]] and set(executed.values()) == {1}
         measured = measured_temperatures(rig)
         rows = api.get("/telemetry", params={"stream": "env", "limit": 5000}).json()["items"]
-        eps = next(s for s in default_streams().values() if s.name == "env").eps[0]
+        eps = default_streams()[Stream.ENVIRONMENTAL].eps[0]
         checked = [
             abs(r["values"][0] - measured[r["tick"]]) for r in rows if r["certain"] and r["tick"] in measured
         ]
