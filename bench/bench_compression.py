@@ -15,7 +15,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from tacit.evaluate import evaluate
+from analysis.evaluate import evaluate
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "ardusub"
 IMU = "xacc,yacc,zacc,xgyro,ygyro,zgyro,xmag,ymag,zmag"

@@ -23,9 +23,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from analysis.series import measured_per_tick
+from simulators.acoustics import ChannelParameters, cycle_with_ack_s
 from tacit.packets import Stream
-from tacit.series import measured_per_tick
-from tacit.sim.acoustics import ChannelParameters, cycle_with_ack_s
 from tacit.streams import default_streams
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))

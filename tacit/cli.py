@@ -14,12 +14,12 @@ import sys
 
 # name: (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
-    "demo": ("tacit.demo", "Start the whole system on simulators and open the operator's screen"),
+    "demo": ("launch.demo", "Start the whole system on simulators and open the operator's screen"),
     "serve": ("server.app", "Run the shore control center (API, dashboard, 3D map, shore modem)"),
     "agent": ("vehicle_agent.agent", "Run the vehicle agent between ArduSub and the vehicle's modem"),
-    "sim": ("tacit.sim.run", "Start simulated Micro-Modems, acoustic channel and BlueROV2"),
-    "replay": ("tacit.replay", "Run a real .tlog through the agent and the simulated link"),
-    "eval-compression": ("tacit.evaluate", "Measure the compressor on a CSV or .tlog file"),
+    "sim": ("simulators.run", "Start simulated Micro-Modems, acoustic channel and BlueROV2"),
+    "replay": ("launch.replay", "Run a real .tlog through the agent and the simulated link"),
+    "eval-compression": ("analysis.evaluate", "Measure the compressor on a CSV or .tlog file"),
     "modem-log": ("tacit.modemlog", "Decode a Micro-Modem NMEA log: sentences, frames, packets"),
 }
 

@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 
-from tacit.processes import stop
+from launch.processes import stop
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 

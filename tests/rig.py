@@ -15,7 +15,7 @@ from pathlib import Path
 
 import httpx
 
-from tacit.processes import stop
+from launch.processes import stop
 from tests.vehicle_side import VehicleSide
 
 KEY = "3c" * 32

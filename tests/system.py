@@ -20,10 +20,10 @@ from pathlib import Path
 from fastapi.testclient import TestClient
 from pymavlink import mavutil
 
+from launch.processes import stop
 from server.app import create_app
 from server.settings import Settings
 from tacit.navigation import Origin
-from tacit.processes import stop
 
 OP = {"Authorization": "Bearer operator"}
 KEY = "5a" * 32

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import pytest
 
+from simulators import acoustics
+from simulators.acoustics import ChannelParameters
+from simulators.channel import Channel, Kind, Reception, Transmission
+from simulators.clock import VirtualScheduler
+from simulators.micromodem import MicroModemEmulator
 from tacit import nmea, rates
-from tacit.sim import acoustics
-from tacit.sim.acoustics import ChannelParameters
-from tacit.sim.channel import Channel, Kind, Reception, Transmission
-from tacit.sim.clock import VirtualScheduler
-from tacit.sim.micromodem import MicroModemEmulator
 
 
 def channel_with(positions: dict[str, tuple[float, float, float]], **params: object):  # noqa: ANN201

@@ -8,8 +8,8 @@ from __future__ import annotations
 import math
 import time
 
+from analysis.series import measured_per_tick
 from tacit.packets import Stream
-from tacit.series import measured_per_tick
 from tacit.streams import default_streams
 from tests.rig import Rig
 from tests.system import TruthWatcher, wait_for

@@ -15,12 +15,12 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from simulators.channel import Channel, Kind, Reception, Transmission
+from simulators.clock import Cancellable, Scheduler
 from tacit import nmea, rates
 from tacit.rates import RATES
-from tacit.sim.channel import Channel, Kind, Reception, Transmission
-from tacit.sim.clock import Cancellable, Scheduler
 
-log = logging.getLogger("tacit.sim.modem")
+log = logging.getLogger("simulators.modem")
 
 REVISION = "0.94.0.52"
 DEFAULT_CONFIG = {

@@ -21,12 +21,12 @@ from collections.abc import Callable
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from simulators.bluerov import MODE_NAMES, MODES, BlueROV2
+from simulators.clock import Scheduler
+from simulators.environment import Environment
 from tacit.navigation import Origin
-from tacit.sim.bluerov import MODE_NAMES, MODES, BlueROV2
-from tacit.sim.clock import Scheduler
-from tacit.sim.environment import Environment
 
-log = logging.getLogger("tacit.sim.vehicle")
+log = logging.getLogger("simulators.vehicle")
 
 SYSTEM_ID = 1
 COMPONENT_ID = 1

@@ -44,17 +44,17 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from simulators.acoustics import ChannelParameters
+from simulators.channel import Channel
+from simulators.clock import RealtimeScheduler
+from simulators.environment import Environment
+from simulators.mavlink_vehicle import SimulatedVehicle
+from simulators.micromodem import MicroModemEmulator
+from simulators.ports import PtyPort, TcpPort
+from simulators.tlog_replay import TlogReplay
 from tacit.config import check_keys
-from tacit.sim.acoustics import ChannelParameters
-from tacit.sim.channel import Channel
-from tacit.sim.clock import RealtimeScheduler
-from tacit.sim.environment import Environment
-from tacit.sim.mavlink_vehicle import SimulatedVehicle
-from tacit.sim.micromodem import MicroModemEmulator
-from tacit.sim.ports import PtyPort, TcpPort
-from tacit.sim.tlog_replay import TlogReplay
 
-log = logging.getLogger("tacit.sim")
+log = logging.getLogger("simulators")
 
 
 @dataclass

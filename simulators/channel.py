@@ -16,8 +16,8 @@ import random
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from tacit.sim.acoustics import ChannelParameters, frame_error_rate
-from tacit.sim.clock import Scheduler
+from simulators.acoustics import ChannelParameters, frame_error_rate
+from simulators.clock import Scheduler
 
 Position = tuple[float, float, float]  # north, east, depth (m)
 

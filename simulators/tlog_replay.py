@@ -12,9 +12,9 @@ from pathlib import Path
 
 from pymavlink import mavutil
 
-from tacit.sim.mavlink_vehicle import Links
+from simulators.mavlink_vehicle import Links
 
-log = logging.getLogger("tacit.sim.replay")
+log = logging.getLogger("simulators.replay")
 
 
 def read_tlog(path: str | Path) -> list[tuple[float, bytes]]:

@@ -21,10 +21,10 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from analysis.series import Series, load
 from tacit.codec import StreamDecoder, StreamEncoder, StreamSpec
 from tacit.packets import PACKET_SIZE, Stream
 from tacit.predict import METHODS
-from tacit.series import Series, load
 
 PACKET_BITS = PACKET_SIZE * 8
 

@@ -18,9 +18,9 @@ import time
 from collections import Counter
 from pathlib import Path
 
-from tacit.demo import _log_to, _register, _secrets, _spawn, shutdown
+from analysis.series import measured_per_tick
+from launch.demo import _log_to, _register, _secrets, _spawn, shutdown
 from tacit.packets import Stream
-from tacit.series import measured_per_tick
 from tacit.streams import IMU_CHANNELS, default_streams
 
 
@@ -38,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tacit.sim.tlog_replay import read_tlog
+    from simulators.tlog_replay import read_tlog
 
     try:
         frames = read_tlog(args.tlog)

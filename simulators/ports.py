@@ -17,7 +17,7 @@ from pathlib import Path
 
 from tacit import nmea
 
-log = logging.getLogger("tacit.sim.ports")
+log = logging.getLogger("simulators.ports")
 
 
 class LineSplitter:

@@ -23,7 +23,7 @@ import webbrowser
 from pathlib import Path
 from typing import Any
 
-from tacit.processes import stop
+from launch.processes import stop
 
 PLUME_RIVER = {"surface_temp": 21.0, "thermocline_depth": 8.0, "thermocline_drop": 3.0, "front_angle_deg": 45.0,
                "front_offset": 60.0, "front_width": 8.0, "front_step": 1.0, "plume_north": 24.0, "plume_east": 14.0,
