@@ -29,7 +29,7 @@ from tacit.packets import Stream
 from tacit.streams import default_streams
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from tests.rig import Rig  # noqa: E402  (the same process rig the end-to-end test uses)
+from launch.rig import Rig  # noqa: E402  (the same process rig the end-to-end test uses)
 
 
 def latency(repeats: int) -> None:

@@ -94,11 +94,11 @@ def driver_garbage(lines: int) -> tuple[str, str]:
     """Feed the running driver garbage over a real pty; it must stay ready and still answer a ping."""
     import tempfile
 
+    from simulators.scripted_modem import ScriptedModem
     from tacit.modem import DriverSettings, LinkState, ModemDriver
-    from tests.scripted_modem import ScriptedModem
 
     def rule(m, s):  # noqa: ANN001, ANN202
-        from tests.scripted_modem import default_rule
+        from simulators.scripted_modem import default_rule
 
         replies = default_rule(m, s)
         if isinstance(s, nmea.Ping):
@@ -171,7 +171,7 @@ def api(examples: int) -> None:
 
 
 def faults() -> None:
-    from tests.rig import Rig
+    from launch.rig import Rig
 
     rig = Rig(300.0, scale=10.0, extra_loss=0.5, attempts=10)
     try:
@@ -210,8 +210,8 @@ def suite_row(area: str, target: str, test: str) -> None:
 
 def kill_mid_mission(victim: str) -> None:
     """SIGKILL the server or the agent mid-mission with a command queued; count what it cost."""
-    from tests.rig import Rig
-    from tests.system import wait_for
+    from launch.rig import Rig
+    from launch.stack import wait_for
 
     rig = Rig(200.0, scale=5.0, mission=True)
     try:

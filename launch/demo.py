@@ -14,16 +14,14 @@ import argparse
 import asyncio
 import json
 import logging
-import os
 import secrets
 import signal
-import subprocess
 import sys
 import webbrowser
 from pathlib import Path
 from typing import Any
 
-from launch.processes import stop
+from launch.stack import Stack, StackConfig, StackError, write_private
 
 PLUME_RIVER = {"surface_temp": 21.0, "thermocline_depth": 8.0, "thermocline_drop": 3.0, "front_angle_deg": 45.0,
                "front_offset": 60.0, "front_width": 8.0, "front_step": 1.0, "plume_north": 24.0, "plume_east": 14.0,
@@ -54,8 +52,7 @@ def _secrets(data: Path) -> dict[str, str]:
     if path.exists():
         return json.loads(path.read_text())
     values = {"token": secrets.token_urlsafe(24), "key": secrets.token_hex(32)}
-    path.write_text(json.dumps(values))
-    path.chmod(0o600)
+    write_private(path, json.dumps(values))
     return values
 
 
@@ -70,11 +67,6 @@ def _log_to(path: Path) -> None:
     root.setLevel(logging.INFO)
 
 
-def _spawn(args: list[str], log: Path, capture: bool = False) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "tacit.cli", *args], stdout=subprocess.PIPE if capture else log.open("ab"),
-                            stderr=log.open("ab"), text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})  # fmt: skip
-
-
 def run(args: argparse.Namespace) -> int:
     if not 0 <= args.extra_loss <= 1 or args.time_scale <= 0:
         print("tacit demo: --extra-loss is 0..1 and --time-scale positive", file=sys.stderr)
@@ -86,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         return asyncio.run(_demo(args, mission))
-    except DemoError as exc:
+    except (DemoError, StackError) as exc:
         print(f"tacit demo: {exc}", file=sys.stderr)
         return 1
 
@@ -106,29 +98,16 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
     (data / "missions").mkdir(parents=True, exist_ok=True)
     _log_to(data / "server.log")
     secret = _secrets(data)
-    (data / "environment.json").write_text(json.dumps(PLUME_RIVER))
     (data / "missions" / "mission.json").write_text(json.dumps(mission))
-    sim_config = {
-        "seed": args.seed, "time_scale": args.time_scale,
-        "channel": {"extra_loss": args.extra_loss}, "environment": {"file": str(data / "environment.json")},
-        "modems": [{"address": 1, "name": "shore", "position": [-args.range, 0.0, 1.0], "link": str(data / "shore.pty")},
-                   {"address": 2, "name": "vehicle", "attach": "rov1", "link": str(data / "vehicle.pty")}],
-        "vehicles": [{"name": "rov1", "tcp_port": 0, "seed": args.seed}],
-    }  # fmt: skip
-    (data / "sim.json").write_text(json.dumps(sim_config))
-    sim = _spawn(["sim", "--config", str(data / "sim.json"), "--json"], data / "sim.log", capture=True)
-    line = await asyncio.to_thread(sim.stdout.readline)  # type: ignore[union-attr]
-    if not line:
-        raise DemoError(f"the simulator did not start; see {data / 'sim.log'}")
-    sim_info = json.loads(line)
-    settings = Settings(database_url=f"sqlite:///{data / 'tacit.db'}", modem_url=str(data / "shore.pty"),
-                        modem_log=str(data / "shore-modem.log"), host=args.host, port=args.port,
-                        map_port=args.map_port, write_tokens=[secret["token"]], time_scale=args.time_scale,
-                        default_range=args.range, poll_interval=2.0)  # fmt: skip
+    stack = Stack(StackConfig(data, range_m=args.range, time_scale=args.time_scale, extra_loss=args.extra_loss,
+                              seed=args.seed, environment=PLUME_RIVER, key=secret["key"],
+                              write_tokens=[secret["token"]]))  # fmt: skip
+    sim_info = await asyncio.to_thread(stack.start_sim)
+    settings = Settings(**stack.server_settings(host=args.host, port=args.port, map_port=args.map_port,
+                                                poll_interval=2.0))  # fmt: skip
     app = create_app(settings)
     server = uvicorn.Server(uvicorn.Config(app, host=args.host, port=args.port, log_config=None))
     serving = asyncio.create_task(server.serve())
-    agent: subprocess.Popen | None = None
     try:
         while not server.started:
             if serving.done():
@@ -142,13 +121,8 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
             mission_id = (await http.post(f"/api/v1/vehicles/{vehicle_id}/missions", json=mission)).json()[
                 "id"
             ]
-            agent_config = data / "agent.toml"
-            agent_config.write_text(
-                f'address = 2\nkey = "{secret["key"]}"\nmodem_url = "{data / "vehicle.pty"}"\n'
-                f'mavlink_url = "{sim_info["vehicle"]["mavlink"][0]}"\nstate_file = "{data / "agent-state.json"}"\n'
-                f'tlog_dir = "{data / "tlogs"}"\ntime_scale = {args.time_scale}\ncheckpoint_interval = 20\n'
-                f'missions = [{{file = "missions/mission.json"}}]\n')  # fmt: skip
-            agent = _spawn(["agent", "--config", str(agent_config)], data / "agent.log")
+            stack.write_agent_config(checkpoint_interval=20, missions=[{"file": "missions/mission.json"}])
+            stack.start_agent()
             info = {"api_url": api + "/api/v1", "dashboard_url": api + "/", "map_url": f"http://{args.host}:{app.state.map.port}",
                     "token": secret["token"], "modems": sim_info["modems"], "vehicle": sim_info["vehicle"],
                     "data_dir": str(data)}  # fmt: skip
@@ -162,14 +136,12 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
         await asyncio.wait({waiter, serving}, return_when=asyncio.FIRST_COMPLETED)
         return 0
     finally:
-        await shutdown([agent, sim], server, serving)
+        await shutdown(stack, server, serving)
 
 
-async def shutdown(children: list[subprocess.Popen | None], server: Any, serving: asyncio.Task) -> None:
+async def shutdown(stack: Stack, server: Any, serving: asyncio.Task) -> None:
     """Children first (agent, then simulator), then the server, which closes the database cleanly."""
-    for child in children:
-        if child is not None:
-            stop(child)
+    await asyncio.to_thread(stack.close)
     server.should_exit = True
     await serving
 

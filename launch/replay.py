@@ -19,7 +19,8 @@ from collections import Counter
 from pathlib import Path
 
 from analysis.series import measured_per_tick
-from launch.demo import _log_to, _register, _secrets, _spawn, shutdown
+from launch.demo import _log_to, _register, _secrets, shutdown
+from launch.stack import Stack, StackConfig
 from tacit.packets import Stream
 from tacit.streams import IMU_CHANNELS, default_streams
 
@@ -66,21 +67,15 @@ async def _replay(args: argparse.Namespace, duration: float) -> dict:
     data.mkdir(parents=True, exist_ok=True)
     _log_to(data / "server.log")
     secret = _secrets(data)
-    sim_config = {"seed": 1, "time_scale": args.time_scale, "channel": {"extra_loss": args.extra_loss},
-                  "modems": [{"address": 1, "name": "shore", "position": [-args.range, 0, 1], "link": str(data / "shore.pty")},
-                             {"address": 2, "name": "vehicle", "attach": "rov1", "link": str(data / "vehicle.pty")}],
-                  "vehicles": [{"name": "rov1", "tcp_port": 0, "replay": str(Path(args.tlog).resolve())}]}  # fmt: skip
-    (data / "sim.json").write_text(json.dumps(sim_config))
     for old in (data / "tlogs").glob("*.tlog"):
         old.unlink()
-    sim = _spawn(["sim", "--config", str(data / "sim.json"), "--json"], data / "sim.log", capture=True)
-    mavlink = json.loads(await asyncio.to_thread(sim.stdout.readline))["vehicle"]["mavlink"][0]  # type: ignore[union-attr]
-    app = create_app(Settings(database_url=f"sqlite:///{data / 'tacit.db'}", modem_url=str(data / "shore.pty"),
-                              port=args.port, map_enabled=False, write_tokens=[secret["token"]],
-                              time_scale=args.time_scale, default_range=args.range))  # fmt: skip
+    (data / "agent-state.json").unlink(missing_ok=True)
+    stack = Stack(StackConfig(data, range_m=args.range, time_scale=args.time_scale, extra_loss=args.extra_loss,
+                              replay=args.tlog, key=secret["key"], write_tokens=[secret["token"]]))  # fmt: skip
+    await asyncio.to_thread(stack.start_sim)
+    app = create_app(Settings(**stack.server_settings(port=args.port, map_enabled=False)))
     server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=args.port, log_config=None))
     serving = asyncio.create_task(server.serve())
-    agent = None
     started = time.time()
     try:
         while not server.started:
@@ -88,17 +83,14 @@ async def _replay(args: argparse.Namespace, duration: float) -> dict:
         async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{args.port}",
                                      headers={"Authorization": f"Bearer {secret['token']}"}) as http:  # fmt: skip
             await _register(http, secret["key"])
-        (data / "agent.toml").write_text(
-            f'address = 2\nkey = "{secret["key"]}"\nmodem_url = "{data / "vehicle.pty"}"\nmavlink_url = "{mavlink}"\n'
-            f'state_file = "{data / "agent-state.json"}"\ntlog_dir = "{data / "tlogs"}"\nmax_silence = 20\n')  # fmt: skip
-        (data / "agent-state.json").unlink(missing_ok=True)
-        agent = _spawn(["agent", "--config", str(data / "agent.toml")], data / "agent.log")
+        stack.write_agent_config(max_silence=20)
+        stack.start_agent()
         await asyncio.sleep(
             duration + args.settle
         )  # the dive, then the last packets' latency and a poll or two
         return _summary(app.state.db, data, started)
     finally:
-        await shutdown([agent, sim], server, serving)
+        await shutdown(stack, server, serving)
 
 
 def _summary(db, data: Path, started: float) -> dict:  # noqa: ANN001

@@ -11,21 +11,28 @@ import argparse
 import importlib
 import logging
 import sys
+from typing import NamedTuple
 
-# name: (module, one-line help)
-COMMANDS: dict[str, tuple[str, str]] = {
-    "demo": ("launch.demo", "Start the whole system on simulators and open the operator's screen"),
-    "serve": ("server.app", "Run the shore control center (API, dashboard, 3D map, shore modem)"),
-    "agent": ("vehicle_agent.agent", "Run the vehicle agent between ArduSub and the vehicle's modem"),
-    "sim": ("simulators.run", "Start simulated Micro-Modems, acoustic channel and BlueROV2"),
-    "replay": ("launch.replay", "Run a real .tlog through the agent and the simulated link"),
-    "eval-compression": ("analysis.evaluate", "Measure the compressor on a CSV or .tlog file"),
-    "modem-log": ("tacit.modemlog", "Decode a Micro-Modem NMEA log: sentences, frames, packets"),
-}
+
+class Command(NamedTuple):
+    module: str
+    extra: str  # the install extra (pyproject.toml) that holds this command's runtime dependencies
+    help: str
+
+
+COMMANDS: dict[str, Command] = {
+    "demo": Command("launch.demo", "demo", "Start the whole system on simulators and open the operator's screen"),
+    "serve": Command("server.app", "server", "Run the shore control center (API, dashboard, 3D map, shore modem)"),
+    "agent": Command("vehicle_agent.agent", "agent", "Run the vehicle agent between ArduSub and the vehicle's modem"),
+    "sim": Command("simulators.run", "sim", "Start simulated Micro-Modems, acoustic channel and BlueROV2"),
+    "replay": Command("launch.replay", "demo", "Run a real .tlog through the agent and the simulated link"),
+    "eval-compression": Command("analysis.evaluate", "analysis", "Measure the compressor on a CSV or .tlog file"),
+    "modem-log": Command("tacit.modemlog", "", "Decode a Micro-Modem NMEA log: sentences, frames, packets"),
+}  # fmt: skip
 
 
 def _parser() -> argparse.ArgumentParser:
-    listing = "\n".join(f"  {name:<18}{text}" for name, (_, text) in COMMANDS.items())
+    listing = "\n".join(f"  {name:<18}{command.help}" for name, command in COMMANDS.items())
     parser = argparse.ArgumentParser(
         prog="tacit",
         description="Tacit: compressed acoustic communications for underwater vehicles.\n\n"
@@ -46,14 +53,12 @@ def main(argv: list[str] | None = None) -> int:
         top.parse_args(argv)  # prints help or the error for an unknown command
         return 2
     options = top.parse_args(argv[: first + 1])
-    module_name, help_text = COMMANDS[options.command]
+    command = COMMANDS[options.command]
     try:
-        module = importlib.import_module(module_name)
+        module = importlib.import_module(command.module)
     except ModuleNotFoundError as exc:
-        print(f"tacit {options.command}: needs {exc.name!r}, which is not installed "
-              f"(install the matching extra, e.g. pip install 'tacit[all]')", file=sys.stderr)  # fmt: skip
-        return 2
-    parser = argparse.ArgumentParser(prog=f"tacit {options.command}", description=help_text)
+        return _missing(options.command, exc)
+    parser = argparse.ArgumentParser(prog=f"tacit {options.command}", description=command.help)
     module.add_arguments(parser)
     args = parser.parse_args(argv[first + 1 :])
     logging.basicConfig(level=options.log_level.upper(),
@@ -62,6 +67,17 @@ def main(argv: list[str] | None = None) -> int:
         return int(module.run(args) or 0)
     except KeyboardInterrupt:
         return 130
+    except ModuleNotFoundError as exc:  # commands import their heavier packages when they need them
+        return _missing(options.command, exc)
+
+
+def _missing(name: str, exc: ModuleNotFoundError) -> int:
+    """One line naming the extra to install, instead of a traceback."""
+    extra = COMMANDS[name].extra
+    requirement = f"tacit[{extra}]" if extra else "tacit"
+    print(f"tacit {name}: needs the package {exc.name!r}, which is not installed; "
+          f"install it with: pip install '{requirement}'", file=sys.stderr)  # fmt: skip
+    return 2
 
 
 if __name__ == "__main__":

@@ -54,3 +54,30 @@ class Origin:
         north = math.radians(lat - self.lat) * EARTH_RADIUS
         east = math.radians(lon - self.lon) * EARTH_RADIUS * math.cos(math.radians(self.lat))
         return north, east
+
+
+@dataclass(frozen=True)
+class Pose:
+    """Where a vehicle is and which way it points (local frame)."""
+
+    north: float
+    east: float
+    depth: float
+    heading: float
+
+    @classmethod
+    def from_checkpoint(cls, checkpoint: dict | None) -> Pose | None:
+        """The pose a decoded check-point reports; None without one."""
+        if not checkpoint:
+            return None
+        return cls(checkpoint["north"], checkpoint["east"], checkpoint["depth"], checkpoint["heading"])
+
+
+@dataclass
+class Target:
+    """Where the navigator steers to."""
+
+    north: float
+    east: float
+    depth: float
+    heading: float | None = None  # hold this heading when arrived (default: keep the current one)

@@ -6,21 +6,16 @@ ground station with a system id that ArduSub's MANUAL_CONTROL rule ignores.
 
 from __future__ import annotations
 
-import json
 import math
-import os
-import signal
 import subprocess
-import sys
 import threading
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
 from fastapi.testclient import TestClient
 from pymavlink import mavutil
 
-from launch.processes import stop
+from launch.stack import VEHICLE_ADDRESS, Stack, StackConfig
 from server.app import create_app
 from server.settings import Settings
 from tacit.navigation import Origin
@@ -28,16 +23,6 @@ from tacit.navigation import Origin
 OP = {"Authorization": "Bearer operator"}
 KEY = "5a" * 32
 SCALE = 5.0
-
-
-def wait_for(predicate, timeout: float = 60.0, every: float = 0.25, what: str = "condition"):  # noqa: ANN001, ANN201
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(every)
-    raise AssertionError(f"{what} not reached within {timeout} s")
 
 
 @dataclass
@@ -77,60 +62,37 @@ class TruthWatcher:
 
 
 class System:
+    """The stack with the server in this process (a TestClient), so tests can read its database."""
+
     def __init__(self, tmp: Path, position_source: bool = False, environment: dict | None = None,
-                 agent_extra: str = "", attacker: bool = False, replay: str = "") -> None:  # fmt: skip
+                 agent: dict | None = None, attacker: bool = False, replay: str = "") -> None:  # fmt: skip
         self.tmp = tmp
-        self.procs: list[subprocess.Popen] = []
-        modems = [{"address": 1, "name": "shore", "position": [-150, 0, 1], "link": str(tmp / "shore")},
-                  {"address": 2, "name": "vehicle", "attach": "rov1", "link": str(tmp / "vehicle")}]  # fmt: skip
-        if attacker:
-            modems.append(
-                {"address": 3, "name": "attacker", "position": [-100, 30, 1], "link": str(tmp / "attacker")}
-            )
-        vehicle = {"name": "rov1", "tcp_port": 0, "position_source": position_source, "replay": replay}
-        sim = {"seed": 5, "time_scale": SCALE, "channel": {"noise_level_db": 95.0}, "modems": modems,
-               "vehicles": [vehicle]}  # fmt: skip
-        if environment is not None:
-            (tmp / "env.json").write_text(json.dumps(environment))
-            sim["environment"] = {"file": str(tmp / "env.json")}
-        (tmp / "sim.json").write_text(json.dumps(sim))
-        self.sim = self._spawn("sim", "--config", str(tmp / "sim.json"), "--json", log="sim.log")
-        self.sim_info = json.loads(self.sim.stdout.readline())  # type: ignore[union-attr]
-        self.mavlink = self.sim_info["vehicle"]["mavlink"][0]
-        settings = Settings(database_url=f"sqlite:///{tmp}/tacit.db", modem_url=str(tmp / "shore"), map_enabled=False,
-                            write_tokens=["operator"], time_scale=SCALE, poll_interval=2.0, default_range=150.0,
-                            ping_interval=3600, modem_log=str(tmp / "shore-modem.log"))  # fmt: skip
+        self.stack = Stack(StackConfig(tmp, range_m=150.0, time_scale=SCALE, noise_db=95.0, seed=5,
+                                       environment=environment, replay=replay, position_source=position_source,
+                                       attacker=attacker, key=KEY, write_tokens=["operator"]))  # fmt: skip
+        self.stack.start_sim()
+        self.mavlink = self.stack.mavlink
+        settings = Settings(
+            **self.stack.server_settings(map_enabled=False, poll_interval=2.0, ping_interval=3600)
+        )
         self.client = TestClient(create_app(settings))
         self.client.__enter__()
         created = self.client.post(
-            "/api/v1/vehicles", json={"name": "rov1", "address": 2, "key": KEY}, headers=OP
+            "/api/v1/vehicles", json={"name": "rov1", "address": VEHICLE_ADDRESS, "key": KEY}, headers=OP
         )
         assert created.status_code == 201, created.text
-        self.agent_config = tmp / "agent.toml"
-        self.agent_config.write_text(
-            f'address = 2\nkey = "{KEY}"\nmodem_url = "{tmp / "vehicle"}"\nmavlink_url = "{self.mavlink}"\n'
-            f'state_file = "{tmp / "agent-state.json"}"\ntime_scale = {SCALE}\ncheckpoint_interval = 20\n'
-            f'tlog_dir = "{tmp / "tlogs"}"\n{agent_extra}\n')  # fmt: skip
+        self.stack.write_agent_config(checkpoint_interval=20, **(agent or {}))
         self.agent = self.start_agent()
         self.truth = TruthWatcher(self.mavlink) if not replay else None
 
-    def _spawn(self, *args: str, log: str) -> subprocess.Popen:
-        out = subprocess.PIPE if "--json" in args else open(self.tmp / log, "ab")  # noqa: SIM115
-        proc = subprocess.Popen([sys.executable, "-m", "tacit.cli", *args], stdout=out,
-                                stderr=open(self.tmp / log, "ab"), text=True,  # noqa: SIM115
-                                env={**os.environ, "PYTHONUNBUFFERED": "1"})  # fmt: skip
-        self.procs.append(proc)
-        return proc
-
-    def start_agent(self) -> subprocess.Popen:
-        return self._spawn("agent", "--config", str(self.agent_config), log="agent.log")
+    def start_agent(self) -> subprocess.Popen[str]:
+        return self.stack.start_agent()
 
     def kill_agent(self) -> None:
-        self.agent.send_signal(signal.SIGKILL)
-        self.agent.wait(timeout=10)
+        self.stack.kill(self.agent)
 
     def agent_log(self) -> str:
-        return (self.tmp / "agent.log").read_text()
+        return self.stack.log("agent.log")
 
     def command(self, **body: object) -> int:
         response = self.client.post("/api/v1/vehicles/1/commands", json=body, headers=OP)
@@ -152,8 +114,7 @@ class System:
         if self.truth:
             self.truth.close()
         self.client.__exit__(None, None, None)
-        for proc in reversed(self.procs):
-            stop(proc)
+        self.stack.close()
 
 
 def angle_between(a: float, b: float) -> float:

@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from tests.system import OP, System, angle_between, distance, wait_for
+from launch.stack import wait_for
+from tests.system import OP, System, angle_between, distance
 
 TOLERANCE_DR = 1.5  # m: dead reckoning over a ~10 m move (calibrated cruise speed, no fix)
 TOLERANCE_FIX = 0.6  # m: with a position source
@@ -55,7 +56,7 @@ def test_move_command_is_executed_within_tolerance(system_factory, fix: bool) ->
 
 
 def test_out_of_limits_command_is_refused_by_the_vehicle(system_factory) -> None:  # noqa: ANN001
-    system = system_factory(agent_extra="[limits]\nmax_depth = 5.0")
+    system = system_factory(agent={"limits": {"max_depth": 5.0}})
     wait_for(lambda: system.checkpoint(), what="first check-point")
     command = system.command(command="goto_depth", depth=8.0)  # the server allows 100 m; the vehicle 5 m
     wait_for(lambda: system.status(command) == "refused", timeout=60, what="refusal")
@@ -70,7 +71,7 @@ PLUME = {"surface_temp": 20.0, "thermocline_depth": 40.0, "front_step": 0.0, "pl
 
 
 def test_warm_plume_sends_a_time_sensitive_packet_and_turns_towards_it(system_factory) -> None:  # noqa: ANN001
-    system = system_factory(environment=PLUME, agent_extra='missions = [{builtin = "square", number = 1, side = 14.0, depth = 2.0}]')  # fmt: skip
+    system = system_factory(environment=PLUME, agent={"missions": [{"builtin": "square", "number": 1, "side": 14.0, "depth": 2.0}]})  # fmt: skip
     wait_for(lambda: system.checkpoint(), what="first check-point")
     system.command(command="start_mission", param_id=1)
     wait_for(lambda: (system.checkpoint() or {}).get("state") == "self_determined", timeout=120,
@@ -84,7 +85,7 @@ def test_warm_plume_sends_a_time_sensitive_packet_and_turns_towards_it(system_fa
 
 def test_square_mission_completes_and_survives_an_agent_restart(system_factory) -> None:  # noqa: ANN001
     system = system_factory(
-        agent_extra='missions = [{builtin = "square", number = 1, side = 8.0, depth = 1.5}]'
+        agent={"missions": [{"builtin": "square", "number": 1, "side": 8.0, "depth": 1.5}]}
     )
     wait_for(lambda: system.checkpoint(), what="first check-point")
     system.command(command="start_mission", param_id=1)
@@ -125,7 +126,7 @@ def test_forged_and_replayed_commands_are_ignored(system_factory, tmp_path: Path
     )
 
     async def attack() -> None:
-        driver = modem.ModemDriver(modem.DriverSettings(url=str(tmp_path / "attacker"), address=1, keepalive=60,
+        driver = modem.ModemDriver(modem.DriverSettings(url=str(system.stack.pty("attacker")), address=1, keepalive=60,
                                                         config={"CST": "1"}))  # fmt: skip
         await driver.start()  # the attacker's modem claims the shore's address
         for frame in (forged, captured):

@@ -10,12 +10,12 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
+from launch.stack import wait_for
+from launch.vehicle_host import VehicleSide
 from server.app import create_app
 from server.settings import Settings
 from tacit.packets import CheckpointPacket, CommandStatus, MissionState
 from tests.conftest import tacit_process
-from tests.system import wait_for
-from tests.vehicle_side import VehicleSide
 
 OP = {"Authorization": "Bearer operator-token"}
 OBS = {"Authorization": "Bearer observer-token"}

@@ -9,10 +9,11 @@ import math
 import time
 
 from analysis.series import measured_per_tick
+from launch.rig import Rig
+from launch.stack import wait_for
 from tacit.packets import Stream
 from tacit.streams import default_streams
-from tests.rig import Rig
-from tests.system import TruthWatcher, wait_for
+from tests.system import TruthWatcher
 
 PLUME = {"surface_temp": 20.0, "thermocline_depth": 40.0, "front_step": 0.0, "plume_north": 22.0,
          "plume_east": 8.0, "plume_depth": 2.0, "plume_sigma": 6.0, "plume_sigma_z": 4.0, "plume_excess": 3.0,

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from tests.rig import Rig
-from tests.system import wait_for
+from launch.rig import Rig
+from launch.stack import wait_for
 
 
 def test_server_killed_mid_mission_loses_nothing_and_executes_once() -> None:

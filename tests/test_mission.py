@@ -7,10 +7,12 @@ import math
 import numpy as np
 import pytest
 
+from tacit.limits import Limits
+from tacit.navigation import Pose
 from tacit.packets import Command, CommandStatus, ControlFlag, ControlPacket, MissionState, Reason
 from vehicle_agent.compressor import PlumeDetector
 from vehicle_agent.mavlink_io import Telemetry
-from vehicle_agent.mission import Limits, MissionFSM, MissionPlan, MissionStatus, Pose
+from vehicle_agent.mission import MissionFSM, MissionPlan, MissionStatus
 from vehicle_agent.navigator import NavConfig, PositionEstimate
 
 HOME = Pose(0.0, 0.0, 0.0, 0.0)

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from simulators.scripted_modem import ScriptedModem, default_rule
 from tacit import nmea
 from tacit.modem import (
     DriverSettings,
@@ -17,7 +18,6 @@ from tacit.modem import (
     ModemTimeout,
     ReceivedFrame,
 )
-from tests.scripted_modem import ScriptedModem, default_rule
 
 VEHICLE = 2
 SHORE = 1

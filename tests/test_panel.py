@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import pytest
 
-from server.map.panel import Pose, move_to, ray_to_depth_plane, refusal
+from server.map.panel import move_to, ray_to_depth_plane, refusal
 from server.models import Vehicle
 from server.schemas import CommandIn
+from tacit.navigation import Pose
 
 VEHICLE = Vehicle(
     name="rov1", address=2, key_hex="00" * 32, max_depth=20.0, max_distance=50.0, geofence_radius=100.0

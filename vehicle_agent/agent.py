@@ -22,6 +22,8 @@ from pathlib import Path
 
 from tacit import auth, modem
 from tacit.config import check_keys
+from tacit.limits import Limits
+from tacit.navigation import Pose, Target
 from tacit.packets import (
     OXYGEN_NONE,
     CheckpointPacket,
@@ -35,8 +37,8 @@ from tacit.streams import default_streams
 from vehicle_agent.compressor import Compressor, PlumeDetector
 from vehicle_agent.link import VehicleLink
 from vehicle_agent.mavlink_io import MavlinkLink
-from vehicle_agent.mission import Limits, MissionFSM, MissionPlan, MissionStatus, Pose
-from vehicle_agent.navigator import NavConfig, Navigator, PositionEstimate, Target
+from vehicle_agent.mission import MissionFSM, MissionPlan, MissionStatus
+from vehicle_agent.navigator import NavConfig, Navigator, PositionEstimate
 from vehicle_agent.state import AgentState
 
 log = logging.getLogger("tacit.agent")

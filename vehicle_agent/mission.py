@@ -23,8 +23,9 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from tacit import navigation
+from tacit.limits import Limits
+from tacit.navigation import Pose, Target
 from tacit.packets import Command, CommandStatus, ControlFlag, ControlPacket, MissionState, Reason
-from vehicle_agent.navigator import Target
 
 ACTIVE = {MissionState.PREPROGRAMMED, MissionState.SELF_DETERMINED, MissionState.AWAITING_COMMAND,
           MissionState.COMMANDED, MissionState.HOLDING, MissionState.RETURNING}  # fmt: skip
@@ -67,21 +68,6 @@ class MissionPlan:
             return cls(int(data["number"]), str(data["name"]), waypoints, float(data.get("duration_s", 1800)))
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{path}: not a mission file ({exc})") from None
-
-
-@dataclass
-class Limits:
-    max_depth: float = 100.0
-    max_distance: float = 500.0
-    geofence_radius: float = 1000.0
-
-
-@dataclass
-class Pose:
-    north: float
-    east: float
-    depth: float
-    heading: float
 
 
 @dataclass
@@ -161,11 +147,9 @@ class MissionFSM:
         return status, reason
 
     def _commanded(self, target: tuple[float, float, float]) -> tuple[CommandStatus, Reason]:
-        north, east, depth = target
-        if not 0 <= depth <= self.limits.max_depth:
-            return CommandStatus.REFUSED, Reason.OUT_OF_LIMITS
-        if math.hypot(north, east) > self.limits.geofence_radius:
-            return CommandStatus.REFUSED, Reason.GEOFENCE
+        refused = self.limits.check_target(*target)
+        if refused is not None:
+            return CommandStatus.REFUSED, refused.reason
         if self.status.state in (MissionState.PREPROGRAMMED, MissionState.SELF_DETERMINED,
                                  MissionState.AWAITING_COMMAND):  # fmt: skip
             self.status.resume_state = MissionState.PREPROGRAMMED
@@ -174,8 +158,9 @@ class MissionFSM:
         return CommandStatus.EXECUTING, Reason.OK
 
     def _move(self, p: ControlPacket, pose: Pose, _now: float) -> tuple[CommandStatus, Reason]:
-        if p.distance > self.limits.max_distance:
-            return CommandStatus.REFUSED, Reason.OUT_OF_LIMITS
+        refused = self.limits.check(Command.MOVE, p.distance, speed=p.speed)
+        if refused is not None:
+            return CommandStatus.REFUSED, refused.reason
         absolute = bool(p.flags & ControlFlag.ABSOLUTE_ANGLE)
         north, east = navigation.move_target(
             pose.north, pose.east, pose.heading, p.distance, p.angle, absolute

@@ -20,7 +20,7 @@ import math
 from dataclasses import dataclass
 
 from tacit import navigation
-from tacit.navigation import Origin
+from tacit.navigation import Origin, Target
 from vehicle_agent.mavlink_io import MavlinkLink, Telemetry
 
 ALT_HOLD, GUIDED = 2, 4
@@ -36,14 +36,6 @@ class NavConfig:
     heading_tolerance: float = 8.0  # deg: turn in place before moving when off by more
     depth_tolerance: float = 0.25  # m
     gps_gain: float = 0.1  # per fix (1 Hz): a ~10 s time constant
-
-
-@dataclass
-class Target:
-    north: float
-    east: float
-    depth: float
-    heading: float | None = None  # hold this heading when arrived (default: keep the current one)
 
 
 class PositionEstimate:

@@ -9,6 +9,7 @@ from server.auth import require_read, require_write
 from server.models import Command
 from server.schemas import CommandDetail, CommandEventOut, CommandIn, CommandOut
 from server.services import commands
+from tacit.navigation import Pose
 
 router = APIRouter(prefix="/api/v1", tags=["commands"])
 
@@ -16,9 +17,9 @@ router = APIRouter(prefix="/api/v1", tags=["commands"])
 def queue_command(request: Request, s: Session, vehicle_id: Id, body: CommandIn) -> Command:
     vehicle = _get(s, vehicle_id)
     state = request.app.state.ingest.vehicles.get(vehicle.address)
-    position = state.checkpoint if state and state.checkpoint else None
+    pose = Pose.from_checkpoint(state.checkpoint if state else None)
     try:
-        command = commands.queue(s, vehicle, body, position)
+        command = commands.queue(s, vehicle, body, pose)
     except commands.CommandRefused as exc:
         raise HTTPException(422, {"detail": str(exc), "field": exc.field}) from None
     request.app.state.bus.publish("command", id=command.id, seq=command.seq, status="queued",

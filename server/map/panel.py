@@ -6,26 +6,11 @@ it lands where the ray meets the water surface or the chosen depth plane.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 from server.models import Vehicle
 from server.schemas import CommandIn
 from server.services.commands import CommandRefused, check_limits
 from tacit import navigation
-
-
-@dataclass(frozen=True)
-class Pose:
-    north: float
-    east: float
-    depth: float
-    heading: float
-
-    @classmethod
-    def from_checkpoint(cls, checkpoint: dict | None) -> Pose:
-        if not checkpoint:
-            return cls(0.0, 0.0, 0.0, 0.0)
-        return cls(checkpoint["north"], checkpoint["east"], checkpoint["depth"], checkpoint["heading"])
+from tacit.navigation import Pose
 
 
 def ray_to_depth_plane(origin: tuple[float, float, float], direction: tuple[float, float, float],
@@ -51,10 +36,8 @@ def move_to(pose: Pose, north: float, east: float, depth: float, absolute: bool 
 
 def refusal(command: CommandIn, vehicle: Vehicle, pose: Pose | None) -> str | None:
     """Why the vehicle's limits refuse this command (None: it may be sent)."""
-    position = None if pose is None else {"north": pose.north, "east": pose.east, "depth": pose.depth,
-                                          "heading": pose.heading}  # fmt: skip
     try:
-        check_limits(command, vehicle, position)
+        check_limits(command, vehicle, pose)
     except CommandRefused as exc:
         return f"{exc.field}: {exc}"
     return None

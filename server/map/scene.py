@@ -28,10 +28,11 @@ import numpy as np
 from sqlmodel import Session, select
 
 from server.db import writing
-from server.map.panel import Pose, move_to, ray_to_depth_plane, refusal
+from server.map.panel import move_to, ray_to_depth_plane, refusal
 from server.models import Mission, Vehicle
 from server.schemas import COMMANDS, CommandIn
 from server.services import commands as command_service
+from tacit.navigation import Pose
 
 log = logging.getLogger("tacit.server.map")
 
@@ -151,7 +152,7 @@ class OperatorMap:
 
     def _pose(self, vehicle: Vehicle) -> Pose | None:
         state = self.app.state.ingest.vehicles.get(vehicle.address)
-        return Pose.from_checkpoint(state.checkpoint) if state and state.checkpoint else None
+        return Pose.from_checkpoint(state.checkpoint if state else None)
 
     def _panel_command(self) -> CommandIn | str:
         try:

@@ -16,7 +16,9 @@ from sqlmodel import Session, select
 
 from server.models import Command, CommandEvent, Vehicle
 from server.schemas import CommandIn
-from tacit import auth, navigation
+from tacit import auth
+from tacit.limits import Limits
+from tacit.navigation import Pose
 from tacit.packets import Command as Kind
 from tacit.packets import ControlFlag, ControlPacket, FieldRangeError
 
@@ -27,37 +29,19 @@ class CommandRefused(ValueError):
         self.field = field
 
 
-def check_limits(body: CommandIn, vehicle: Vehicle, position: dict | None = None) -> None:
-    """Raise ``CommandRefused`` if the command breaks one of the vehicle's limits."""
+def limits_of(vehicle: Vehicle) -> Limits:
+    """The vehicle's limits as the shore holds them (set through the API)."""
+    return Limits(vehicle.max_depth, vehicle.max_distance, vehicle.geofence_radius, vehicle.max_speed)
+
+
+def check_limits(body: CommandIn, vehicle: Vehicle, pose: Pose | None = None) -> None:
+    """Raise ``CommandRefused`` if the command breaks one of the vehicle's limits (``tacit.limits``)."""
     if not math.isfinite(body.param_value):
         raise CommandRefused("param_value", "param_value must be a finite number")
-    if body.speed > vehicle.max_speed:
-        raise CommandRefused("speed", f"speed {body.speed} m/s exceeds the vehicle's {vehicle.max_speed} m/s")
-    if body.command == "move":
-        if body.distance > vehicle.max_distance:
-            raise CommandRefused("distance", f"distance {body.distance} m exceeds the vehicle's "
-                                 f"{vehicle.max_distance} m per move")  # fmt: skip
-        if abs(body.depth) > vehicle.max_depth:
-            raise CommandRefused(
-                "depth", f"depth change {body.depth} m exceeds the vehicle's {vehicle.max_depth} m"
-            )
-        if position is not None:
-            _check_move_target(body, vehicle, position)
-    if body.command == "goto_depth" and not 0 <= body.depth <= vehicle.max_depth:
-        raise CommandRefused("depth", f"target depth {body.depth} m is outside 0 .. {vehicle.max_depth} m")
-
-
-def _check_move_target(body: CommandIn, vehicle: Vehicle, position: dict) -> None:
-    north, east = navigation.move_target(position["north"], position["east"], position["heading"],
-                                         body.distance, body.angle, body.absolute_angle)  # fmt: skip
-    if math.hypot(north, east) > vehicle.geofence_radius:
-        raise CommandRefused("distance", f"the move ends {math.hypot(north, east):.0f} m from home, outside "
-                             f"the {vehicle.geofence_radius:.0f} m geofence")  # fmt: skip
-    depth = position.get("depth", 0.0) + body.depth
-    if not 0 <= depth <= vehicle.max_depth:
-        raise CommandRefused(
-            "depth", f"the move ends at {depth:.1f} m depth, outside 0 .. {vehicle.max_depth} m"
-        )
+    refused = limits_of(vehicle).check(Kind[body.command.upper()], body.distance, body.angle, body.depth,
+                                       body.speed, body.absolute_angle, pose)  # fmt: skip
+    if refused is not None:
+        raise CommandRefused(refused.field, refused.message)
 
 
 def packet_for(command: Command, stamp: int | None = None) -> ControlPacket:
@@ -76,8 +60,8 @@ def sign(command: Command, vehicle: Vehicle) -> bytes:
     return auth.sign(packet_for(command), bytes.fromhex(vehicle.key_hex), vehicle.address)
 
 
-def queue(s: Session, vehicle: Vehicle, body: CommandIn, position: dict | None = None) -> Command:
-    check_limits(body, vehicle, position)
+def queue(s: Session, vehicle: Vehicle, body: CommandIn, pose: Pose | None = None) -> Command:
+    check_limits(body, vehicle, pose)
     seq = s.exec(update(Vehicle).where(Vehicle.id == vehicle.id).values(next_seq=Vehicle.next_seq + 1)
                  .returning(Vehicle.next_seq)).one()[0] - 1  # fmt: skip
     command = Command(vehicle_id=vehicle.id, seq=seq, frame=b"", **body.model_dump())  # type: ignore[arg-type]
