@@ -129,7 +129,7 @@ def main() -> None:
     for c in clients + browsers:
         c.start()
     time.sleep(1.0)
-    ingest = app.state.ingest
+    ingest = app.state.shore.ingest
     start = time.perf_counter()
     for i in tqdm(range(0, len(incoming), options.batch), desc="ingesting", unit="batch"):
         ingest.handle_batch(incoming[i : i + options.batch])
@@ -148,7 +148,7 @@ def main() -> None:
           f"({ingest.stats['packets']} stored, {ingest.stats['duplicates']} duplicates)")  # fmt: skip
     if received:
         print(f"event stream: {len(browsers)} browsers received {min(received):,} to {max(received):,} events each "
-              f"({app.state.bus.published:,} published)")  # fmt: skip
+              f"({app.state.shore.bus.published:,} published)")  # fmt: skip
     if len(under_load) >= 2:
         q = statistics.quantiles(under_load, n=100)
         print(f"API under that load ({options.clients} clients, {len(under_load)} requests): "

@@ -123,7 +123,7 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
             ]
             stack.write_agent_config(checkpoint_interval=20, missions=[{"file": "missions/mission.json"}])
             stack.start_agent()
-            info = {"api_url": api + "/api/v1", "dashboard_url": api + "/", "map_url": f"http://{args.host}:{app.state.map.port}",
+            info = {"api_url": api + "/api/v1", "dashboard_url": api + "/", "map_url": f"http://{args.host}:{app.state.shore.map.port}",
                     "token": secret["token"], "modems": sim_info["modems"], "vehicle": sim_info["vehicle"],
                     "data_dir": str(data)}  # fmt: skip
             _announce(info, args)

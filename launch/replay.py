@@ -88,7 +88,7 @@ async def _replay(args: argparse.Namespace, duration: float) -> dict:
         await asyncio.sleep(
             duration + args.settle
         )  # the dive, then the last packets' latency and a poll or two
-        return _summary(app.state.db, data, started)
+        return _summary(app.state.shore.db, data, started)
     finally:
         await shutdown(stack, server, serving)
 

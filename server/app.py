@@ -23,11 +23,9 @@ from fastapi.staticfiles import StaticFiles
 from server.api import commands, data, missions, vehicles
 from server.auth import require_read
 from server.db import make_engine, migrate
-from server.events import EventBus
-from server.link.engine import LinkEngine
-from server.link.ingest import Ingest
+from server.errors import ApiError
 from server.settings import Settings, SettingsError
-from tacit.streams import default_streams
+from server.shore import Shore
 
 log = logging.getLogger("tacit.server")
 WEB = Path(__file__).resolve().parent.parent / "web"
@@ -41,34 +39,29 @@ reads an observer's or an operator's: click **Authorize** and paste the token, o
 
 @asynccontextmanager
 async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-    settings: Settings = app.state.settings
+    shore: Shore = app.state.shore
+    settings = shore.settings
     await asyncio.to_thread(migrate, settings.database_url)
-    app.state.bus.bind(asyncio.get_running_loop())
-    await app.state.link.start()
-    map_server = None
+    shore.bus.bind(asyncio.get_running_loop())
+    await shore.link.start()
     if settings.map_enabled:
         from server.map.scene import OperatorMap  # viser is heavy: imported only when the map runs
 
-        map_server = OperatorMap(app, settings.host, settings.map_port)
-        map_server.start()
-        app.state.map = map_server
+        shore.map = OperatorMap(shore, settings.host, settings.map_port)
+        shore.map.start()
     log.info("tacit server ready: API http://%s:%d/docs", settings.host, settings.port)
     try:
         yield
     finally:
-        if map_server:
-            map_server.stop()
-        await app.state.link.stop()
+        if shore.map:
+            shore.map.stop()
+        await shore.link.stop()
 
 
 def create_app(settings: Settings) -> FastAPI:
     app = FastAPI(title="Tacit", version="1", description=DESCRIPTION, lifespan=lifespan)
-    app.state.settings = settings
-    app.state.db = make_engine(settings.database_url)
-    app.state.bus = EventBus()
-    app.state.ingest = Ingest(app.state.db, app.state.bus, default_streams())
-    app.state.link = LinkEngine(settings, app.state.db, app.state.bus, app.state.ingest)
-    app.state.map = None
+    shore = Shore.build(settings, make_engine(settings.database_url))
+    app.state.shore = shore
     if settings.cors_origins:
         app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins, allow_methods=["*"],
                            allow_headers=["Authorization", "Content-Type"])  # fmt: skip
@@ -77,7 +70,7 @@ def create_app(settings: Settings) -> FastAPI:
 
     @app.get("/api/v1/health", tags=["data"])
     def health() -> dict:
-        return {"status": "ok", "modem": app.state.link.status()["modem"]}
+        return {"status": "ok", "modem": shore.link.status()["modem"]}
 
     @app.get("/api/v1/whoami", tags=["data"])
     def whoami(found: str = Depends(require_read)) -> dict:
@@ -88,8 +81,8 @@ def create_app(settings: Settings) -> FastAPI:
     def config() -> dict:
         """What the browser needs: the map's port and the streams' channels (no secrets)."""
         streams = {s.name: {"channels": list(s.channels), "eps": list(s.eps), "period": s.period}
-                   for s in app.state.ingest.streams.values()}  # fmt: skip
-        port = app.state.map.port if app.state.map else None
+                   for s in shore.ingest.streams.values()}  # fmt: skip
+        port = shore.map.port if shore.map else None
         return {"map_port": port, "streams": streams}
 
     @app.exception_handler(RequestValidationError)
@@ -99,6 +92,10 @@ def create_app(settings: Settings) -> FastAPI:
         field = "body" if first.get("type") == "json_invalid" else ".".join(loc[1:]) or loc[0]
         return JSONResponse({"detail": first.get("msg", "invalid request"), "field": field,
                              "errors": jsonable(exc.errors())}, status_code=422)  # fmt: skip
+
+    @app.exception_handler(ApiError)
+    async def refused(_: Request, exc: ApiError) -> JSONResponse:
+        return JSONResponse({"detail": exc.detail, "field": exc.field}, status_code=exc.status)
 
     @app.exception_handler(HTTPException)
     async def http_error(_: Request, exc: HTTPException) -> JSONResponse:

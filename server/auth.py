@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import hmac
 
-from fastapi import Depends, HTTPException, Request, status
+from fastapi import Depends, HTTPException, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+
+from server.api.deps import SettingsDep
+from server.settings import Settings
 
 bearer = HTTPBearer(auto_error=False, description="Authorization: Bearer <token>. Operators' tokens may "
                     "write (commands, missions, vehicles); observers' tokens only read.")  # fmt: skip
@@ -18,23 +21,28 @@ def _matches(token: str, candidates: list[str]) -> bool:
     return found
 
 
-def role(request: Request, credentials: HTTPAuthorizationCredentials | None) -> str | None:
-    settings = request.app.state.settings
-    if credentials is None:
+def role(settings: Settings, token: str | None) -> str | None:
+    """``write`` for an operator's token, ``read`` for an observer's, None for anything else."""
+    if token is None:
         return None
-    if _matches(credentials.credentials, settings.write_tokens):
+    if _matches(token, settings.write_tokens):
         return "write"
-    if _matches(credentials.credentials, settings.read_tokens):
+    if _matches(token, settings.read_tokens):
         return "read"
     return None
 
 
-def require_read(request: Request, credentials: HTTPAuthorizationCredentials | None = Depends(bearer)) -> str:
+def _token(credentials: HTTPAuthorizationCredentials | None) -> str | None:
+    return credentials.credentials if credentials is not None else None
+
+
+def require_read(
+    settings: SettingsDep, credentials: HTTPAuthorizationCredentials | None = Depends(bearer)
+) -> str:
     """Reads are open when no tokens are configured at all (a bench setup); otherwise any valid token."""
-    settings = request.app.state.settings
     if not settings.write_tokens and not settings.read_tokens:
         return "write"
-    found = role(request, credentials)
+    found = role(settings, _token(credentials))
     if found is None:
         raise HTTPException(status.HTTP_401_UNAUTHORIZED, "a valid bearer token is required",
                             headers={"WWW-Authenticate": "Bearer"})  # fmt: skip
@@ -42,9 +50,9 @@ def require_read(request: Request, credentials: HTTPAuthorizationCredentials | N
 
 
 def require_write(
-    request: Request, credentials: HTTPAuthorizationCredentials | None = Depends(bearer)
+    settings: SettingsDep, credentials: HTTPAuthorizationCredentials | None = Depends(bearer)
 ) -> str:
-    found = role(request, credentials)
+    found = role(settings, _token(credentials))
     if found is None:
         raise HTTPException(status.HTTP_401_UNAUTHORIZED, "an operator's bearer token is required",
                             headers={"WWW-Authenticate": "Bearer"})  # fmt: skip

@@ -119,7 +119,7 @@ def test_forged_and_replayed_commands_are_ignored(system_factory, tmp_path: Path
     wait_for(lambda: system.checkpoint(), what="first check-point")
     genuine = system.command(command="goto_depth", depth=1.0)
     wait_for(lambda: system.status(genuine) == "executed", timeout=90, what="genuine command executed")
-    with Session(system.client.app.state.db) as s:
+    with Session(system.client.app.state.shore.db) as s:
         captured = s.exec(select(Frame).where(Frame.direction == "out")).first().data
     forged = auth.sign(
         ControlPacket(Command.GOTO_DEPTH, seq=99, time=int(time.time()), depth=4.0), bytes(32), 2

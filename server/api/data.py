@@ -7,13 +7,14 @@ import csv
 import io
 from collections.abc import AsyncIterator, Iterator
 
-from fastapi import APIRouter, Depends, HTTPException, Query, Request
+from fastapi import APIRouter, Depends, Query
 from fastapi.responses import StreamingResponse
 from sqlalchemy import func
 from sqlmodel import Session, select
 
-from server.api.deps import Id, Offset, OptionalId, db
+from server.api.deps import BusDep, LinkDep, Offset, OptionalId, QueryId, ReadSession, ShoreDep
 from server.auth import require_read
+from server.errors import Refused
 from server.models import Packet, Telemetry
 from server.schemas import PacketOut, Page, TelemetryOut
 
@@ -32,7 +33,7 @@ def _page(s: Session, query, limit: int, offset: int, model) -> Page:  # noqa: A
 
 
 @router.get("/packets", response_model=Page, dependencies=[Depends(require_read)])
-def packets(s: Session = Depends(db), vehicle_id: OptionalId = None,
+def packets(s: ReadSession, vehicle_id: OptionalId = None,
             type: str | None = Query(None, pattern="^(checkpoint|priority)$"), since: float | None = None,
             until: float | None = None, limit: int = Query(100, ge=1, le=1000), offset: Offset = 0) -> Page:  # fmt: skip
     query = _filtered(select(Packet).order_by(Packet.id.desc()), Packet.vehicle_id, Packet.at,  # type: ignore[union-attr]
@@ -62,7 +63,7 @@ def _telemetry_query(vehicle_id: int | None, stream: str | None, since: float | 
 
 
 @router.get("/telemetry", response_model=Page, dependencies=[Depends(require_read)])
-def telemetry(s: Session = Depends(db), vehicle_id: OptionalId = None, stream: str | None = None,
+def telemetry(s: ReadSession, vehicle_id: OptionalId = None, stream: str | None = None,
               since: float | None = None, until: float | None = None, limit: int = Query(500, ge=1, le=5000),
               offset: Offset = 0) -> Page:  # fmt: skip
     """Reconstructed samples, one row per tick; ``certain`` false marks a span the shore cannot vouch for."""
@@ -70,13 +71,11 @@ def telemetry(s: Session = Depends(db), vehicle_id: OptionalId = None, stream: s
 
 
 @router.get("/telemetry.csv", dependencies=[Depends(require_read)], response_class=StreamingResponse)
-def telemetry_csv(request: Request, vehicle_id: Id, stream: str, since: float | None = None,
+def telemetry_csv(shore: ShoreDep, vehicle_id: QueryId, stream: str, since: float | None = None,
                   until: float | None = None) -> StreamingResponse:  # fmt: skip
-    streams = {spec.name: spec for spec in request.app.state.ingest.streams.values()}
+    streams = {spec.name: spec for spec in shore.ingest.streams.values()}
     if stream not in streams:
-        raise HTTPException(
-            422, {"detail": f"no stream {stream!r}; one of {sorted(streams)}", "field": "stream"}
-        )
+        raise Refused(f"no stream {stream!r}; one of {sorted(streams)}", "stream")
     channels = streams[stream].channels
     query = _telemetry_query(vehicle_id, stream, since, until)
 
@@ -84,7 +83,7 @@ def telemetry_csv(request: Request, vehicle_id: Id, stream: str, since: float | 
         out = io.StringIO()
         writer = csv.writer(out)
         writer.writerow(["time", "tick", "certain", *channels])
-        with Session(request.app.state.db) as s:
+        with Session(shore.db) as s:
             for row in s.exec(query.execution_options(yield_per=1000)):
                 writer.writerow([row.time, row.tick, int(row.certain), *(row.values or [""] * len(channels))])
                 yield out.getvalue()
@@ -97,17 +96,16 @@ def telemetry_csv(request: Request, vehicle_id: Id, stream: str, since: float | 
 
 
 @router.get("/link", dependencies=[Depends(require_read)])
-def link_status(request: Request) -> dict:
+def link_status(link: LinkDep) -> dict:
     """The shore modem's state and, per vehicle: last heard, SNR, range, packets per hour, bytes saved."""
-    return request.app.state.link.status()
+    return link.status()
 
 
 @router.get("/events", dependencies=[Depends(require_read)])
-async def events(request: Request) -> StreamingResponse:
+async def events(bus: BusDep) -> StreamingResponse:
     """Server-sent events (packet, command, telemetry, link, vehicle), authenticated by the Authorization
     header like every other route: a token in a URL would end up in access logs. (Browsers read this
     stream with ``fetch``, which can send the header, rather than ``EventSource``, which cannot.)"""
-    bus = request.app.state.bus
     queue = bus.subscribe()
 
     async def stream() -> AsyncIterator[str]:

@@ -21,14 +21,15 @@ import asyncio
 import contextlib
 import logging
 import time
+from collections.abc import Coroutine
 
-from sqlalchemy import Engine, update
+from sqlalchemy import Engine
 from sqlmodel import Session, select
 
 from server.db import writing
 from server.events import EventBus
 from server.link.ingest import IncomingFrame, Ingest, VehicleState
-from server.models import Command, CommandEvent, Frame, LinkEvent, Vehicle, now
+from server.models import Command, Frame, LinkEvent, Vehicle
 from server.services import commands
 from server.settings import Settings
 from tacit import modem as mm
@@ -36,8 +37,6 @@ from tacit import rates
 from tacit.link import capacity, choose_rate
 
 log = logging.getLogger("tacit.server.link")
-
-PENDING = ("queued", "sent")
 
 
 class LinkEngine:
@@ -53,12 +52,15 @@ class LinkEngine:
         self._frames: asyncio.Queue[IncomingFrame] = asyncio.Queue()
         self._worker: asyncio.Task[None] | None = None
         self._last_ping: dict[int, float] = {}
+        self._writes: set[asyncio.Task[None]] = set()
+        self._loop: asyncio.AbstractEventLoop | None = None
         self.started_at = time.time()
         self.counters = {"commands_sent": 0, "commands_acked": 0, "polls": 0, "pings": 0, "frames_in": 0}
 
     # --- lifecycle ------------------------------------------------------------------------------
 
     async def start(self) -> None:
+        self._loop = asyncio.get_running_loop()
         self.ingest.load_vehicles()
         self._worker = asyncio.create_task(self._ingest())
         if not self.settings.modem_url:
@@ -83,8 +85,18 @@ class LinkEngine:
             await self.driver.stop()
 
     def wake(self) -> None:
-        """Something was queued: start the next slot now instead of after the idle wait."""
-        self._wake.set()
+        """Something was queued: start the next slot now instead of after the idle wait. Safe from any
+        thread (routes run in a thread pool, the map in viser's thread)."""
+        if self._loop is None:
+            return
+        try:
+            on_loop = asyncio.get_running_loop() is self._loop
+        except RuntimeError:
+            on_loop = False
+        if on_loop:
+            self._wake.set()
+        else:
+            self._loop.call_soon_threadsafe(self._wake.set)
 
     def vehicles_changed(self) -> None:
         self.ingest.load_vehicles()
@@ -102,9 +114,8 @@ class LinkEngine:
             self._frames.put_nowait(frame)
         elif isinstance(event, mm.StateChanged):
             self.bus.publish("link", event="modem", state=event.state.value, detail=event.detail)
-            self._store(
-                LinkEvent(kind="modem_state", detail={"state": event.state.value, "detail": event.detail})
-            )
+            row = LinkEvent(kind="modem_state", detail={"state": event.state.value, "detail": event.detail})
+            self._background(self._store(row))
         elif isinstance(event, mm.FrameBad) and event.reason == "timeout":
             for heard in self._heard.values():
                 heard.set()
@@ -125,7 +136,17 @@ class LinkEngine:
                 if heard is not None:
                     heard.set()
 
-    def _store(self, *rows: object) -> None:
+    def _background(self, work: Coroutine[object, object, None]) -> None:
+        """A write started from a modem callback, kept referenced until it finishes."""
+        task = asyncio.get_running_loop().create_task(work)
+        self._writes.add(task)
+        task.add_done_callback(self._writes.discard)
+
+    async def _store(self, *rows: object) -> None:
+        """Rows written by a worker thread: the event loop that serves the modem never waits on the database."""
+        await asyncio.to_thread(self._store_now, *rows)
+
+    def _store_now(self, *rows: object) -> None:
         with writing(self.db) as s:
             s.add_all(rows)
             s.commit()
@@ -153,7 +174,7 @@ class LinkEngine:
         """One vehicle's slot; True if something was sent or heard."""
         if self.driver is None or self.driver.state is not mm.LinkState.READY:
             return False
-        command = self._next_command(vehicle.id)
+        command = await asyncio.to_thread(self._next_command, vehicle.id)
         if command is not None:
             await self._send_command(vehicle, command)
             return True
@@ -169,14 +190,14 @@ class LinkEngine:
         check-point has confirmed it within ``confirm_timeout`` (the modem ACKs in hardware, even when the
         vehicle's host is down). Only the latest: re-sending an older one could run it after a newer one."""
         with Session(self.db) as s:
-            pending = s.exec(select(Command).where(Command.vehicle_id == vehicle_id, Command.status.in_(PENDING))
+            pending = s.exec(select(Command).where(Command.vehicle_id == vehicle_id, Command.status.in_(commands.PENDING))
                              .order_by(Command.id)).first()  # type: ignore[attr-defined]  # fmt: skip
             if pending is not None:
                 return pending
             latest = s.exec(select(Command).where(Command.vehicle_id == vehicle_id)
                             .order_by(Command.id.desc())).first()  # type: ignore[union-attr]  # fmt: skip
         stale = time.time() - self.settings.confirm_timeout / self.settings.time_scale
-        if latest is not None and latest.status == "acknowledged" and latest.updated_at < stale:
+        if latest is not None and latest.status == commands.Status.ACKNOWLEDGED and latest.updated_at < stale:
             log.info(
                 "vehicle %s: command seq %d acknowledged but never confirmed: sending again",
                 vehicle_id,
@@ -196,8 +217,7 @@ class LinkEngine:
     async def _send_command(self, vehicle: VehicleState, command: Command) -> None:
         """One attempt. Only a transmission that went on the air counts: if our own modem refused the
         cycle (busy acknowledging, say), the command waits for the next slot unchanged."""
-        with Session(self.db) as s:
-            frame = commands.sign(command, s.get(Vehicle, vehicle.id))  # type: ignore[arg-type]
+        frame = await asyncio.to_thread(self._sign, command, vehicle.id)
         result = await self.driver.send(vehicle.address, [frame], rate=0, ack=True,  # type: ignore[union-attr]
                                         ack_timeout=self._ack_timeout(vehicle))  # fmt: skip
         if not result.transmitted:
@@ -207,10 +227,12 @@ class LinkEngine:
             return
         attempt = command.attempts + 1
         self.counters["commands_sent"] += 1
-        self._store(
+        await self._store(
             Frame(direction="out", src=self.settings.modem_address, dest=vehicle.address, rate=0, data=frame)
         )
-        self._set_status(command, "sent", f"attempt {attempt}", attempts=attempt, frame=frame)
+        await self._advance(
+            command, commands.Status.SENT, f"attempt {attempt}", attempts=attempt, frame=frame
+        )
         log.info(
             "vehicle %s: command %s seq %d sent (attempt %d)",
             vehicle.name,
@@ -220,25 +242,35 @@ class LinkEngine:
         )
         if result.all_acked:
             self.counters["commands_acked"] += 1
-            self._set_status(command, "acknowledged", "")
+            await self._advance(command, commands.Status.ACKNOWLEDGED)
             log.info("vehicle %s: command seq %d acknowledged", vehicle.name, command.seq)
         elif attempt >= self.settings.command_attempts:
-            self._set_status(command, "failed", result.error or "no acknowledgement")
+            error = result.error or "no acknowledgement"
+            await self._advance(command, commands.Status.FAILED, error, reason=error)
             log.warning("vehicle %s: command seq %d failed: %s", vehicle.name, command.seq, result.error)
 
-    def _set_status(self, command: Command, status: str, detail: str, **extra: object) -> None:
+    def _sign(self, command: Command, vehicle_id: int) -> bytes:
+        with Session(self.db) as s:
+            vehicle = s.get(Vehicle, vehicle_id)
+            if vehicle is None:
+                raise LookupError(f"vehicle {vehicle_id} was removed")
+            return commands.sign(command, vehicle)
+
+    async def _advance(
+        self, command: Command, status: commands.Status, detail: str = "", **extra: object
+    ) -> None:
+        """What the modem said of a command (sent, acknowledged, failed), if the lifecycle allows it: a
+        check-point may already have said executing / executed / refused, which a late ACK must not undo."""
+        if await asyncio.to_thread(self._advance_now, command.id, status, detail, extra):
+            self.bus.publish("command", id=command.id, seq=command.seq, status=status.value, detail=detail)
+
+    def _advance_now(self, command_id: int | None, status: commands.Status, detail: str, extra: dict) -> bool:
         with writing(self.db) as s:
-            current = s.get(Command, command.id)
-            if current is None:
-                return
-            if status in ("sent", "acknowledged") and current.status not in (*PENDING, "acknowledged"):
-                return  # a check-point already said executing/executed/refused: keep the later state
-            s.exec(update(Command).where(Command.id == command.id)
-                   .values(status=status, updated_at=now(), reason=detail if status == "failed" else current.reason,
-                           **extra))  # type: ignore[arg-type]  # fmt: skip
-            s.add(CommandEvent(command_id=command.id, status=status, detail=detail))  # type: ignore[arg-type]
+            current = s.get(Command, command_id)
+            if current is None or not commands.advance(s, current, status, detail, **extra):
+                return False
             s.commit()
-        self.bus.publish("command", id=command.id, seq=command.seq, status=status, detail=detail)
+            return True
 
     async def _poll(self, vehicle: VehicleState) -> bool:
         rate = choose_rate(vehicle.snr_in, loss_sensitive=False, packets=4)
@@ -270,7 +302,7 @@ class LinkEngine:
         if travel is None:
             return
         vehicle.range_m = travel * self.settings.sound_speed
-        self._store(LinkEvent(vehicle_id=vehicle.id, kind="range", detail={"range_m": vehicle.range_m}))
+        await self._store(LinkEvent(vehicle_id=vehicle.id, kind="range", detail={"range_m": vehicle.range_m}))
         self.bus.publish("link", event="range", vehicle=vehicle.name, range_m=round(vehicle.range_m, 1))
         log.info("vehicle %s: range %.1f m", vehicle.name, vehicle.range_m)
 

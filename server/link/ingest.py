@@ -12,22 +12,21 @@ import logging
 import threading
 from dataclasses import dataclass, field
 
-from sqlalchemy import Engine, insert, update
+from sqlalchemy import Engine, insert
 from sqlmodel import Session, select
 
 from server.db import writing
 from server.events import EventBus
-from server.models import Command, CommandEvent, Frame, LinkEvent, Packet, Telemetry, Vehicle, now
+from server.models import Command, Frame, LinkEvent, Packet, Telemetry, Vehicle, now
+from server.services import commands
 from tacit import packets
 from tacit.codec import CodecError, StreamDecoder, StreamSpec
 from tacit.link import SeenWindow, from_frame
+from tacit.navigation import Pose
 from tacit.packets import CheckpointPacket, CommandStatus, PacketError, PriorityPacket, Stream
 
 log = logging.getLogger("tacit.server.ingest")
 
-STATUS_FOR = {CommandStatus.EXECUTING: "executing", CommandStatus.EXECUTED: "executed",
-              CommandStatus.REFUSED: "refused", CommandStatus.SUPERSEDED: "superseded"}  # fmt: skip
-ORDER = ["queued", "sent", "acknowledged", "executing", "executed", "refused", "superseded", "failed"]
 Events = list[tuple[str, dict]]
 
 
@@ -96,6 +95,11 @@ class Ingest:
                     self.vehicles[v.address] = VehicleState(v.id, v.name, v.address, decoders)  # type: ignore[arg-type]
             for address in set(self.vehicles) - {v.address for v in rows}:
                 del self.vehicles[address]
+
+    def pose(self, address: int) -> Pose | None:
+        """The pose the vehicle at ``address`` last reported (None before its first check-point)."""
+        state = self.vehicles.get(address)
+        return Pose.from_checkpoint(state.checkpoint if state else None)
 
     def handle(self, frame: IncomingFrame) -> list[dict]:
         """Store, decode and apply one received frame; returns the events published."""
@@ -173,20 +177,15 @@ class Ingest:
     def _checkpoint(self, s: Session, v: VehicleState, cp: CheckpointPacket, body: dict) -> Events:
         v.checkpoint = body
         events: Events = [("vehicle", {"vehicle": v.name, "checkpoint": body})]
-        status = STATUS_FOR.get(cp.command_status)
+        status = commands.FROM_CHECKPOINT.get(cp.command_status)
         if not status or not cp.last_command:
             return events
         query = select(Command).where(Command.vehicle_id == v.id, Command.seq == cp.last_command)
         command = s.exec(query).first()
-        if command and ORDER.index(status) > ORDER.index(command.status):
-            reason = cp.reason.name.lower() if cp.command_status is CommandStatus.REFUSED else ""
-            s.execute(update(Command).where(Command.id == command.id)
-                      .values(status=status, reason=reason, updated_at=now()))  # fmt: skip
-            s.execute(
-                insert(CommandEvent).values(command_id=command.id, status=status, detail=reason, at=now())
-            )
+        reason = cp.reason.name.lower() if cp.command_status is CommandStatus.REFUSED else ""
+        if command and commands.advance(s, command, status, reason, reason=reason):
             events.append(("command", {"id": command.id, "vehicle": v.name, "seq": command.seq,
-                                       "status": status, "reason": reason}))  # fmt: skip
+                                       "status": status.value, "reason": reason}))  # fmt: skip
         return events
 
     def _priority(self, batch: _Batch, v: VehicleState, pp: PriorityPacket, body: dict, at: float) -> Events:

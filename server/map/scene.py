@@ -22,17 +22,19 @@ import math
 import sys
 import threading
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sqlmodel import Session, select
 
-from server.db import writing
+from server.errors import ApiError
 from server.map.panel import move_to, ray_to_depth_plane, refusal
 from server.models import Mission, Vehicle
 from server.schemas import COMMANDS, CommandIn
-from server.services import commands as command_service
 from tacit.navigation import Pose
+
+if TYPE_CHECKING:
+    from server.shore import Shore
 
 log = logging.getLogger("tacit.server.map")
 
@@ -48,8 +50,8 @@ def colormap(values: np.ndarray, lo: float, hi: float) -> np.ndarray:
 
 
 class OperatorMap:
-    def __init__(self, app: Any, host: str, port: int) -> None:
-        self.app = app
+    def __init__(self, shore: Shore, host: str, port: int) -> None:
+        self.shore = shore
         self.host = host
         self.wanted_port = port
         self.port: int | None = None
@@ -75,7 +77,7 @@ class OperatorMap:
         self.port = self.server.get_port()  # viser takes the next free port if the wanted one is busy
         self._build_scene()
         self._build_panel()
-        self.app.state.bus.on_event(self._on_event)
+        self.shore.bus.on_event(self._on_event)
         self._ticker = threading.Thread(target=self._tick_loop, daemon=True)
         self._running = True
         self._ticker.start()
@@ -143,15 +145,15 @@ class OperatorMap:
     # --- panel actions --------------------------------------------------------------------------
 
     def _vehicle_names(self) -> list[str]:
-        with Session(self.app.state.db) as s:
+        with Session(self.shore.db) as s:
             return [v.name for v in s.exec(select(Vehicle).order_by(Vehicle.id))]
 
     def _vehicle(self) -> Vehicle | None:
-        with Session(self.app.state.db) as s:
+        with Session(self.shore.db) as s:
             return s.exec(select(Vehicle).where(Vehicle.name == self.vehicle_dd.value)).first()
 
     def _pose(self, vehicle: Vehicle) -> Pose | None:
-        state = self.app.state.ingest.vehicles.get(vehicle.address)
+        state = self.shore.ingest.vehicles.get(vehicle.address)
         return Pose.from_checkpoint(state.checkpoint if state else None)
 
     def _panel_command(self) -> CommandIn | str:
@@ -169,19 +171,17 @@ class OperatorMap:
                 f"**Refused**: {command if isinstance(command, str) else 'no vehicle registered'}"
             )
             return
-        pose = self._pose(vehicle)
-        reason = refusal(command, vehicle, pose)
+        reason = refusal(command, vehicle, self._pose(vehicle))
         if reason:
             self.status_md.content = f"**Refused** by {vehicle.name}'s limits: {reason}"
             return
-        with writing(self.app.state.db) as s:
-            queued = command_service.queue(s, s.get(Vehicle, vehicle.id), command, None)  # type: ignore[arg-type]
+        try:
+            queued = self.shore.commands.submit(vehicle.id, command)  # type: ignore[arg-type]
+        except ApiError as exc:
+            self.status_md.content = f"**Refused**: {exc.field}: {exc.detail}"
+            return
         self.status_md.content = f"Command **{queued.command}** seq {queued.seq}: **queued**"
         self._last_sent = queued.id
-        self.app.state.bus.publish("command", id=queued.id, seq=queued.seq, status="queued", vehicle=vehicle.name,
-                                   command=queued.command)  # fmt: skip
-        if self._loop:
-            self._loop.call_soon_threadsafe(self.app.state.link.wake)
 
     def _ask(self, action: str | None) -> None:
         self.pending_confirm = action
@@ -261,7 +261,7 @@ class OperatorMap:
 
     def _planned(self, name: str, cp: dict) -> None:
         """The pre-programmed trajectory (waypoints) and the predicted track ahead during silence."""
-        with Session(self.app.state.db) as s:
+        with Session(self.shore.db) as s:
             vehicle = s.exec(select(Vehicle).where(Vehicle.name == name)).first()
             mission = s.exec(select(Mission).where(Mission.vehicle_id == vehicle.id, Mission.status == "started")
                              .order_by(Mission.id.desc())).first() if vehicle else None  # type: ignore[union-attr]  # fmt: skip
@@ -280,7 +280,7 @@ class OperatorMap:
                                                 (250, 150, 30), thickness=0.1)  # fmt: skip
 
     def _marker(self, event: dict) -> None:
-        state = self.app.state.ingest.vehicles.get(event["address"])
+        state = self.shore.ingest.vehicles.get(event["address"])
         cp = state.checkpoint if state else None
         if not cp:
             return
@@ -292,7 +292,7 @@ class OperatorMap:
                                           point_size=0.5, point_shape="circle")  # fmt: skip
 
     def _temperatures(self, event: dict) -> None:
-        state = next((v for v in self.app.state.ingest.vehicles.values() if v.name == event["vehicle"]), None)
+        state = next((v for v in self.shore.ingest.vehicles.values() if v.name == event["vehicle"]), None)
         cp = state.checkpoint if state else None
         if not cp:
             return
@@ -307,7 +307,7 @@ class OperatorMap:
     def _command_status(self, event: dict) -> None:
         from server.models import Command
 
-        with Session(self.app.state.db) as s:
+        with Session(self.shore.db) as s:
             rows = s.exec(select(Command).order_by(Command.id.desc()).limit(6)).all()
         lines = [f"- #{c.id} **{c.command}** seq {c.seq}: **{c.status}** {c.reason}" for c in rows]
         self.commands_md.content = "\n".join(lines) or "none yet"
@@ -325,7 +325,7 @@ class OperatorMap:
             time.sleep(1.0)
 
     def _tick(self) -> None:
-        status = self.app.state.link.status()
+        status = self.shore.link.status()
         names = list(status["vehicles"])
         if names and list(self.vehicle_dd.options) != names:
             self.vehicle_dd.options = names

@@ -1,32 +1,82 @@
-"""Control commands: checked against the packet's ranges and the vehicle's limits, then queued.
+"""The command lifecycle: its states, the transitions allowed between them, and the one writer of
+command rows.
 
-A command is refused here, with the field at fault, before it can reach the modem. Queued commands get
-the vehicle's next sequence number (persisted, so a restart never reuses one); the link engine signs
-each transmission with the vehicle's key at the time it is sent (a queue that waited out the vehicle's
-replay window is still accepted).
+A command is checked against the packet's ranges and the vehicle's limits (``tacit.limits``) and refused,
+with the field at fault, before it can reach the modem. ``submit`` is the one way in (REST, the map and
+missions call it); ``advance`` is the one way a command's state changes (the link engine for what the
+modem says, the ingest for what check-points say). Each change is a row in ``command_event``, so every
+command's history (times, attempts, the vehicle's reason) can be shown.
+
+    queued -> sent (each attempt) -> acknowledged (the vehicle's modem ACKed in hardware)
+           -> executing -> executed | refused   (from the vehicle's check-points)
+    queued / sent -> failed (no ACK after the configured attempts); superseded (a newer command
+    replaced it before it ran)
+
+The states from the vehicle win over the modem's: a check-point that says "executed" is final even if
+a late ACK arrives afterwards. A failed command that a check-point shows ran after all becomes what
+the vehicle says. Sequence numbers are persisted, so a restart never reuses one; the frame is signed
+once per transmission, at send time, with the vehicle's key of that moment.
 """
 
 from __future__ import annotations
 
+import enum
+import logging
 import math
 import time
+from collections.abc import Callable, Mapping
 
-from sqlalchemy import update
+from sqlalchemy import Engine, insert, update
 from sqlmodel import Session, select
 
-from server.models import Command, CommandEvent, Vehicle
+from server.db import writing
+from server.errors import NotFound, Refused
+from server.events import EventBus
+from server.models import Command, CommandEvent, Mission, Vehicle, now
 from server.schemas import CommandIn
 from tacit import auth
 from tacit.limits import Limits
 from tacit.navigation import Pose
 from tacit.packets import Command as Kind
-from tacit.packets import ControlFlag, ControlPacket, FieldRangeError
+from tacit.packets import CommandStatus, ControlFlag, ControlPacket, FieldRangeError
+
+log = logging.getLogger("tacit.server.commands")
 
 
-class CommandRefused(ValueError):
-    def __init__(self, field: str, message: str) -> None:
-        super().__init__(message)
-        self.field = field
+class Status(enum.StrEnum):
+    QUEUED = "queued"
+    SENT = "sent"
+    ACKNOWLEDGED = "acknowledged"
+    EXECUTING = "executing"
+    EXECUTED = "executed"
+    REFUSED = "refused"
+    SUPERSEDED = "superseded"
+    FAILED = "failed"
+
+
+PENDING = (Status.QUEUED, Status.SENT)  # waiting for the link
+FINAL = frozenset({Status.EXECUTED, Status.REFUSED, Status.SUPERSEDED})
+_FROM_VEHICLE = frozenset({Status.EXECUTING, *FINAL})
+NEXT: Mapping[Status, frozenset[Status]] = {
+    Status.QUEUED: frozenset({Status.SENT, Status.FAILED, *_FROM_VEHICLE}),
+    Status.SENT: frozenset({Status.SENT, Status.ACKNOWLEDGED, Status.FAILED, *_FROM_VEHICLE}),
+    # sent again when no check-point confirmed it (the modem ACKs even when the vehicle's host is down)
+    Status.ACKNOWLEDGED: frozenset({Status.SENT, *_FROM_VEHICLE}),
+    Status.EXECUTING: FINAL,
+    Status.FAILED: _FROM_VEHICLE,  # the vehicle got it after all: its check-point says so
+    **{final: frozenset() for final in FINAL},
+}
+FROM_CHECKPOINT = {CommandStatus.EXECUTING: Status.EXECUTING, CommandStatus.EXECUTED: Status.EXECUTED,
+                   CommandStatus.REFUSED: Status.REFUSED, CommandStatus.SUPERSEDED: Status.SUPERSEDED}  # fmt: skip
+
+
+def allowed(current: str, new: Status) -> bool:
+    """Whether a command in state ``current`` may move to ``new``."""
+    return new in NEXT[Status(current)]
+
+
+class CommandRefused(Refused):
+    """A command outside the packet's ranges or the vehicle's limits (HTTP 422 naming the field)."""
 
 
 def limits_of(vehicle: Vehicle) -> Limits:
@@ -37,11 +87,11 @@ def limits_of(vehicle: Vehicle) -> Limits:
 def check_limits(body: CommandIn, vehicle: Vehicle, pose: Pose | None = None) -> None:
     """Raise ``CommandRefused`` if the command breaks one of the vehicle's limits (``tacit.limits``)."""
     if not math.isfinite(body.param_value):
-        raise CommandRefused("param_value", "param_value must be a finite number")
+        raise CommandRefused("param_value must be a finite number", "param_value")
     refused = limits_of(vehicle).check(Kind[body.command.upper()], body.distance, body.angle, body.depth,
                                        body.speed, body.absolute_angle, pose)  # fmt: skip
     if refused is not None:
-        raise CommandRefused(refused.field, refused.message)
+        raise CommandRefused(refused.message, refused.field)
 
 
 def packet_for(command: Command, stamp: int | None = None) -> ControlPacket:
@@ -60,25 +110,71 @@ def sign(command: Command, vehicle: Vehicle) -> bytes:
     return auth.sign(packet_for(command), bytes.fromhex(vehicle.key_hex), vehicle.address)
 
 
-def queue(s: Session, vehicle: Vehicle, body: CommandIn, pose: Pose | None = None) -> Command:
+def submit(s: Session, vehicle: Vehicle, body: CommandIn, pose: Pose | None = None,
+           mission_id: int | None = None, mission_status: str = "") -> Command:  # fmt: skip
+    """Check and queue a command in one transaction (with the mission's new status, if it starts or
+    aborts one); raises ``CommandRefused``. ``s`` must be a writing session (``server.db.writing``)."""
     check_limits(body, vehicle, pose)
     seq = s.exec(update(Vehicle).where(Vehicle.id == vehicle.id).values(next_seq=Vehicle.next_seq + 1)
                  .returning(Vehicle.next_seq)).one()[0] - 1  # fmt: skip
     command = Command(vehicle_id=vehicle.id, seq=seq, frame=b"", **body.model_dump())  # type: ignore[arg-type]
     try:
-        command.frame = sign(command, vehicle)
+        packet_for(command).signed_part()  # every field within its range on the wire
     except FieldRangeError as exc:
         s.rollback()
-        raise CommandRefused(exc.field, str(exc)) from None
+        raise CommandRefused(str(exc), exc.field) from None
     s.add(command)
     s.flush()
-    s.add(CommandEvent(command_id=command.id, status="queued", detail=""))  # type: ignore[arg-type]
+    s.add(CommandEvent(command_id=command.id, status=Status.QUEUED, detail=""))  # type: ignore[arg-type]
+    if mission_id is not None:
+        s.execute(update(Mission).where(Mission.id == mission_id).values(status=mission_status))
     s.commit()
-    s.refresh(command)
     return command
+
+
+def advance(s: Session, command: Command, status: Status, detail: str = "", reason: str | None = None,
+            **extra: object) -> bool:  # fmt: skip
+    """Move ``command`` to ``status`` if the lifecycle allows it, with a history row; False if not.
+    ``reason`` replaces the stored reason (the vehicle's, or why it failed). The caller commits."""
+    if not allowed(command.status, status):
+        return False
+    values = {"status": status.value, "updated_at": now(), **extra}
+    if reason is not None:
+        values["reason"] = reason
+    s.execute(update(Command).where(Command.id == command.id).values(**values))
+    s.execute(
+        insert(CommandEvent).values(command_id=command.id, status=status.value, detail=detail, at=now())
+    )
+    return True
 
 
 def history(s: Session, command_id: int) -> list[CommandEvent]:
     return list(
         s.exec(select(CommandEvent).where(CommandEvent.command_id == command_id).order_by(CommandEvent.id))
     )
+
+
+class CommandDesk:
+    """Where commands come in, from the REST API, the operator's map and missions alike: checked against
+    the vehicle's limits and its last reported pose, queued in one transaction, announced, and the link
+    woken to send it."""
+
+    def __init__(self, db: Engine, bus: EventBus, pose: Callable[[int], Pose | None],
+                 wake: Callable[[], None]) -> None:  # fmt: skip
+        self.db = db
+        self.bus = bus
+        self.pose = pose  # by modem address: the last check-point's pose, if any
+        self.wake = wake
+
+    def submit(self, vehicle_id: int, body: CommandIn, mission_id: int | None = None,
+               mission_status: str = "") -> Command:  # fmt: skip
+        with writing(self.db) as s:
+            vehicle = s.get(Vehicle, vehicle_id)
+            if vehicle is None:
+                raise NotFound(f"no vehicle {vehicle_id}", "vehicle_id")
+            command = submit(s, vehicle, body, self.pose(vehicle.address), mission_id, mission_status)
+        log.info("vehicle %s: command %s seq %d queued", vehicle.name, command.command, command.seq)
+        self.bus.publish("command", id=command.id, seq=command.seq, status=Status.QUEUED.value,
+                         vehicle=vehicle.name, command=command.command)  # fmt: skip
+        self.wake()
+        return command

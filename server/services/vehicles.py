@@ -4,30 +4,21 @@ from __future__ import annotations
 
 from sqlmodel import Session, select
 
+from server.errors import Conflict, NotFound, Refused
 from server.models import Vehicle
 from server.schemas import Limits, VehicleIn
 from tacit import auth
 
 
-class Conflict(ValueError):
-    def __init__(self, field: str, message: str) -> None:
-        super().__init__(message)
-        self.field = field
-
-
-class NotFound(LookupError):
-    pass
-
-
 def create(s: Session, body: VehicleIn) -> Vehicle:
     if s.exec(select(Vehicle).where(Vehicle.name == body.name)).first():
-        raise Conflict("name", f"a vehicle named {body.name!r} exists")
+        raise Conflict(f"a vehicle named {body.name!r} exists", "name")
     if s.exec(select(Vehicle).where(Vehicle.address == body.address)).first():
-        raise Conflict("address", f"modem address {body.address} is taken")
+        raise Conflict(f"modem address {body.address} is taken", "address")
     try:
         key = auth.parse_key(body.key) if body.key else auth.new_key()
     except ValueError as exc:
-        raise Conflict("key", str(exc)) from None
+        raise Refused(str(exc), "key") from None
     vehicle = Vehicle(name=body.name, address=body.address, key_hex=key.hex(),
                       **body.model_dump(include=set(Limits.model_fields)))  # fmt: skip
     s.add(vehicle)
@@ -39,7 +30,7 @@ def create(s: Session, body: VehicleIn) -> Vehicle:
 def get(s: Session, vehicle_id: int) -> Vehicle:
     vehicle = s.get(Vehicle, vehicle_id)
     if vehicle is None:
-        raise NotFound(f"no vehicle {vehicle_id}")
+        raise NotFound(f"no vehicle {vehicle_id}", "vehicle_id")
     return vehicle
 
 
@@ -61,7 +52,7 @@ def rotate_key(s: Session, vehicle_id: int, key_hex: str | None = None) -> Vehic
     try:
         key = auth.parse_key(key_hex) if key_hex else auth.new_key()
     except ValueError as exc:
-        raise Conflict("key", str(exc)) from None
+        raise Refused(str(exc), "key") from None
     vehicle.key_hex = key.hex()
     vehicle.key_version += 1
     s.add(vehicle)
