@@ -19,6 +19,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
+from sqlalchemy.exc import OperationalError
 
 from server.api import commands, data, missions, vehicles
 from server.auth import require_read
@@ -28,7 +29,7 @@ from server.settings import Settings, SettingsError
 from server.shore import Shore
 
 log = logging.getLogger("tacit.server")
-WEB = Path(__file__).resolve().parent.parent / "web"
+WEB = Path(__file__).resolve().parent / "web"
 
 DESCRIPTION = """
 Tacit's shore control center. Writes (vehicles, commands, missions) need an operator's bearer token,
@@ -96,6 +97,13 @@ def create_app(settings: Settings) -> FastAPI:
     @app.exception_handler(ApiError)
     async def refused(_: Request, exc: ApiError) -> JSONResponse:
         return JSONResponse({"detail": exc.detail, "field": exc.field}, status_code=exc.status)
+
+    @app.exception_handler(OperationalError)
+    async def busy(_: Request, exc: OperationalError) -> JSONResponse:
+        """Another process held the database's write lock past the busy timeout: nothing was written."""
+        log.warning("database busy: %s", exc.orig)
+        return JSONResponse({"detail": "the database is busy; nothing was changed, try again", "field": None},
+                            status_code=503, headers={"Retry-After": "1"})  # fmt: skip
 
     @app.exception_handler(HTTPException)
     async def http_error(_: Request, exc: HTTPException) -> JSONResponse:

@@ -13,7 +13,7 @@ from sqlalchemy import Engine, event
 from sqlmodel import Session, create_engine
 
 IMMEDIATE = "tacit_begin_immediate"
-MIGRATIONS = Path(__file__).resolve().parent.parent / "migrations"
+MIGRATIONS = Path(__file__).resolve().parent / "migrations"
 
 
 def make_engine(url: str) -> Engine:

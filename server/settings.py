@@ -1,7 +1,8 @@
-"""Server settings: environment variables ``TACIT_*`` override a TOML file, which overrides defaults.
+"""Server settings, in one typed place: defaults, then a TOML file, then ``TACIT_*`` environment variables.
 
-Secrets (tokens) are read from the environment or from a file that only its owner may read; they are
-never logged.
+Lists are comma-separated in the environment (``TACIT_WRITE_TOKENS=a,b``), as operators write them.
+Secrets (tokens) come from the environment or from a file that only its owner may read
+(``TACIT_TOKEN_FILE``); they are never logged.
 """
 
 from __future__ import annotations
@@ -9,77 +10,72 @@ from __future__ import annotations
 import os
 import stat
 import tomllib
-from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import Annotated, Any
 
-from tacit.config import check_keys
+from pydantic import Field, ValidationError, field_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 
 class SettingsError(ValueError):
     pass
 
 
-@dataclass
-class Settings:
+Csv = Annotated[list[str], NoDecode]
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="TACIT_", extra="forbid", validate_assignment=True)
+
     database_url: str = "sqlite:///data/tacit.db"
     modem_url: str = ""  # empty: run without a shore modem (API and storage only)
-    modem_address: int = 1
+    modem_address: int = Field(1, ge=0, le=127)
     modem_log: str = ""  # file to log every NMEA sentence, with time stamps
     host: str = "127.0.0.1"
-    port: int = 8000
-    map_port: int = 8080
+    port: int = Field(8000, ge=0, le=65535)
+    map_port: int = Field(8080, ge=0, le=65535)
     map_enabled: bool = True
-    write_tokens: list[str] = field(default_factory=list)
-    read_tokens: list[str] = field(default_factory=list)
-    cors_origins: list[str] = field(default_factory=list)
-    poll_interval: float = 2.0  # seconds between link slots when idle
-    ping_interval: float = 120.0
-    command_attempts: int = 4
-    confirm_timeout: float = 120.0  # s: an ACKed command no check-point has confirmed is sent again
-    sound_speed: float = 1500.0
+    write_tokens: Csv = []
+    read_tokens: Csv = []
+    cors_origins: Csv = []
+    poll_interval: float = Field(2.0, gt=0)  # seconds between link slots when idle
+    ping_interval: float = Field(120.0, gt=0)
+    command_attempts: int = Field(4, ge=1)
+    confirm_timeout: float = Field(120.0, gt=0)  # s: an ACKed command no check-point confirmed is sent again
+    sound_speed: float = Field(1500.0, gt=0)
     shore_position: tuple[float, float, float] = (0.0, 0.0, 1.0)  # north, east, depth of the shore modem
-    default_range: float = 1000.0  # used for slot timing until a ping measures it
-    time_scale: float = 1.0  # simulations faster than real time: acoustic timings divide by this
+    default_range: float = Field(1000.0, gt=0)  # used for slot timing until a ping measures it
+    time_scale: float = Field(1.0, gt=0)  # simulations faster than real time: acoustic timings divide by this
+
+    @field_validator("write_tokens", "read_tokens", "cors_origins", mode="before")
+    @classmethod
+    def _comma_separated(cls, value: Any) -> Any:
+        if isinstance(value, str):
+            return [item.strip() for item in value.split(",") if item.strip()]
+        return value
+
+    @field_validator("shore_position", mode="before")
+    @classmethod
+    def _position(cls, value: Any) -> Any:
+        return tuple(float(x) for x in value.split(",")) if isinstance(value, str) else value
 
     @classmethod
     def load(cls, path: str | Path | None = None, env: dict[str, str] | None = None) -> Settings:
-        values: dict[str, object] = {}
-        if path:
-            values.update(tomllib.loads(Path(path).read_text()))
+        """The file's values, overridden by the environment (``env``, default ``os.environ``)."""
         env = dict(os.environ if env is None else env)
-        try:
-            check_keys(str(path), values, cls)
-        except ValueError as exc:
-            raise SettingsError(str(exc)) from None
-        known = {f.name: f for f in fields(cls)}
-        for name, f in known.items():
+        values: dict[str, Any] = tomllib.loads(Path(path).read_text()) if path else {}
+        for name in cls.model_fields:
             raw = env.get(f"TACIT_{name.upper()}")
             if raw is not None:
-                values[name] = _parse(name, str(f.type), raw)
-        token_file = env.get("TACIT_TOKEN_FILE")
-        if token_file:
-            values.update(_read_token_file(Path(token_file)))
-        settings = cls(**values)  # type: ignore[arg-type]
-        if isinstance(settings.shore_position, list):
-            settings.shore_position = tuple(settings.shore_position)  # type: ignore[assignment]
-        return settings
-
-
-def _parse(name: str, kind: str, raw: str) -> object:
-    try:
-        if kind.startswith("list"):
-            return [item.strip() for item in raw.split(",") if item.strip()]
-        if kind == "bool":
-            return raw.strip().lower() in ("1", "true", "yes", "on")
-        if kind == "int":
-            return int(raw)
-        if kind == "float":
-            return float(raw)
-        if kind.startswith("tuple"):
-            return tuple(float(x) for x in raw.split(","))
-    except ValueError:
-        raise SettingsError(f"TACIT_{name.upper()}: cannot read {raw!r} as {kind}") from None
-    return raw
+                values[name] = raw
+        if env.get("TACIT_TOKEN_FILE"):
+            values.update(_read_token_file(Path(env["TACIT_TOKEN_FILE"])))
+        try:
+            return cls.model_validate(values)
+        except ValidationError as exc:
+            first = exc.errors()[0]
+            where = ".".join(str(p) for p in first["loc"]) or "settings"
+            raise SettingsError(f"{path or 'environment'}: {where}: {first['msg']}") from None
 
 
 def _read_token_file(path: Path) -> dict[str, list[str]]:

@@ -21,9 +21,11 @@ import asyncio
 import contextlib
 import logging
 import time
-from collections.abc import Coroutine
+from collections.abc import Callable, Coroutine
+from typing import TypeVar
 
 from sqlalchemy import Engine
+from sqlalchemy.exc import OperationalError
 from sqlmodel import Session, select
 
 from server.db import writing
@@ -37,6 +39,7 @@ from tacit import rates
 from tacit.link import capacity, choose_rate
 
 log = logging.getLogger("tacit.server.link")
+T = TypeVar("T")
 
 
 class LinkEngine:
@@ -126,15 +129,33 @@ class LinkEngine:
             batch = [await self._frames.get()]
             while not self._frames.empty() and len(batch) < 500:
                 batch.append(self._frames.get_nowait())
-            try:
-                await asyncio.to_thread(self.ingest.handle_batch, batch)
-            except Exception:  # stored nothing: say so loudly, keep the engine running
-                log.exception("%d frame(s) could not be stored", len(batch))
+            if not await self._store_batch(batch):
                 continue
             for frame in batch:
                 heard = self._heard.get(frame.src)
                 if heard is not None:
                     heard.set()
+
+    async def _store_batch(self, batch: list[IncomingFrame]) -> bool:
+        try:
+            await self._write(self.ingest.handle_batch, batch)
+            return True
+        except Exception:  # not the database being busy: say so loudly, keep the engine running
+            log.exception("%d frame(s) could not be stored", len(batch))
+            return False
+
+    async def _write(self, work: Callable[..., T], *args: object) -> T:
+        """``work(*args)`` in a worker thread, so the event loop serving the modem never waits on the
+        database; while the database is busy (another process holds its write lock past the busy
+        timeout), try again with backoff: what arrived is kept in memory, never dropped."""
+        delay = 0.2
+        while True:
+            try:
+                return await asyncio.to_thread(work, *args)
+            except OperationalError as exc:
+                log.warning("database busy (%s): retrying in %.1f s", exc.orig, delay)
+                await asyncio.sleep(delay)
+                delay = min(delay * 2, 5.0)
 
     def _background(self, work: Coroutine[object, object, None]) -> None:
         """A write started from a modem callback, kept referenced until it finishes."""
@@ -143,8 +164,7 @@ class LinkEngine:
         task.add_done_callback(self._writes.discard)
 
     async def _store(self, *rows: object) -> None:
-        """Rows written by a worker thread: the event loop that serves the modem never waits on the database."""
-        await asyncio.to_thread(self._store_now, *rows)
+        await self._write(self._store_now, *rows)
 
     def _store_now(self, *rows: object) -> None:
         with writing(self.db) as s:
@@ -261,7 +281,7 @@ class LinkEngine:
     ) -> None:
         """What the modem said of a command (sent, acknowledged, failed), if the lifecycle allows it: a
         check-point may already have said executing / executed / refused, which a late ACK must not undo."""
-        if await asyncio.to_thread(self._advance_now, command.id, status, detail, extra):
+        if await self._write(self._advance_now, command.id, status, detail, extra):
             self.bus.publish("command", id=command.id, seq=command.seq, status=status.value, detail=detail)
 
     def _advance_now(self, command_id: int | None, status: commands.Status, detail: str, extra: dict) -> bool:
