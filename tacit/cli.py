@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.metadata
 import logging
+import re
 import sys
 from typing import NamedTuple
 
@@ -54,6 +56,11 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     options = top.parse_args(argv[: first + 1])
     command = COMMANDS[options.command]
+    missing = missing_requirements(command.extra)
+    if missing:
+        print(f"tacit {options.command}: needs {', '.join(missing)}, not installed; "
+              f"install them with: pip install 'tacit[{command.extra}]'", file=sys.stderr)  # fmt: skip
+        return 2
     try:
         module = importlib.import_module(command.module)
     except ModuleNotFoundError as exc:
@@ -69,6 +76,37 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except ModuleNotFoundError as exc:  # commands import their heavier packages when they need them
         return _missing(options.command, exc)
+
+
+def missing_requirements(extra: str) -> list[str]:
+    """The packages of an install extra (as pyproject.toml declares them) that are not installed.
+    Empty when Tacit runs from a source tree without being installed (nothing to compare with)."""
+    if not extra:
+        return []
+    try:
+        requires = importlib.metadata.requires("tacit") or []
+    except importlib.metadata.PackageNotFoundError:
+        return []
+    missing: list[str] = []
+    for requirement in requires:
+        spec, _, marker = requirement.partition(";")
+        if marker.replace("'", '"').split("extra ==")[-1].strip().strip('"') != extra:
+            continue
+        name = re.split(r"[<>=!~\[ ]", spec.strip(), maxsplit=1)[0]
+        if name == "tacit":  # an extra made of extras: tacit[agent,server]
+            for nested in re.findall(r"\[(.*)\]", spec)[0].split(","):
+                missing += [m for m in missing_requirements(nested.strip()) if m not in missing]
+        elif not _installed(name):
+            missing.append(name)
+    return missing
+
+
+def _installed(name: str) -> bool:
+    try:
+        importlib.metadata.version(name)
+    except importlib.metadata.PackageNotFoundError:
+        return False
+    return True
 
 
 def _missing(name: str, exc: ModuleNotFoundError) -> int:
