@@ -19,6 +19,8 @@ from pathlib import Path
 from typing import TextIO
 
 from tacit import nmea, packets
+from tacit.link import from_frame
+from tacit.packets import PACKET_SIZE
 
 TO_MODEM = ">"
 FROM_MODEM = "<"
@@ -93,14 +95,22 @@ def describe(entry: LogEntry) -> dict[str, object]:
     out["fields"] = fields
     data = getattr(sentence, "data", None)
     if isinstance(data, bytes) and data:
-        out["packet"] = describe_frame(data)
+        out["packets"] = describe_frame(data)
     return out
 
 
-def describe_frame(data: bytes) -> dict[str, object]:
-    """A frame's content as a Tacit packet, or the reason it is not one."""
+def describe_frame(data: bytes) -> list[dict[str, object]]:
+    """The Tacit packets in a frame, split as the link splits them (a rate-1 or rate-5 frame carries
+    several), each decoded or with the reason it is not a packet."""
+    found: list[dict[str, object]] = [_describe_packet(chunk) for chunk in from_frame(data)]
+    if len(data) % PACKET_SIZE:
+        found.append({"error": f"{len(data)} bytes is not a whole number of {PACKET_SIZE}-byte packets"})
+    return found or [{"error": "no packet: the frame is all padding"}]
+
+
+def _describe_packet(chunk: bytes) -> dict[str, object]:
     try:
-        return packets.as_dict(packets.decode(data))
+        return packets.as_dict(packets.decode(chunk))
     except packets.PacketError as exc:
         return {"error": str(exc)}
 
@@ -117,8 +127,8 @@ def _human(entry: dict[str, object]) -> str:
     fields = entry.get("fields")
     shown = " ".join(f"{k}={v}" for k, v in fields.items()) if isinstance(fields, dict) else fields
     text = f"{head} {entry['sentence']} {shown}"
-    if "packet" in entry:
-        text += f"\n{'':>8}packet: {json.dumps(entry['packet'])}"
+    for packet in entry.get("packets") or []:  # type: ignore[attr-defined]
+        text += f"\n{'':>8}packet: {json.dumps(packet)}"
     return text
 
 
@@ -136,7 +146,8 @@ def run(args: argparse.Namespace) -> int:
         for entry in read_entries(handle):
             decoded = describe(entry)
             counts["errors" if "error" in decoded else "sentences"] += 1
-            counts["packets"] += "packet" in decoded and "error" not in decoded["packet"]  # type: ignore[operator]
+            found: list[dict[str, object]] = decoded.get("packets", [])  # type: ignore[assignment]
+            counts["packets"] += sum("error" not in packet for packet in found)
             print(json.dumps(decoded) if args.json else _human(decoded))
     if not args.json:
         print(

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from tacit import auth, nmea
+from tacit.link import to_frames
 from tacit.modemlog import FROM_MODEM, TO_MODEM, ModemLog
 from tacit.packets import CheckpointPacket, Command, ControlPacket, MissionState
 
@@ -34,12 +35,25 @@ def test_decodes_a_driver_log_with_packets_and_bad_lines(tmp_path: Path) -> None
     rows = [json.loads(line) for line in result.stdout.splitlines()]
     assert [r["line"] for r in rows] == [1, 2, 3, 4, 5, 7, 8]
     assert rows[0]["sentence"] == "CCCYC" and rows[0]["direction"] == "to_modem" and "time" in rows[0]
-    assert rows[1]["packet"]["type"] == "control" and rows[1]["packet"]["distance"] == 5.0
+    assert rows[1]["packets"][0]["type"] == "control" and rows[1]["packets"][0]["distance"] == 5.0
     assert "checksum" in rows[2]["error"]
-    assert rows[3]["packet"]["type"] == "checkpoint" and rows[3]["packet"]["depth"] == 2.5
-    assert "version" in rows[4]["packet"]["error"]
+    assert rows[3]["packets"][0]["type"] == "checkpoint" and rows[3]["packets"][0]["depth"] == 2.5
+    assert "padding" in rows[4]["packets"][0]["error"]
     assert "error" in rows[5] and rows[5]["line"] == 7
     assert rows[6]["sentence"] == "CAREV" and "time" not in rows[6]
+
+
+def test_a_rate_5_frame_is_split_into_its_packets_as_the_link_splits_it(tmp_path: Path) -> None:
+    reports = [CheckpointPacket(seq=i, time=20 + i, state=MissionState.HOLDING).encode() for i in range(3)]
+    (frame,) = to_frames(reports, 5)
+    log = ModemLog(tmp_path / "m.log")
+    log.write(FROM_MODEM, nmea.RxData(2, 1, False, 1, frame).line())
+    log.write(FROM_MODEM, nmea.RxData(2, 1, False, 1, reports[0] + b"\x01\x02").line())
+    log.close()
+    result = run_cli(str(tmp_path / "m.log"), "--json")
+    first, second = (json.loads(line) for line in result.stdout.splitlines())
+    assert [p["seq"] for p in first["packets"]] == [0, 1, 2]
+    assert second["packets"][0]["seq"] == 0 and "not a whole number" in second["packets"][1]["error"]
 
 
 def test_human_output_and_summary(tmp_path: Path) -> None:
