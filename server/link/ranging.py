@@ -1,0 +1,42 @@
+"""Ranging: the modem's two-way travel-time pings, which set each vehicle's slot timings."""
+
+from __future__ import annotations
+
+import logging
+import time
+
+from server.events import EventBus
+from server.link.ingest import VehicleState
+from server.link.store import LinkStore
+from server.link.timing import Timing
+from server.models import LinkEvent
+from server.settings import Settings
+from tacit import modem as mm
+
+log = logging.getLogger("tacit.server.link")
+
+
+class Ranging:
+    def __init__(self, settings: Settings, store: LinkStore, bus: EventBus, timing: Timing) -> None:
+        self.settings = settings
+        self.store = store
+        self.bus = bus
+        self.timing = timing
+        self.pings = 0
+        self._last: dict[int, float] = {}
+
+    def due(self, vehicle: VehicleState) -> bool:
+        return self.timing.ping_due(self._last.get(vehicle.address, 0.0), time.time())
+
+    async def ping(self, driver: mm.ModemDriver, vehicle: VehicleState) -> None:
+        self._last[vehicle.address] = time.time()
+        self.pings += 1
+        travel = await driver.ping(vehicle.address, timeout=self.timing.ping_timeout())
+        if travel is None:
+            return
+        vehicle.range_m = travel * self.settings.sound_speed
+        await self.store.add(
+            LinkEvent(vehicle_id=vehicle.id, kind="range", detail={"range_m": vehicle.range_m})
+        )
+        self.bus.publish("link", event="range", vehicle=vehicle.name, range_m=round(vehicle.range_m, 1))
+        log.info("vehicle %s: range %.1f m", vehicle.name, vehicle.range_m)
