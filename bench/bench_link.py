@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import time
 from pathlib import Path
 
@@ -24,12 +23,10 @@ import numpy as np
 from tqdm import tqdm
 
 from analysis.series import measured_per_tick
+from launch.rig import Rig  # the same process rig the end-to-end test uses
 from simulators.acoustics import ChannelParameters, cycle_with_ack_s
 from tacit.packets import Stream
 from tacit.streams import default_streams
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from launch.rig import Rig  # noqa: E402  (the same process rig the end-to-end test uses)
 
 
 def latency(repeats: int) -> None:

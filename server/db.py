@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import threading
+import weakref
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -57,9 +60,24 @@ def migrate(url: str, revision: str = "head") -> None:
     command.upgrade(alembic_config(url), revision)
 
 
+_WRITERS: weakref.WeakKeyDictionary[Engine, threading.Lock] = weakref.WeakKeyDictionary()
+_WRITERS_GUARD = threading.Lock()
+
+
+def _writer_lock(engine: Engine) -> contextlib.AbstractContextManager[object]:
+    """SQLite has one writer at a time; the server's own writers queue on a lock in this process
+    (woken at once when it is free) instead of in SQLite's busy handler, which sleeps and retries and,
+    with many waiters, starves some past the busy timeout. PostgreSQL needs no such lock."""
+    if engine.dialect.name != "sqlite":
+        return contextlib.nullcontext()
+    with _WRITERS_GUARD:
+        return _WRITERS.setdefault(engine, threading.Lock())
+
+
 @contextmanager
 def writing(engine: Engine) -> Iterator[Session]:
-    """A session for a transaction that writes (IMMEDIATE on SQLite; ordinary elsewhere)."""
-    with Session(engine, expire_on_commit=False) as s:
+    """A session for a transaction that writes (IMMEDIATE on SQLite; ordinary elsewhere). Keep it
+    short: on SQLite it holds the process's write lock until the session closes."""
+    with _writer_lock(engine), Session(engine, expire_on_commit=False) as s:
         s.connection(execution_options={IMMEDIATE: True})
         yield s

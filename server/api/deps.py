@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager
+from functools import partial
 from typing import Annotated
 
 from fastapi import Depends, Path, Query, Request
@@ -30,10 +32,11 @@ def db(shore: ShoreDep) -> Iterator[Session]:
         yield s
 
 
-def db_write(shore: ShoreDep) -> Iterator[Session]:
-    """A session whose transaction writes: it holds the write lock from its first statement."""
-    with writing(shore.db) as s:
-        yield s
+def writer(shore: ShoreDep) -> Writer:
+    """Opens short write transactions inside the route (``with write() as s``). Not a yielded session:
+    a write lock held across a dependency's enter and exit can wait on the very thread pool the route
+    needs, and a busy server then deadlocks."""
+    return partial(writing, shore.db)
 
 
 def settings(shore: ShoreDep) -> Settings:
@@ -57,7 +60,8 @@ def bus(shore: ShoreDep) -> EventBus:
 
 
 ReadSession = Annotated[Session, Depends(db)]
-WriteSession = Annotated[Session, Depends(db_write)]
+Writer = Callable[[], AbstractContextManager[Session]]
+WriteDep = Annotated[Writer, Depends(writer)]
 SettingsDep = Annotated[Settings, Depends(settings)]
 CommandsDep = Annotated[CommandDesk, Depends(command_desk)]
 LinkDep = Annotated[LinkEngine, Depends(link)]

@@ -5,7 +5,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends
 from sqlmodel import select
 
-from server.api.deps import CommandsDep, Id, ReadSession, WriteSession
+from server.api.deps import CommandsDep, Id, ReadSession, WriteDep
 from server.auth import require_read, require_write
 from server.errors import NotFound
 from server.models import Mission
@@ -17,14 +17,15 @@ router = APIRouter(prefix="/api/v1", tags=["missions"])
 
 @router.post("/vehicles/{vehicle_id}/missions", status_code=201, response_model=MissionOut,
              dependencies=[Depends(require_write)])  # fmt: skip
-def create_mission(vehicle_id: Id, body: MissionIn, s: WriteSession) -> Mission:
+def create_mission(vehicle_id: Id, body: MissionIn, write: WriteDep) -> Mission:
     """Record a mission (the same JSON as the agent's mission file: the vehicle holds the plan; the
     link only says which mission number to start)."""
-    vehicles.get(s, vehicle_id)
-    mission = Mission(vehicle_id=vehicle_id, name=body.name, number=body.number,
-                      plan=body.model_dump(include={"waypoints", "duration_s"}))  # fmt: skip
-    s.add(mission)
-    s.commit()
+    with write() as s:
+        vehicles.get(s, vehicle_id)
+        mission = Mission(vehicle_id=vehicle_id, name=body.name, number=body.number,
+                          plan=body.model_dump(include={"waypoints", "duration_s"}))  # fmt: skip
+        s.add(mission)
+        s.commit()
     return mission
 
 

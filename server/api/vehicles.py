@@ -4,7 +4,7 @@ from fastapi import APIRouter, Depends
 from pydantic import BaseModel, Field
 from sqlmodel import select
 
-from server.api.deps import Id, LinkDep, ReadSession, WriteSession
+from server.api.deps import Id, LinkDep, ReadSession, WriteDep
 from server.auth import require_read, require_write
 from server.models import Vehicle
 from server.schemas import Limits, VehicleCreated, VehicleIn, VehicleOut
@@ -22,8 +22,9 @@ def _out(vehicle: Vehicle) -> VehicleOut:
 
 
 @router.post("", status_code=201, response_model=VehicleCreated, dependencies=[Depends(require_write)])
-def create_vehicle(body: VehicleIn, s: WriteSession, link: LinkDep) -> VehicleCreated:
-    vehicle = vehicles.create(s, body)
+def create_vehicle(body: VehicleIn, write: WriteDep, link: LinkDep) -> VehicleCreated:
+    with write() as s:
+        vehicle = vehicles.create(s, body)
     link.vehicles_changed()
     return VehicleCreated(**_out(vehicle).model_dump(), key=vehicle.key_hex)
 
@@ -39,12 +40,14 @@ def get_vehicle(vehicle_id: Id, s: ReadSession) -> VehicleOut:
 
 
 @router.put("/{vehicle_id}/limits", response_model=VehicleOut, dependencies=[Depends(require_write)])
-def set_limits(vehicle_id: Id, body: Limits, s: WriteSession) -> VehicleOut:
-    return _out(vehicles.set_limits(s, vehicle_id, body))
+def set_limits(vehicle_id: Id, body: Limits, write: WriteDep) -> VehicleOut:
+    with write() as s:
+        return _out(vehicles.set_limits(s, vehicle_id, body))
 
 
 @router.post("/{vehicle_id}/key", response_model=VehicleCreated, dependencies=[Depends(require_write)])
-def rotate_key(vehicle_id: Id, body: KeyIn, s: WriteSession) -> VehicleCreated:
+def rotate_key(vehicle_id: Id, body: KeyIn, write: WriteDep) -> VehicleCreated:
     """Rotate the vehicle's key (at the surface: put the new key in the agent's configuration too)."""
-    vehicle = vehicles.rotate_key(s, vehicle_id, body.key)
+    with write() as s:
+        vehicle = vehicles.rotate_key(s, vehicle_id, body.key)
     return VehicleCreated(**_out(vehicle).model_dump(), key=vehicle.key_hex)
