@@ -47,6 +47,7 @@ class Result:
     time_precision_s: float = 0.0  # the shore dates every sample to within this (half a tick)
     max_time_error_s: float = 0.0  # measured: largest |shore time - sample time|
     ideal_bits_per_sample: float = 0.0  # the Kalman + ideal entropy coder bound (values only)
+    code_bits_per_sample: float = 0.0  # the arithmetic code alone (no header, no padding)
 
 
 @dataclass
@@ -81,11 +82,13 @@ def run_codec(series: Series, spec: StreamSpec, max_latency: float, loss: float 
     row_of: list[int] = []  # the encoder's sample number -> input row (all-absent rows are not samples)
     symbols: list[list[int]] = [[] for _ in spec.channels]
     packets, latencies, confirmations, cpu = 0, [], [], 0.0
+    code_bits: list[int] = []
 
     def send(now: float) -> None:
         nonlocal packets
         encoded = encoder.take()
         packets += 1
+        code_bits.append(encoded.code_bits)
         delivered = rng.random() >= loss
         encoder.resolve(delivered)
         if not delivered:
@@ -133,7 +136,7 @@ def run_codec(series: Series, spec: StreamSpec, max_latency: float, loss: float 
                     us_per_tick=cpu / max(1, len(row_of)) * 1e6, samples_absent=int((~present).sum()),
                     samples_not_represented=int((present & ~held).sum()), time_precision_s=spec.time_precision,
                     max_time_error_s=float(time_errors.max()) if time_errors.size else 0.0,
-                    ideal_bits_per_sample=ideal)  # fmt: skip
+                    ideal_bits_per_sample=ideal, code_bits_per_sample=sum(code_bits) / max(1, samples))  # fmt: skip
     return result, Reconstruction(series.times, truth, shore, sent)
 
 

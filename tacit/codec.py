@@ -24,7 +24,7 @@ STEP   the next sample is at cursor + 1                                         
 SAME   the next sample is at the cursor's tick (several samples in one tick)     a sample
 JUMP   the next sample is at cursor + 2 + n (n + 1 ticks without a sample)       n, a sample
 LOST   ticks cursor + 1 .. cursor + 1 + n were in a packet that was lost         n
-START  the stream's first sample (no cursor yet): its tick's low 16 bits         16 bits, a sample
+START  the stream's first sample (no cursor yet): its tick's low 24 bits         24 bits, a sample
 =====  ========================================================================  ==================
 
 The token is coded with a model per stream and previous token. A sample is then: one "all channels
@@ -43,7 +43,8 @@ Payload (30 bytes after the priority packet's 2-byte header; version ``FORMAT``)
     byte 1-29  arithmetic code (232 bits), zero-padded: one section per stream, in the order of
                the stream list both ends configured (``tacit.streams``)
 
-There is no tick count and no first-tick field: the shore knows where each stream stood after the base
+START's 24 bits are placed by the reception time: the packet must arrive within 2^24 ticks of the
+stream's first sample (at 256 Hz, 18 hours). There is no tick count and no first-tick field: the shore knows where each stream stood after the base
 packet, END closes a section, and a packet holds as many ticks as its code bytes carry (a quiet stream:
 thousands). Several streams share a packet, so a quiet one rides along instead of paying 32 bytes.
 
@@ -74,7 +75,7 @@ PRIOR = [1, 1, 1, 2, 4, 8, 24, 8, 4, 2, 1, 1, 1, 1, 1]
 MARGIN = 1 - 1e-9
 END, STEP, SAME, JUMP, LOST, START = range(6)
 TOKEN_PRIOR = [2, 24, 1, 2, 1, 1]
-TICK_BITS = 16
+TICK_BITS = 24
 MAX_Q = 1 << 60
 
 
@@ -143,7 +144,7 @@ class _Coder:
 
     @classmethod
     def new(cls, channels: int) -> _Coder:
-        return cls([[AdaptiveModel(list(PRIOR)) for _ in range(3)] for _ in range(channels)],
+        return cls([[AdaptiveModel(list(PRIOR), Q_INCREMENT) for _ in range(Q_CONTEXTS)] for _ in range(channels)],
                    [AdaptiveModel(list(TOKEN_PRIOR)) for _ in range(6)], [_binary() for _ in range(2)],
                    [[_binary() for _ in range(2)] for _ in range(channels)],
                    [AdaptiveModel([1, 1]) for _ in range(24)], [0] * channels, [1] * channels)  # fmt: skip
@@ -197,10 +198,12 @@ class _Coder:
             for c, here in enumerate(present):
                 enc.encode_symbol(self.present[c][self.previous_present[c]], int(here))
                 self.previous_present[c] = int(here)
+        moved = 0
         for c, value in enumerate(q):
             if value is None:
                 continue
-            model = self.q[c][min(abs(self.previous_q[c]), 2)]
+            model = self.q[c][_q_context(self.previous_q[c], moved)]
+            moved |= value != 0
             if -SMALL <= value <= SMALL:
                 enc.encode_symbol(model, value + SMALL)
             else:
@@ -219,18 +222,30 @@ class _Coder:
                 self.previous_present[c] = here
                 present[c] = bool(here)
         out: list[int | None] = [None] * channels
+        moved = 0
         for c in range(channels):
             if not present[c]:
                 continue
-            symbol = dec.decode_symbol(self.q[c][min(abs(self.previous_q[c]), 2)])
+            symbol = dec.decode_symbol(self.q[c][_q_context(self.previous_q[c], moved)])
             if symbol < ESC_NEG:
                 value = symbol - SMALL
             else:
                 magnitude = _decode_exp_golomb(dec) + SMALL + 1
                 value = magnitude if symbol == ESC_POS else -magnitude
             out[c] = value
+            moved |= value != 0
             self.previous_q[c] = value
         return out
+
+
+Q_CONTEXTS = 3
+Q_INCREMENT = 24
+
+
+def _q_context(previous: int, moved: int) -> int:
+    """The q model's context: min(|the channel's previous q|, 2). (Adding whether an earlier channel of
+    the same sample was a surprise was tried: on the ArduSub IMU its learning cost outweighs it.)"""
+    return min(abs(previous), 2)
 
 
 def _encode_exp_golomb(enc: Encoder, n: int) -> None:
@@ -300,13 +315,14 @@ class EncodedPacket:
     nonzero: int
     samples_by_stream: dict[str, int] = field(default_factory=dict)
     serials: list[list[int]] = field(default_factory=list)  # per stream: the samples' numbers, in order
+    code_bits: int = 0  # of the payload's 232 code bits, how many the arithmetic code used
 
 
 def _code_sample(coder: _Coder, enc: Encoder, cursor: int | None, sample: _Sample) -> int:
     """The token that places ``sample`` after ``cursor``, then the sample; returns the new cursor."""
     if cursor is None:
         coder.encode_token(enc, START)
-        low = sample.index & 0xFFFF
+        low = sample.index & ((1 << TICK_BITS) - 1)
         for i in range(TICK_BITS - 1, -1, -1):
             enc.encode_bit((low >> i) & 1)
     elif sample.index == cursor:
@@ -534,7 +550,7 @@ class PacketEncoder:
                                 self.specs[main].stream, payload)  # fmt: skip
         encoded = EncodedPacket(packet, main_first, len(draft), sum(sec.lost or 0 for sec in self._sections),
                                 [x.time for x in draft], [x.time for x in draft if any(x.q)],
-                                sum(1 for x in draft for v in x.q if v), counts, serials)  # fmt: skip
+                                sum(1 for x in draft for v in x.q if v), counts, serials, len(bits))  # fmt: skip
         carried = [sec.count > 0 or sec.lost is not None for sec in self._sections]
         self.in_flight = (chain, carried)
         self.seq += 1
