@@ -100,7 +100,9 @@ def run_codec(series: Series, spec: StreamSpec, max_latency: float, loss: float 
             shore[row_of[serial]] = row
             shore_time[row_of[serial]] = tick * spec.period
 
-    bar = tqdm(total=rows, desc="encoding", unit=" rows", disable=not progress or rows < 20_000, leave=False)
+    bar = tqdm(
+        total=rows, desc="encoding", unit=" rows", disable=None if progress else True, leave=False, delay=2.0
+    )
     for i, (t, x) in enumerate(zip(series.times, truth, strict=True)):
         while (due := encoder.deadline()) is not None and due <= t and encoder.ready(due):
             send(due)

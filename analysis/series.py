@@ -124,7 +124,9 @@ def load_csv(path: Path, columns: list[str] | None, time_column: str | None, per
     if not header:
         raise ValueError(f"{path.name}: empty file")
     if time_column is None:
-        time_column = next((h for h in header if h.lower() in TIME_NAMES), None)
+        time_column = next((h for h in header if h.lower() in TIME_NAMES), None) or next(
+            (h for h in header if any(w in h.lower() for w in ("time", "date"))), None
+        )
     wanted = columns or [h for h in header if h != time_column]
     missing = [c for c in [*wanted, *([time_column] if time_column else [])] if c not in header]
     if missing:
