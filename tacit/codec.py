@@ -298,6 +298,7 @@ class _Sample:
     values: np.ndarray  # NaN = absent
     urgent: bool
     serial: int = 0  # the stream's sample number (0, 1, ...), for the caller's bookkeeping
+    flagged: bool = False  # urgent because the caller said so (an event), not only by its size
     q: list[int | None] = field(default_factory=list)
     state_before: object = None  # the predictor before this sample (for a packet that ends before it)
 
@@ -399,7 +400,7 @@ class PacketEncoder:
         cursor = self._cursor[stream]
         if cursor is not None and index < cursor:
             index = cursor  # out of order by less than a tick's rounding: dated with the latest tick
-        sample = _Sample(time, index, row, urgent, self._serial[stream])
+        sample = _Sample(time, index, row, urgent, self._serial[stream], flagged=urgent)
         self._serial[stream] += 1
         self._process(stream, sample)
         self.last_q = sample.q
@@ -532,6 +533,9 @@ class PacketEncoder:
         enc = self._layout(0)
         bits = enc.finish()
         payload = bytes([(FORMAT << 6) | self._base.id]) + pack_bits(bits, CODE_BYTES)
+        urgent = any(x.urgent for x in draft)
+        main = self._main_stream(urgent)  # before the taken samples leave the queues
+        main_first = self._first_index(main, draft)
         positions, counts, serials = [], {}, []
         for s, section in enumerate(self._sections):
             taken, rest = self._queues[s][: section.count], self._queues[s][section.count :]
@@ -543,9 +547,6 @@ class PacketEncoder:
             serials.append([x.serial for x in taken])
             self._queues[s] = rest
         chain = _Chain(_next_id(self._base.id), positions)
-        urgent = any(x.urgent for x in draft)
-        main = self._main_stream(urgent)
-        main_first = self._first_index(main, draft)
         packet = PriorityPacket(self.seq % 256, Priority.TIME_SENSITIVE if urgent else Priority.ROUTINE,
                                 self.specs[main].stream, payload)  # fmt: skip
         encoded = EncodedPacket(packet, main_first, len(draft), sum(sec.lost or 0 for sec in self._sections),
@@ -560,11 +561,12 @@ class PacketEncoder:
         return encoded
 
     def _main_stream(self, urgent: bool) -> int:
-        """The stream named in the header: the urgent one, else the one with the oldest surprise."""
+        """The stream named in the header: the one whose sample the caller flagged urgent (an event),
+        else one with a sample urgent by its size, else the one with the oldest surprise."""
         best, key = 0, None
         for s, section in enumerate(self._sections):
             for x in self._queues[s][: section.count]:
-                k = (not (urgent and x.urgent), not any(x.q), x.time)
+                k = (not (urgent and x.flagged), not (urgent and x.urgent), not any(x.q), x.time)
                 if key is None or k < key:
                     best, key = s, k
         return best
