@@ -332,7 +332,7 @@ def test_urgency_of_a_second_sample_in_a_tick_counts() -> None:
 def test_the_header_names_the_stream_of_the_event() -> None:
     specs = list(default_streams().values())
     enc = PacketEncoder(specs, max_latency=10.0, urgent_threshold=20)
-    enc.push(0, T0, [1e3] * 9)  # urgent by its size
+    enc.push(0, T0, [300.0] * 9)  # urgent by its size (|q| >= 20 steps)
     enc.push(1, T0 + 0.1, [25.0, 1.0, 8.0], urgent=True)  # an event the caller flagged
     encoded = enc.take()
     assert (
