@@ -20,6 +20,7 @@ import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
+from tqdm import tqdm
 
 from analysis.series import Series, load
 from tacit.codec import StreamDecoder, StreamEncoder, StreamSpec
@@ -31,7 +32,7 @@ PACKET_BITS = PACKET_SIZE * 8
 
 @dataclass
 class Result:
-    samples: int
+    samples: int  # present values (a blank cell is not a sample)
     packets: int
     link_bits: int
     bits_per_sample: float
@@ -41,44 +42,53 @@ class Result:
     max_confirmation_s: float = 0.0  # any sample: confirmed within --max-silence
     unbounded_samples: int = 0
     us_per_tick: float | None = None
+    samples_absent: int = 0  # blank / NaN / missing cells: stored as absent on the shore
+    samples_not_represented: int = 0  # present values the shore does not hold (only lost packets)
+    time_precision_s: float = 0.0  # the shore dates every sample to within this (half a tick)
+    max_time_error_s: float = 0.0  # measured: largest |shore time - sample time|
+    ideal_bits_per_sample: float = 0.0  # the Kalman + ideal entropy coder bound (values only)
+    code_bits_per_sample: float = 0.0  # the arithmetic code alone (no header, no padding)
 
 
 @dataclass
 class Reconstruction:
-    """What the shore holds per tick (None: lost, unbounded), and which samples were sent (q != 0)."""
+    """Per input row: what the shore holds (NaN: absent or lost) and which values were sent (q != 0)."""
 
-    ticks: list[int]
+    times: np.ndarray
     truth: np.ndarray
-    shore: np.ndarray  # NaN where unbounded
-    sent: np.ndarray  # bool, ticks x channels
+    shore: np.ndarray
+    sent: np.ndarray  # bool, rows x channels
 
 
-def first_per_tick(series: Series, spec: StreamSpec) -> tuple[list[int], np.ndarray, np.ndarray]:
-    """The samples the encoder accepts: the first of each tick (later duplicates are dropped)."""
-    ticks, times, rows, seen = [], [], [], set()
-    for t, x in zip(series.times, series.values, strict=True):
-        k = spec.tick(t)
-        if k not in seen and (not ticks or k > ticks[-1]):
-            seen.add(k)
-            ticks.append(k)
-            times.append(t)
-            rows.append(x)
-    return ticks, np.array(times), np.array(rows)
+def entropy_bits(symbols: list[int]) -> float:
+    """Total bits of an ideal coder that knows the whole sequence's histogram."""
+    if not symbols:
+        return 0.0
+    _, counts = np.unique(np.array(symbols), return_counts=True)
+    p = counts / counts.sum()
+    return float(-(counts * np.log2(p)).sum())
 
 
 def run_codec(series: Series, spec: StreamSpec, max_latency: float, loss: float = 0.0, seed: int = 1,
-              urgent_threshold: float | None = None, max_silence: float = 60.0) -> tuple[Result, Reconstruction]:  # fmt: skip
+              urgent_threshold: float | None = None, max_silence: float = 60.0,
+              progress: bool = False) -> tuple[Result, Reconstruction]:  # fmt: skip
     encoder, decoder = StreamEncoder(spec, max_latency, urgent_threshold, max_silence), StreamDecoder(spec)
     rng = random.Random(seed)
-    ticks, times, truth = first_per_tick(series, spec)
-    index = {k: i for i, k in enumerate(ticks)}
+    truth = series.values
+    rows = len(truth)
     shore = np.full_like(truth, np.nan)
+    shore_time = np.full(rows, np.nan)
+    sent = np.zeros(truth.shape, dtype=bool)
+    row_of: list[int] = []  # the encoder's sample number -> input row (all-absent rows are not samples)
+    symbols: list[list[int]] = [[] for _ in spec.channels]
     packets, latencies, confirmations, cpu = 0, [], [], 0.0
+    code_bits: list[int] = []
 
     def send(now: float) -> None:
         nonlocal packets
         encoded = encoder.take()
         packets += 1
+        code_bits.append(encoded.code_bits)
         delivered = rng.random() >= loss
         encoder.resolve(delivered)
         if not delivered:
@@ -86,47 +96,50 @@ def run_codec(series: Series, spec: StreamSpec, max_latency: float, loss: float 
         span = decoder.decode(encoded.packet.payload, now)
         latencies.extend(now - t for t in encoded.surprise_times)
         confirmations.extend(now - t for t in encoded.sample_times)
-        for i, row in enumerate(span.values):
-            shore[index[span.first_tick + i]] = row
+        for serial, tick, row in zip(encoded.serials[0], span.ticks, span.values, strict=True):
+            shore[row_of[serial]] = row
+            shore_time[row_of[serial]] = tick * spec.period
 
-    for t, x in zip(series.times, series.values, strict=True):
+    bar = tqdm(
+        total=rows, desc="encoding", unit=" rows", disable=None if progress else True, leave=False, delay=2.0
+    )
+    for i, (t, x) in enumerate(zip(series.times, truth, strict=True)):
         while (due := encoder.deadline()) is not None and due <= t and encoder.ready(due):
             send(due)
         start = time.perf_counter()
-        encoder.push(t, x)
+        if encoder.push(t, x):
+            row_of.append(i)
+            q = encoder.last_q
+            for c, v in enumerate(q):
+                if v is not None:
+                    symbols[c].append(v)
+                    sent[i, c] = v != 0
         cpu += time.perf_counter() - start
         while encoder.ready(t):
             send(t)
+        if i % 1000 == 0:
+            bar.update(min(1000, rows - bar.n))
+    bar.close()
     while encoder.pending and encoder.ready(due := max(encoder.deadline(), series.times[-1])):  # type: ignore[type-var]
         send(due)
-    sent = _sent_mask(series, spec, ticks, truth)
-    eps = np.asarray(spec.eps)
-    held = ~np.isnan(shore)
-    ratios = np.abs(shore - truth)[held] / np.broadcast_to(eps, truth.shape)[held]
-    samples = truth.size
-    result = Result(samples, packets, packets * PACKET_BITS, packets * PACKET_BITS / samples,
+    present = ~np.isnan(truth)
+    held = present & ~np.isnan(shore)
+    eps = np.broadcast_to(np.asarray(spec.eps), truth.shape)
+    ratios = np.abs(shore - truth)[held] / eps[held]
+    samples = int(present.sum())
+    dated = ~np.isnan(shore_time)
+    time_errors = np.abs(shore_time[dated] - series.times[dated])
+    ideal = sum(entropy_bits(s) for s in symbols) / max(1, samples)
+    result = Result(samples, packets, packets * PACKET_BITS, packets * PACKET_BITS / max(1, samples),
                     float(ratios.max()) if ratios.size else 0.0,
                     float(np.sqrt(np.mean(ratios**2))) if ratios.size else 0.0,
                     float(max(latencies)) if latencies else 0.0,
-                    float(max(confirmations)) if confirmations else 0.0, int((~held).sum()),
-                    us_per_tick=cpu / max(1, len(ticks)) * 1e6)  # fmt: skip
-    return result, Reconstruction(ticks, truth, shore, sent)
-
-
-def _sent_mask(series: Series, spec: StreamSpec, ticks: list[int], truth: np.ndarray) -> np.ndarray:
-    """Which samples were 'unpredictable' (q != 0): replay the vehicle's predictor without loss."""
-    predictor = spec.predictor()
-    mask = np.zeros(truth.shape, dtype=bool)
-    last = None
-    for i, (k, x) in enumerate(zip(ticks, truth, strict=True)):
-        for _ in range(0 if last is None else k - last - 1):
-            predictor.skip()
-        last = k
-        prediction = predictor.predict()
-        q = np.round((x - prediction) / spec.step)
-        mask[i] = q != 0
-        predictor.update(prediction + q * spec.step)
-    return mask
+                    float(max(confirmations)) if confirmations else 0.0, int((present & ~held).sum()),
+                    us_per_tick=cpu / max(1, len(row_of)) * 1e6, samples_absent=int((~present).sum()),
+                    samples_not_represented=int((present & ~held).sum()), time_precision_s=spec.time_precision,
+                    max_time_error_s=float(time_errors.max()) if time_errors.size else 0.0,
+                    ideal_bits_per_sample=ideal, code_bits_per_sample=sum(code_bits) / max(1, samples))  # fmt: skip
+    return result, Reconstruction(series.times, truth, shore, sent)
 
 
 def pack(items: list[tuple[float, int]], capacity_bits: int, max_latency: float) -> tuple[int, float]:
@@ -153,36 +166,72 @@ def pack(items: list[tuple[float, int]], capacity_bits: int, max_latency: float)
 
 
 def send_all(series: Series, spec: StreamSpec, max_latency: float) -> Result:
-    ticks, times, truth = first_per_tick(series, spec)
-    items = [(t, 16) for t in times for _ in range(truth.shape[1])]
+    """Every present value as 16 bits, 14 per packet."""
+    present = ~np.isnan(series.values)
+    items = [(t, 16) for t, row in zip(series.times, present, strict=True) for _ in range(int(row.sum()))]
+    samples = max(1, int(present.sum()))
     packets, latency = pack(items, (PACKET_SIZE - 4) * 8, max_latency)
-    return Result(
-        truth.size, packets, packets * PACKET_BITS, packets * PACKET_BITS / truth.size, 0.0, 0.0, latency
-    )
+    return Result(samples, packets, packets * PACKET_BITS, packets * PACKET_BITS / samples, 0.0, 0.0, latency)
 
 
 def send_on_delta(series: Series, spec: StreamSpec, max_latency: float) -> Result:
-    ticks, times, truth = first_per_tick(series, spec)
+    """A value when it moves more than eps from the last one sent (4 bytes each, 7 per packet); absent
+    values are neither sent nor scored."""
+    truth = series.values
     eps = np.asarray(spec.eps)
-    last = truth[0].copy()
-    items = [(times[0], 32) for _ in range(truth.shape[1])]
+    last = np.full(truth.shape[1], np.nan)
+    items: list[tuple[float, int]] = []
     errors = np.zeros_like(truth)
-    for i in range(1, len(truth)):
-        moved = np.abs(truth[i] - last) > eps
-        last[moved] = truth[i][moved]
-        items.extend((times[i], 32) for _ in range(int(moved.sum())))
-        errors[i] = np.abs(truth[i] - last) / eps
+    for i, (t, row) in enumerate(zip(series.times, truth, strict=True)):
+        present = ~np.isnan(row)
+        moved = present & (np.isnan(last) | (np.abs(row - last) > eps))
+        last[moved] = row[moved]
+        items.extend((t, 32) for _ in range(int(moved.sum())))
+        errors[i] = np.where(present, np.abs(row - last) / eps, 0.0)
+    samples = max(1, int((~np.isnan(truth)).sum()))
     packets, latency = pack(items, 7 * 32, max_latency)
-    return Result(truth.size, packets, packets * PACKET_BITS, packets * PACKET_BITS / truth.size,
+    return Result(samples, packets, packets * PACKET_BITS, packets * PACKET_BITS / samples,
                   float(errors.max()), float(np.sqrt(np.mean(errors**2))), latency)  # fmt: skip
 
 
-def make_spec(series: Series, eps: float, relative: bool, method: str, period: float | None) -> StreamSpec:
-    std = series.values.std(axis=0)
-    per_channel = tuple(float(eps * s) if relative else float(eps) for s in std)
+def parse_eps(text: str, names: tuple[str, ...]) -> list[float]:
+    """``--eps``: one number for every channel, one per channel (``0.1,0.5,...``), or ``name=value``
+    pairs (with an optional bare default: ``0.1,temp=0.05``)."""
+    parts = [p.strip() for p in str(text).split(",") if p.strip()]
+    try:
+        if all("=" not in p for p in parts):
+            numbers = [float(p) for p in parts]
+            if len(numbers) == 1:
+                return numbers * len(names)
+            if len(numbers) != len(names):
+                raise ValueError(f"--eps has {len(numbers)} values for {len(names)} channels {list(names)}")
+            return numbers
+        default = [float(p) for p in parts if "=" not in p]
+        named = dict((k.strip(), float(v)) for k, v in (p.split("=", 1) for p in parts if "=" in p))
+    except ValueError as exc:
+        if "--eps" in str(exc):
+            raise
+        raise ValueError(f"--eps {text!r}: not numbers ({exc})") from None
+    unknown = [k for k in named if k not in names]
+    if unknown:
+        raise ValueError(f"--eps names {unknown} that are not channels; channels: {list(names)}")
+    lacking = [n for n in names if n not in named]
+    if lacking and not default:
+        raise ValueError(
+            f"--eps gives no bound for {lacking} (add a bare default, e.g. --eps 0.1,{names[0]}=...)"
+        )
+    return [named.get(n, default[0] if default else 0.0) for n in names]
+
+
+def make_spec(
+    series: Series, eps: float | str, relative: bool, method: str, period: float | None
+) -> StreamSpec:
+    bounds = parse_eps(str(eps), series.names)
+    std = np.nanstd(series.values, axis=0) if len(series.values) else np.zeros(len(series.names))
+    per_channel = tuple(float(e * s) if relative else float(e) for e, s in zip(bounds, std, strict=True))
     if any(not e > 0 for e in per_channel):
         flat = [n for n, e in zip(series.names, per_channel, strict=True) if not e > 0]
-        raise ValueError(f"eps must be positive; channels with zero spread: {flat}")
+        raise ValueError(f"eps must be positive; channels with zero spread or no value: {flat}")
     return StreamSpec("eval", Stream.KINEMATIC, series.names, per_channel, period or series.period, method)
 
 
@@ -196,8 +245,7 @@ def plot(path: str, series: Series, spec: StreamSpec, rec: Reconstruction) -> No
     cols = 3 if n > 4 else 1
     rows = math.ceil(n / cols)
     fig, axes = plt.subplots(rows, cols, figsize=(5 * cols, 2.2 * rows), squeeze=False, sharex=True)
-    t = np.array(rec.ticks) * spec.period
-    t = t - t[0]
+    t = rec.times - rec.times[0]
     for c, ax in enumerate(axes.flat):
         if c >= n:
             ax.axis("off")
@@ -222,9 +270,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", help="a CSV file (one row per sample) or a MAVLink .tlog")
     parser.add_argument("--columns", help="comma-separated channels (CSV columns, or MESSAGE.field for a tlog; "
                         "default: every column, or RAW_IMU's nine for a tlog)")  # fmt: skip
-    parser.add_argument("--time-column", help="CSV column of UNIX seconds (default t_unix_s if present)")
+    parser.add_argument("--time-column", help="CSV time column: ISO-8601, or UNIX s/ms/us/ns (detected) "
+                        "(default: a column named t_unix_s, time, timestamp, datetime or date)")  # fmt: skip
     parser.add_argument("--period", type=float, help="sample period in s (default: median interval)")
-    parser.add_argument("--eps", type=float, required=True, help="error bound, in channel units (or x std)")
+    parser.add_argument("--eps", required=True, help="error bound, in channel units (or x std): one number, "
+                        "one per channel (0.1,0.5,...), or name=value pairs with an optional default")  # fmt: skip
     parser.add_argument("--relative", action="store_true", help="eps is a multiple of each channel's std")
     parser.add_argument(
         "--max-latency", type=float, default=10.0, help="seconds an unpredictable sample may wait (10)"
@@ -235,7 +285,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=60.0,
         help="seconds a predictable sample may wait to be confirmed (60)",
     )
-    parser.add_argument("--time-unit", choices=("s", "ms", "us"), default="s", help="unit of the time column")
+    parser.add_argument("--time-unit", choices=("s", "ms", "us", "ns"),
+                        help="unit of a numeric time column (default: detected from its magnitude)")  # fmt: skip
     parser.add_argument("--method", choices=METHODS, default="kalman", help="predictor (default kalman)")
     parser.add_argument("--loss", type=float, default=0.0, help="fraction of packets lost (seeded)")
     parser.add_argument(
@@ -248,12 +299,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def evaluate(args: argparse.Namespace) -> tuple[dict[str, object], Series, StreamSpec, Reconstruction]:
     columns = [c.strip() for c in args.columns.split(",")] if args.columns else None
-    series = load(args.file, columns, args.time_column, args.period)
-    scale = {"s": 1.0, "ms": 1e-3, "us": 1e-6}[args.time_unit]
-    series = Series(series.names, series.times * scale, series.values)
+    progress = getattr(args, "progress", True)
+    series = load(
+        args.file, columns, args.time_column, args.period, getattr(args, "time_unit", None), progress
+    )
+    for note in series.notes:
+        print(f"tacit eval-compression: {note}", file=sys.stderr)
     spec = make_spec(series, args.eps, args.relative, args.method, args.period)
     result, rec = run_codec(series, spec, args.max_latency, args.loss, args.seed, args.urgent_threshold,
-                            args.max_silence)  # fmt: skip
+                            args.max_silence, progress)  # fmt: skip
     baselines = {"send-all": send_all, "send-on-delta": send_on_delta}
     report: dict[str, object] = {
         **asdict(result),
@@ -261,6 +315,7 @@ def evaluate(args: argparse.Namespace) -> tuple[dict[str, object], Series, Strea
         "channels": list(spec.channels),
         "eps": list(spec.eps),
         "period_s": spec.period,
+        "notes": list(series.notes),
         "baselines": {
             name: _baseline(baseline(series, spec, args.max_latency)) for name, baseline in baselines.items()
         },
@@ -290,6 +345,14 @@ def _table(report: dict[str, object]) -> str:
         lines.append(f"{name:<18}{cells}")
     if report.get("unbounded_samples"):
         lines.append(f"lost (marked unbounded on shore): {report['unbounded_samples']} samples")
+    lines.append(
+        f"absent in the file (stored as absent): {report['samples_absent']} values; present but not "
+        f"represented on shore: {report['samples_not_represented']}"
+    )
+    lines.append(
+        f"time: every sample dated within {report['time_precision_s']:.4g} s (largest seen "
+        f"{report['max_time_error_s']:.4g} s); ideal bound {report['ideal_bits_per_sample']:.3f} bits/sample"
+    )
     lines.append(
         f"predictable samples confirmed within {report['max_confirmation_s']:.1f} s "
         "(baselines: silence is never confirmed)"

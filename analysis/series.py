@@ -5,10 +5,12 @@ from __future__ import annotations
 import csv
 from collections.abc import Sequence
 from dataclasses import dataclass
+from datetime import UTC
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+from tqdm import tqdm
 
 if TYPE_CHECKING:
     from tacit.codec import StreamSpec
@@ -17,11 +19,16 @@ DEFAULT_TLOG_COLUMNS = tuple(f"RAW_IMU.{f}" for f in
                              ("xacc", "yacc", "zacc", "xgyro", "ygyro", "zgyro", "xmag", "ymag", "zmag"))  # fmt: skip
 
 
+MISSING = {"", "nan", "na", "n/a", "null", "none", "missing", "-", "--", "?"}
+EPOCH_UNITS = (("s", 1.0), ("ms", 1e-3), ("us", 1e-6), ("ns", 1e-9))
+
+
 @dataclass(frozen=True)
 class Series:
     names: tuple[str, ...]
-    times: np.ndarray  # seconds, increasing
-    values: np.ndarray  # samples x channels
+    times: np.ndarray  # seconds, non-decreasing
+    values: np.ndarray  # samples x channels, NaN = absent (a blank or missing cell)
+    notes: tuple[str, ...] = ()  # what the reader assumed (time unit, zone, skipped columns, sorting)
 
     @property
     def period(self) -> float:
@@ -32,37 +39,133 @@ class Series:
             raise ValueError("a series needs at least two distinct times")
         return float(np.median(steps))
 
+    @property
+    def absent(self) -> int:
+        return int(np.isnan(self.values).sum())
+
 
 def load(path: str | Path, columns: list[str] | None = None, time_column: str | None = None,
-         period: float | None = None) -> Series:  # fmt: skip
+         period: float | None = None, time_unit: str | None = None, progress: bool = False) -> Series:  # fmt: skip
     path = Path(path)
     if path.suffix.lower() == ".tlog":
         return load_tlog(path, columns or list(DEFAULT_TLOG_COLUMNS))
-    return load_csv(path, columns, time_column, period)
+    return load_csv(path, columns, time_column, period, time_unit, progress)
 
 
-def load_csv(path: Path, columns: list[str] | None, time_column: str | None, period: float | None) -> Series:
-    with path.open(newline="") as handle:
-        reader = csv.DictReader(handle)
-        header = reader.fieldnames or []
-        if time_column is None and "t_unix_s" in header:
-            time_column = "t_unix_s"
-        wanted = columns or [h for h in header if h != time_column]
-        missing = [c for c in [*wanted, *([time_column] if time_column else [])] if c not in header]
-        if missing:
-            raise ValueError(f"{path.name}: no column(s) {missing}; the file has {header}")
-        rows = list(reader)
+def _number(cell: str) -> float | None:
+    """A cell's value: a float, NaN for a missing marker, None for text."""
+    text = cell.strip()
+    if text.lower() in MISSING:
+        return float("nan")
+    try:
+        return float(text)
+    except ValueError:
+        return None
+
+
+def parse_times(cells: list[str], column: str, unit: str | None = None) -> tuple[np.ndarray, list[str]]:
+    """Seconds since the UNIX epoch (or since the start) from a column of ISO-8601 or numeric times,
+    and notes saying what was assumed. ``unit`` (s, ms, us, ns) overrides the numeric detection."""
+    notes: list[str] = []
+    numbers = [_number(c) for c in cells]
+    if all(n is not None for n in numbers):
+        raw = np.array(numbers, dtype=float)
+        if np.isnan(raw).any():
+            row = int(np.argmax(np.isnan(raw))) + 2
+            raise ValueError(f"time column {column!r} is blank at row {row}")
+        if unit is None:
+            magnitude = float(np.median(np.abs(raw))) if len(raw) else 0.0
+            # UNIX time since 2001 in s, ms, us or ns; anything smaller is seconds from a start
+            unit = next((u for u, scale in EPOCH_UNITS if 9.8e8 <= magnitude * scale <= 5e9), None)
+            if unit is None:
+                notes.append(f"time column {column!r}: numbers too small for UNIX time; read as seconds")
+                unit = "s"
+            else:
+                notes.append(f"time column {column!r}: UNIX time in {unit} (from its magnitude)")
+        return raw * dict(EPOCH_UNITS)[unit], notes
+    from datetime import datetime
+
+    out = np.empty(len(cells))
+    naive = False
+    for i, cell in enumerate(cells):
+        text = cell.strip()
+        if text.endswith("Z"):
+            text = text[:-1] + "+00:00"
+        try:
+            stamp = datetime.fromisoformat(text)
+        except ValueError:
+            raise ValueError(
+                f"time column {column!r}, row {i + 2}: {cell!r} is neither a number nor ISO-8601"
+            ) from None
+        if stamp.tzinfo is None:
+            naive = True
+            stamp = stamp.replace(tzinfo=UTC)
+        out[i] = stamp.timestamp()
+    notes.append(
+        f"time column {column!r}: ISO-8601" + (", no zone given: read as UTC" if naive else " with zone")
+    )
+    return out, notes
+
+
+TIME_NAMES = ("t_unix_s", "time", "timestamp", "datetime", "date_time", "date", "t", "timeus", "time_us")
+
+
+def load_csv(path: Path, columns: list[str] | None, time_column: str | None, period: float | None,
+             time_unit: str | None = None, progress: bool = False) -> Series:  # fmt: skip
+    """One row per sample. Blank, NaN and ``missing`` cells are absent values. Text columns are skipped
+    (with a note) unless asked for by name, when they are refused, naming the column and row."""
+    with path.open(newline="", encoding="utf-8-sig") as handle:
+        lines = (line for line in handle if not line.startswith("#"))
+        reader = csv.reader(lines)
+        header = [h.strip() for h in next(reader, [])]
+        rows = list(
+            tqdm(reader, desc=f"reading {path.name}", unit=" rows", disable=not progress, leave=False)
+        )
+    if not header:
+        raise ValueError(f"{path.name}: empty file")
+    if time_column is None:
+        time_column = next((h for h in header if h.lower() in TIME_NAMES), None) or next(
+            (h for h in header if any(w in h.lower() for w in ("time", "date"))), None
+        )
+    wanted = columns or [h for h in header if h != time_column]
+    missing = [c for c in [*wanted, *([time_column] if time_column else [])] if c not in header]
+    if missing:
+        raise ValueError(f"{path.name}: no column(s) {missing}; the file has {header}")
     if not rows:
         raise ValueError(f"{path.name}: no rows")
-    try:
-        values = np.array([[float(r[c]) for c in wanted] for r in rows])
-    except ValueError as exc:
-        raise ValueError(f"{path.name}: a value is not a number ({exc})") from None
+    notes: list[str] = []
+    width = len(header)
+    for i, r in enumerate(rows):
+        if len(r) < width:
+            rows[i] = r + [""] * (width - len(r))
+    names, columns_out = [], []
+    for name in wanted:
+        j = header.index(name)
+        cells = [r[j] for r in rows]
+        numbers = [_number(c) for c in cells]
+        text = next((i for i, n in enumerate(numbers) if n is None), None)
+        if text is not None:
+            where = f"column {name!r}, row {text + 2}: {cells[text]!r} is not a number"
+            if columns:
+                raise ValueError(f"{path.name}: {where}")
+            notes.append(f"skipped text {where}")
+            continue
+        names.append(name)
+        columns_out.append(numbers)
+    if not names:
+        raise ValueError(f"{path.name}: no numeric column")
+    values = np.array(columns_out, dtype=float).T
     if time_column:
-        times = np.array([float(r[time_column]) for r in rows])
+        times, time_notes = parse_times([r[header.index(time_column)] for r in rows], time_column, time_unit)
+        notes.extend(time_notes)
     else:
         times = np.arange(len(rows)) * (period or 1.0)
-    return Series(tuple(wanted), times, values)
+        notes.append(f"no time column: one row every {period or 1.0} s")
+    if np.any(np.diff(times) < 0):
+        order = np.argsort(times, kind="stable")
+        times, values = times[order], values[order]
+        notes.append("rows were not in time order: sorted by time")
+    return Series(tuple(names), times, values, tuple(notes))
 
 
 def load_tlog(path: Path, columns: list[str]) -> Series:
@@ -87,7 +190,9 @@ def load_tlog(path: Path, columns: list[str]) -> Series:
         conn.close()
     if not values:
         raise ValueError(f"{path.name}: no {kind} messages")
-    return Series(tuple(columns), np.array(times), np.array(values))
+    times_array = np.array(times)
+    order = np.argsort(times_array, kind="stable")
+    return Series(tuple(columns), times_array[order], np.array(values)[order])
 
 
 def measured_per_tick(folder: Path, kind: str, fields: Sequence[str], spec: StreamSpec,
@@ -103,6 +208,24 @@ def measured_per_tick(folder: Path, kind: str, fields: Sequence[str], spec: Stre
             while (msg := conn.recv_match(type=kind, blocking=False)) is not None:
                 measured.setdefault(
                     spec.tick(msg._timestamp), [float(getattr(msg, f)) * scale for f in fields]
+                )
+        finally:
+            conn.close()
+    return measured
+
+
+def measured_samples_per_tick(folder: Path, kind: str, fields: Sequence[str], spec: StreamSpec,
+                              scale: float = 1.0) -> dict[int, list[list[float]]]:  # fmt: skip
+    """Like ``measured_per_tick`` but every sample of each tick, in order (the codec keeps them all)."""
+    from pymavlink import mavutil
+
+    measured: dict[int, list[list[float]]] = {}
+    for tlog in sorted(folder.glob("*.tlog")):
+        conn = mavutil.mavlink_connection(str(tlog))
+        try:
+            while (msg := conn.recv_match(type=kind, blocking=False)) is not None:
+                measured.setdefault(spec.tick(msg._timestamp), []).append(
+                    [float(getattr(msg, f)) * scale for f in fields]
                 )
         finally:
             conn.close()

@@ -25,7 +25,7 @@ from tqdm import tqdm
 from server.app import create_app
 from server.link.ingest import IncomingFrame
 from server.settings import Settings
-from tacit.codec import StreamEncoder
+from tacit.codec import PacketEncoder
 from tacit.packets import CheckpointPacket, MissionState
 from tacit.streams import default_streams
 
@@ -34,8 +34,9 @@ TOKEN = "bench-token"
 
 def frames(count: int, priority_share: float) -> list[bytes]:
     """Check-points and real codec output (a noisy IMU stream), in the order a vehicle sends them."""
-    spec = default_streams()[next(iter(default_streams()))]
-    encoder = StreamEncoder(spec, max_latency=1.0)
+    streams = list(default_streams().values())  # the server decodes every stream of a packet
+    spec = streams[0]
+    encoder = PacketEncoder(streams, max_latency=1.0)
     rng = np.random.default_rng(1)
     out: list[bytes] = []
     t0 = time.time() - 3600
@@ -44,7 +45,7 @@ def frames(count: int, priority_share: float) -> list[bytes]:
     while len(out) < count:
         if rng.random() < priority_share:
             while not encoder.ready(t0 + tick * spec.period):
-                encoder.push(t0 + tick * spec.period, rng.normal(0, 10, len(spec.channels)))
+                encoder.push(0, t0 + tick * spec.period, rng.normal(0, 10, len(spec.channels)))
                 tick += 1
             encoded = encoder.take()
             encoder.resolve(True)

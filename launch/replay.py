@@ -106,7 +106,9 @@ def _summary(db, data: Path, started: float) -> dict:  # noqa: ANN001
         rows = s.exec(select(Telemetry).where(Telemetry.stream == "imu", Telemetry.certain)).all()
     ratios = [abs(v - m) / e for r in rows if r.tick in measured
               for v, m, e in zip(r.values, measured[r.tick], spec.eps, strict=True)]  # fmt: skip
-    imu = [p for p in packets if p.type == "priority" and p.body.get("stream") == "kinematic"]
+    imu = [
+        p for p in packets if p.type == "priority" and "imu" in p.body.get("streams", [])
+    ]  # shared packets
     latencies = [p.at - p.body["first_tick"] * spec.period for p in imu if "first_tick" in p.body]
     samples = len(measured) * len(IMU_CHANNELS)
     return {

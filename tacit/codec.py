@@ -2,28 +2,56 @@
 
 Quantisation. For channel c with error bound eps_c, the vehicle sends q = round((x - p) / s) with
 p the dual prediction (``tacit.predict``) and s = 2 eps_c (1 - 1e-9); the shore reconstructs
-p + q s, so |reconstruction - x| <= eps_c for every sample (the 1e-9 margin absorbs floating-point
-rounding). q = 0 is the paper's "predictable" verdict: the shore's prediction is already within eps.
-Both ends feed the reconstruction, not the raw value, back into the predictor.
+p + q s, so |reconstruction - x| <= eps_c for every present sample (the 1e-9 margin absorbs
+floating-point rounding). q = 0 is the paper's "predictable" verdict. Both ends feed the
+reconstruction, not the raw value, back into the predictor.
 
-Entropy coding. Every tick's q for every channel is arithmetic-coded (``tacit.arithmetic``) with an
-adaptive model per channel and context (whether that channel's previous q was 0): symbols -6..6 and
-two escapes, an escaped magnitude as an Exp-Golomb code. A run of predictable ticks costs a few
-hundredths of a bit per sample; a surprise costs what its size needs.
+Time. Each stream has a tick period T; a sample taken at time t belongs to tick k = round(t / T), and
+the shore dates it k T: **every sample's time is known to within T / 2** (``time_precision``), whatever
+its jitter, and jitter costs no bits. Nothing is dropped: a tick may hold no sample (a dropped
+message, a blank row, a slower sensor), one, or several (a burst, duplicate times: each is coded, in
+order, with the same tick). A channel may be absent from a sample (NaN, a blank cell): the shore stores
+it as absent (NaN / None), never as a made-up value, and the predictors skip it.
 
-Payload (30 bytes, after the priority packet's 2-byte header)::
+Entropy coding (``tacit.arithmetic``, adaptive models, so what is regular becomes almost free).
+Per stream the packet holds a *section*, a sequence of tokens, each followed by what it announces:
 
-    byte 0-1   first tick index k0 (u16, wraps; tick = round(time / period))
-    byte 2     number of ticks n (1-255)
-    byte 3-29  arithmetic code (216 bits), zero-padded, starting with the gap: one bit 0 = continues
-               from the state at the end of tick k0-1 (almost always); one bit 1 and eight bits g:
-               g in 1-254 = continues from the state at the end of tick k0-g-1 (the ticks between were
-               lost: the shore marks them unbounded and the predictors skip them); g = 255 = starts
-               from the initial state (first packet, or after a long loss)
+=====  ========================================================================  ==================
+token  meaning (the cursor is the tick of the stream's last coded sample)          followed by
+=====  ========================================================================  ==================
+END    the stream's section ends                                                 -
+STEP   the next sample is at cursor + 1                                          a sample
+SAME   the next sample is at the cursor's tick (several samples in one tick)     a sample
+JUMP   the next sample is at cursor + 2 + n (n + 1 ticks without a sample)       n, a sample
+LOST   ticks cursor + 1 .. cursor + 1 + n were in a packet that was lost         n
+START  the stream's first sample (no cursor yet): its tick's low 24 bits         24 bits, a sample
+=====  ========================================================================  ==================
 
-Packets chain: each continues from a predictor and model state both ends hold. The vehicle learns
-from the modem's ACK which packets arrived and bases the next packet on the last delivered one, so
-one lost packet costs its own span, never the ones after it.
+The token is coded with a model per stream and previous token. A sample is then: one "all channels
+present" symbol (model per stream and previous answer); if not all, a presence symbol per channel
+(model per channel and previous presence); then q for each present channel (model per channel and
+context min(|previous q|, 2)): symbols -6..6 and two escapes, an escaped magnitude as an Exp-Golomb
+code. n is an Elias-gamma code whose unary part has an adaptive model per position. On a clean grid a
+tick costs hundredths of a bit beyond its q's; a 5 % dropout costs about 0.3 bit per missing tick.
+
+Payload (30 bytes after the priority packet's 2-byte header; version ``FORMAT``)::
+
+    byte 0     bits 7-6  format version (2); a decoder refuses any other with ``CodecError``
+               bits 5-0  base: 0 = starts from the initial state (first packet of a vehicle run);
+                         1-63 = continues from the state after the packet whose id this is
+                         (a packet's own id is base % 63 + 1)
+    byte 1-29  arithmetic code (232 bits), zero-padded: one section per stream, in the order of
+               the stream list both ends configured (``tacit.streams``)
+
+START's 24 bits are placed by the reception time: the packet must arrive within 2^24 ticks of the
+stream's first sample (at 256 Hz, 18 hours). There is no tick count and no first-tick field: the shore knows where each stream stood after the base
+packet, END closes a section, and a packet holds as many ticks as its code bytes carry (a quiet stream:
+thousands). Several streams share a packet, so a quiet one rides along instead of paying 32 bytes.
+
+Packets chain: each continues from a predictor and model state both ends hold. The vehicle learns from
+the modem's ACK which packets arrived and bases the next on the last delivered one, so one lost packet
+costs its own samples (declared with LOST, stored as uncertain on the shore), never the ones after.
+Decoding raises nothing but ``CodecError``.
 """
 
 from __future__ import annotations
@@ -36,19 +64,23 @@ from tacit.arithmetic import AdaptiveModel, Decoder, Encoder, pack_bits
 from tacit.packets import PAYLOAD_SIZE, Priority, PriorityPacket, Stream
 from tacit.predict import Predictor, make_predictor
 
-HEADER_BYTES = 3
+FORMAT = 2
+HEADER_BYTES = 1
 CODE_BYTES = PAYLOAD_SIZE - HEADER_BYTES
 CODE_BITS = CODE_BYTES * 8
-MAX_TICKS = 255
-RESET = 255
+CHAIN_IDS = 63
 SMALL = 6
 ESC_NEG, ESC_POS = 2 * SMALL + 1, 2 * SMALL + 2
 PRIOR = [1, 1, 1, 2, 4, 8, 24, 8, 4, 2, 1, 1, 1, 1, 1]
 MARGIN = 1 - 1e-9
+END, STEP, SAME, JUMP, LOST, START = range(6)
+TOKEN_PRIOR = [2, 24, 1, 2, 1, 1]
+TICK_BITS = 24
+MAX_Q = 1 << 60
 
 
 class CodecError(ValueError):
-    """A payload that cannot be decoded (its base state is unknown, or it is malformed)."""
+    """A payload that cannot be decoded (another format, an unknown base state, or malformed)."""
 
 
 @dataclass(frozen=True)
@@ -75,6 +107,11 @@ class StreamSpec:
     def step(self) -> np.ndarray:
         return 2 * np.asarray(self.eps, dtype=float) * MARGIN
 
+    @property
+    def time_precision(self) -> float:
+        """The shore dates every sample to within this many seconds (half a tick)."""
+        return self.period / 2
+
     def predictor(self) -> Predictor:
         return make_predictor(
             self.method, len(self.channels), None if self.initial is None else np.array(self.initial)
@@ -84,58 +121,131 @@ class StreamSpec:
         return round(time / self.period)
 
 
+# --- the models both ends keep per stream -------------------------------------------------------------
+
+
+def _binary() -> AdaptiveModel:
+    return AdaptiveModel([1, 8])  # symbol 1 (the usual answer) starts likely
+
+
 @dataclass
 class _Coder:
-    """Adaptive models per channel and context, and each channel's previous symbol."""
+    """A stream's adaptive models and the contexts they are chosen by."""
 
-    models: list[list[AdaptiveModel]]
-    previous: list[int]
+    q: list[list[AdaptiveModel]]  # per channel, per min(|previous q|, 2)
+    tokens: list[AdaptiveModel]  # per previous token
+    all_present: list[AdaptiveModel]  # per previous answer
+    present: list[list[AdaptiveModel]]  # per channel, per previous presence
+    counts: list[AdaptiveModel]  # the unary part of Elias-gamma counts, per position
+    previous_q: list[int]
+    previous_present: list[int]
+    previous_all: int = 1
+    previous_token: int = END
 
     @classmethod
     def new(cls, channels: int) -> _Coder:
-        return cls([[AdaptiveModel(list(PRIOR)) for _ in range(2)] for _ in range(channels)], [0] * channels)
+        return cls([[AdaptiveModel(list(PRIOR), Q_INCREMENT) for _ in range(Q_CONTEXTS)] for _ in range(channels)],
+                   [AdaptiveModel(list(TOKEN_PRIOR)) for _ in range(6)], [_binary() for _ in range(2)],
+                   [[_binary() for _ in range(2)] for _ in range(channels)],
+                   [AdaptiveModel([1, 1]) for _ in range(24)], [0] * channels, [1] * channels)  # fmt: skip
 
     def copy(self) -> _Coder:
-        return _Coder([[m.copy() for m in pair] for pair in self.models], list(self.previous))
+        return _Coder([[m.copy() for m in row] for row in self.q], [m.copy() for m in self.tokens],
+                      [m.copy() for m in self.all_present], [[m.copy() for m in row] for row in self.present],
+                      [m.copy() for m in self.counts], list(self.previous_q), list(self.previous_present),
+                      self.previous_all, self.previous_token)  # fmt: skip
 
-    def encode(self, enc: Encoder, q: np.ndarray) -> None:
-        for c, value in enumerate(int(v) for v in q):
-            model = self.models[c][self.previous[c] != 0]
+    # tokens and counts
+
+    def encode_token(self, enc: Encoder, token: int) -> None:
+        enc.encode_symbol(self.tokens[self.previous_token], token)
+        self.previous_token = token
+
+    def decode_token(self, dec: Decoder) -> int:
+        token = dec.decode_symbol(self.tokens[self.previous_token])
+        self.previous_token = token
+        return token
+
+    def encode_count(self, enc: Encoder, n: int) -> None:
+        """n >= 0 as Elias-gamma of n + 1, the unary part adaptive."""
+        m = n + 1
+        width = m.bit_length()
+        for i in range(width - 1):
+            enc.encode_symbol(self.counts[min(i, len(self.counts) - 1)], 0)
+        enc.encode_symbol(self.counts[min(width - 1, len(self.counts) - 1)], 1)
+        for i in range(width - 2, -1, -1):
+            enc.encode_bit((m >> i) & 1)
+
+    def decode_count(self, dec: Decoder) -> int:
+        width = 1
+        while dec.decode_symbol(self.counts[min(width - 1, len(self.counts) - 1)]) == 0:
+            width += 1
+            if width > 48:
+                raise CodecError("count too long")
+        m = 1
+        for _ in range(width - 1):
+            m = (m << 1) | dec.decode_bit()
+        return m - 1
+
+    # samples
+
+    def encode_sample(self, enc: Encoder, q: list[int | None]) -> None:
+        present = [v is not None for v in q]
+        everything = all(present)
+        enc.encode_symbol(self.all_present[self.previous_all], int(everything))
+        self.previous_all = int(everything)
+        if not everything:
+            for c, here in enumerate(present):
+                enc.encode_symbol(self.present[c][self.previous_present[c]], int(here))
+                self.previous_present[c] = int(here)
+        moved = 0
+        for c, value in enumerate(q):
+            if value is None:
+                continue
+            model = self.q[c][_q_context(self.previous_q[c], moved)]
+            moved |= value != 0
             if -SMALL <= value <= SMALL:
                 enc.encode_symbol(model, value + SMALL)
             else:
                 enc.encode_symbol(model, ESC_POS if value > 0 else ESC_NEG)
                 _encode_exp_golomb(enc, abs(value) - SMALL - 1)
-            self.previous[c] = value
+            self.previous_q[c] = value
 
-    def decode(self, dec: Decoder) -> np.ndarray:
-        out = np.zeros(len(self.models), dtype=np.int64)
-        for c in range(len(self.models)):
-            symbol = dec.decode_symbol(self.models[c][self.previous[c] != 0])
+    def decode_sample(self, dec: Decoder) -> list[int | None]:
+        channels = len(self.q)
+        everything = dec.decode_symbol(self.all_present[self.previous_all])
+        self.previous_all = everything
+        present = [True] * channels
+        if not everything:
+            for c in range(channels):
+                here = dec.decode_symbol(self.present[c][self.previous_present[c]])
+                self.previous_present[c] = here
+                present[c] = bool(here)
+        out: list[int | None] = [None] * channels
+        moved = 0
+        for c in range(channels):
+            if not present[c]:
+                continue
+            symbol = dec.decode_symbol(self.q[c][_q_context(self.previous_q[c], moved)])
             if symbol < ESC_NEG:
                 value = symbol - SMALL
             else:
                 magnitude = _decode_exp_golomb(dec) + SMALL + 1
                 value = magnitude if symbol == ESC_POS else -magnitude
             out[c] = value
-            self.previous[c] = value
+            moved |= value != 0
+            self.previous_q[c] = value
         return out
 
 
-def _encode_gap(enc: Encoder, gap: int) -> None:
-    enc.encode_bit(1 if gap else 0)
-    if gap:
-        for i in range(7, -1, -1):
-            enc.encode_bit((gap >> i) & 1)
+Q_CONTEXTS = 3
+Q_INCREMENT = 24
 
 
-def _decode_gap(dec: Decoder) -> int:
-    if not dec.decode_bit():
-        return 0
-    gap = 0
-    for _ in range(8):
-        gap = (gap << 1) | dec.decode_bit()
-    return gap
+def _q_context(previous: int, moved: int) -> int:
+    """The q model's context: min(|the channel's previous q|, 2). (Adding whether an earlier channel of
+    the same sample was a surprise was tried: on the ArduSub IMU its learning cost outweighs it.)"""
+    return min(abs(previous), 2)
 
 
 def _encode_exp_golomb(enc: Encoder, n: int) -> None:
@@ -159,24 +269,38 @@ def _decode_exp_golomb(dec: Decoder) -> int:
     return m - 1
 
 
-@dataclass
-class _Chain:
-    """The state both ends hold after a tick: predictor and coder; ``end`` is that tick's index + 1,
-    or None for the initial state (a packet based on it says RESET and needs no skipping)."""
+# --- the chain of states both ends hold -------------------------------------------------------------
 
-    end: int | None
+
+@dataclass
+class _Position:
+    """One stream's state after a packet: predictor snapshot, models, cursor (last coded tick)."""
+
     predictor: object
     coder: _Coder
+    cursor: int | None
 
 
 @dataclass
-class _Tick:
-    index: int
+class _Chain:
+    id: int  # 0: the initial state; 1..63 the packet that ended here
+    streams: list[_Position]
+
+
+def _next_id(base: int) -> int:
+    return base % CHAIN_IDS + 1
+
+
+@dataclass
+class _Sample:
     time: float
-    values: np.ndarray
-    q: np.ndarray
-    state_after_previous: object  # the predictor right after the previous tick, before any skip
-    urgent: bool = False
+    index: int  # tick
+    values: np.ndarray  # NaN = absent
+    urgent: bool
+    serial: int = 0  # the stream's sample number (0, 1, ...), for the caller's bookkeeping
+    flagged: bool = False  # urgent because the caller said so (an event), not only by its size
+    q: list[int | None] = field(default_factory=list)
+    state_before: object = None  # the predictor before this sample (for a packet that ends before it)
 
 
 @dataclass
@@ -184,227 +308,444 @@ class EncodedPacket:
     """A priority packet and what it covers (for logs, latency and the link's bookkeeping)."""
 
     packet: PriorityPacket
-    first_tick: int
-    ticks: int
-    gap: int
+    first_tick: int  # the first sample's tick in the packet's main stream (header's stream)
+    ticks: int  # samples in the packet, all streams
+    gap: int  # ticks declared lost (LOST) in this packet
     sample_times: list[float]
-    surprise_times: list[float]  # the samples the shore could not predict (q != 0)
+    surprise_times: list[float]  # the samples the shore could not predict (some q != 0)
     nonzero: int
+    samples_by_stream: dict[str, int] = field(default_factory=dict)
+    serials: list[list[int]] = field(default_factory=list)  # per stream: the samples' numbers, in order
+    code_bits: int = 0  # of the payload's 232 code bits, how many the arithmetic code used
+
+
+def _code_sample(coder: _Coder, enc: Encoder, cursor: int | None, sample: _Sample) -> int:
+    """The token that places ``sample`` after ``cursor``, then the sample; returns the new cursor."""
+    if cursor is None:
+        coder.encode_token(enc, START)
+        low = sample.index & ((1 << TICK_BITS) - 1)
+        for i in range(TICK_BITS - 1, -1, -1):
+            enc.encode_bit((low >> i) & 1)
+    elif sample.index == cursor:
+        coder.encode_token(enc, SAME)
+    elif sample.index == cursor + 1:
+        coder.encode_token(enc, STEP)
+    else:
+        coder.encode_token(enc, JUMP)
+        coder.encode_count(enc, sample.index - cursor - 2)
+    coder.encode_sample(enc, sample.q)
+    return sample.index
 
 
 @dataclass
-class _Draft:
-    """The packet being filled: ticks ``pending[:count]`` are in ``encoder``."""
+class _Section:
+    """One stream's part of the packet being filled."""
 
-    base: _Chain
-    coder: _Coder
-    gap: int = RESET
-    encoder: Encoder = field(default_factory=Encoder)
-    count: int = 0
-    full: bool = False
+    base: _Position
+    lost: int | None = None  # declare LOST(n) at the section's start (None: nothing was lost)
+    count: int = 0  # samples of the stream's pending list in this packet
+    closed: bool = False  # a sample did not fit: nothing later of this stream goes in this packet
+    open_encoder: Encoder | None = None  # after this section's tokens, before its END
+    open_coder: _Coder | None = None
+    open_cursor: int | None = None
 
 
-class StreamEncoder:
-    """The vehicle's side: ticks in, priority packets out, re-based on the last delivered packet."""
+class PacketEncoder:
+    """The vehicle's side: samples of every stream in, priority packets out, re-based on the last
+    delivered packet. Streams are coded in the order given (both ends use the same list)."""
 
-    def __init__(
-        self,
-        spec: StreamSpec,
-        max_latency: float = 10.0,
-        urgent_threshold: float | None = None,
-        max_silence: float = 60.0,
-    ) -> None:
-        """An unpredictable sample (q != 0) leaves within ``max_latency`` seconds; a predictable one
-        (the paper's silence) only needs confirming within ``max_silence``, so a quiet stream does not
-        pay a packet per latency period. ``urgent_threshold``: a tick with any |q| at or above it (a
-        surprise of that many 2-eps steps) is time-sensitive and makes its packet leave at once."""
-        self.spec = spec
+    def __init__(self, specs: list[StreamSpec], max_latency: float = 10.0, urgent_threshold: float | None = None,
+                 max_silence: float = 60.0) -> None:  # fmt: skip
+        """An unpredictable sample (some q != 0) leaves within ``max_latency`` seconds; a predictable
+        one (the paper's silence) only needs confirming within ``max_silence``, so a quiet stream does
+        not pay a packet per latency period. ``urgent_threshold``: a sample with any |q| at or above it
+        (a surprise of that many 2-eps steps) is time-sensitive and makes its packet leave at once."""
+        if not specs:
+            raise ValueError("at least one stream")
+        self.specs = list(specs)
         self.max_latency = max_latency
         self.max_silence = max(max_silence, max_latency)
         self.urgent_threshold = urgent_threshold
-        self.predictor = spec.predictor()
-        self.initial = _Chain(None, self.predictor.state(), _Coder.new(len(spec.channels)))
+        self.predictors = [s.predictor() for s in self.specs]
+        self.initial = _Chain(0, [_Position(p.state(), _Coder.new(len(s.channels)), None)
+                                  for p, s in zip(self.predictors, self.specs, strict=True)])  # fmt: skip
         self.delivered = self.initial
-        self.pending: list[_Tick] = []
-        self.in_flight: _Chain | None = None
+        self._queues: list[list[_Sample]] = [[] for _ in self.specs]
+        self.in_flight: tuple[_Chain, list[bool]] | None = None  # its chain; which streams it carried
         self.seq = 0
-        self._draft = _Draft(self.initial, self.initial.coder.copy())
-        self._last_index: int | None = None  # the last tick accepted (duplicates are dropped)
-        self._carry_urgent = False
-        self._predicted_to: int | None = None  # the last tick the predictor has processed
+        self._cursor: list[int | None] = [None] * len(self.specs)  # of the last processed sample
+        self._lost: list[int | None] = [None] * len(self.specs)
+        self._serial = [0] * len(self.specs)
+        self.last_q: list[int | None] = []  # the last pushed sample's quantised residuals (None: absent)
+        self._start(self.initial)
 
-    # --- ticks in -------------------------------------------------------------------------------
+    @property
+    def pending(self) -> list[_Sample]:
+        """Every sample not yet in a packet (all streams)."""
+        return [x for queue in self._queues for x in queue]
 
-    def push(self, time: float, values: np.ndarray | list[float], urgent: bool = False) -> bool:
-        """Add one sample per channel taken at ``time``; False if it was a duplicate tick (dropped)."""
-        index = self.spec.tick(time)
-        if self._last_index is not None and index <= self._last_index:
-            if urgent:  # the sample is dropped, its urgency is not: it rides on this tick's sample
-                if self.pending and self.pending[-1].index == self._last_index:
-                    self.pending[-1].urgent = True
-                else:
-                    self._carry_urgent = True
+    # --- samples in -------------------------------------------------------------------------------
+
+    def push(self, stream: int, time: float, values: np.ndarray | list[float], urgent: bool = False) -> bool:
+        """Add one sample of stream number ``stream`` (NaN = a channel without a value). Always coded:
+        True unless every channel is absent (then there is nothing to send and nothing is queued)."""
+        spec = self.specs[stream]
+        row = np.array(values, dtype=float).reshape(-1)
+        if row.shape != (len(spec.channels),):
+            raise ValueError(f"{spec.name}: {len(spec.channels)} values per sample, got {row.shape[0]}")
+        row[~np.isfinite(row)] = np.nan
+        if np.isnan(row).all():
             return False
-        state = self.predictor.state()
-        tick = _Tick(index, time, np.asarray(values, dtype=float), np.zeros(0, np.int64), state,
-                     urgent or self._carry_urgent)  # fmt: skip
-        self._carry_urgent = False
-        self._process(tick)
-        if self.urgent_threshold is not None and np.any(np.abs(tick.q) >= self.urgent_threshold):
-            tick.urgent = True
-        self._last_index = index
+        index = spec.tick(time)
+        cursor = self._cursor[stream]
+        if cursor is not None and index < cursor:
+            index = cursor  # out of order by less than a tick's rounding: dated with the latest tick
+        sample = _Sample(time, index, row, urgent, self._serial[stream], flagged=urgent)
+        self._serial[stream] += 1
+        self._process(stream, sample)
+        self.last_q = sample.q
+        if self.urgent_threshold is not None and any(
+            v is not None and abs(v) >= self.urgent_threshold for v in sample.q
+        ):
+            sample.urgent = True
         return True
 
-    def _process(self, tick: _Tick) -> None:
-        """Skip the ticks the predictor has not seen, quantise, update, add to the draft."""
-        tick.state_after_previous = self.predictor.state()
-        for _ in range(0 if self._predicted_to is None else tick.index - self._predicted_to - 1):
-            self.predictor.skip()
-        self._predicted_to = tick.index
-        prediction = self.predictor.predict()
-        tick.q = np.round((tick.values - prediction) / self.spec.step).astype(np.int64)
-        self.predictor.update(prediction + tick.q * self.spec.step)
-        self.pending.append(tick)
-        self._add_to_draft(tick)
+    def _process(self, stream: int, sample: _Sample, draft: bool = True) -> None:
+        spec, predictor = self.specs[stream], self.predictors[stream]
+        cursor = self._cursor[stream]
+        sample.state_before = predictor.state()
+        if cursor is None or sample.index > cursor:
+            if cursor is not None:
+                predictor.skip(sample.index - cursor - 1)
+            prediction = predictor.predict()
+        else:
+            prediction = predictor.current()
+        residual = (sample.values - prediction) / spec.step
+        absent = np.isnan(residual)
+        if np.any(np.abs(residual[~absent]) >= MAX_Q):
+            raise ValueError(f"{spec.name}: a value is too far from its prediction to code at this eps")
+        q = np.round(np.where(absent, 0.0, residual))
+        sample.q = [None if a else int(v) for a, v in zip(absent, q, strict=True)]
+        reconstruction = np.where(absent, np.nan, prediction + q * spec.step)
+        predictor.update(reconstruction)
+        self._cursor[stream] = sample.index
+        self._queues[stream].append(sample)
+        if draft:
+            self._add_to_draft(stream)
 
-    def _add_to_draft(self, tick: _Tick) -> None:
-        draft = self._draft
-        if draft.full:
+    # --- the packet being filled ------------------------------------------------------------------
+
+    def _start(self, base: _Chain) -> None:
+        self._base = base
+        self._full = False
+        self._sections = [_Section(p, lost) for p, lost in zip(base.streams, self._lost, strict=True)]
+        self._layout(0)
+
+    def _open(self, section: _Section, enc: Encoder) -> None:
+        coder = section.base.coder.copy()
+        cursor = section.base.cursor
+        if section.lost is not None:
+            coder.encode_token(enc, LOST)
+            coder.encode_count(enc, section.lost)
+            cursor = (cursor or 0) + section.lost
+        section.open_encoder, section.open_coder, section.open_cursor = enc, coder, cursor
+
+    def _layout(self, first: int, enc: Encoder | None = None) -> Encoder:
+        """Re-code sections ``first``.. (their samples as counted) after ``enc``; the finished encoder."""
+        enc = Encoder() if enc is None else enc
+        for s in range(first, len(self.specs)):
+            section = self._sections[s]
+            self._open(section, enc)
+            coder, cursor = section.open_coder, section.open_cursor
+            for sample in self._queues[s][: section.count]:
+                cursor = _code_sample(coder, enc, cursor, sample)  # type: ignore[arg-type]
+            section.open_encoder, section.open_cursor = enc.copy(), cursor
+            section.open_coder = coder.copy()  # type: ignore[union-attr]
+            coder.encode_token(enc, END)  # type: ignore[union-attr]
+        return enc
+
+    def _add_to_draft(self, stream: int) -> None:
+        section = self._sections[stream]
+        if self._full or section.closed or section.count != len(self._queues[stream]) - 1:
             return
-        if draft.count == 0:
-            if draft.base.end is not None:
-                draft.gap = tick.index - draft.base.end
-                if draft.gap >= RESET:  # too long to say: both ends start again from the initial state
-                    self._rebase(self.initial)
-                    return
-            draft.encoder = Encoder()
-            _encode_gap(draft.encoder, draft.gap)
-        elif draft.count and tick.index != self.pending[draft.count - 1].index + 1:
-            draft.full = True  # ticks inside a packet are contiguous; a sensor gap ends it
+        enc, coder = section.open_encoder.copy(), section.open_coder.copy()  # type: ignore[union-attr]
+        cursor = _code_sample(coder, enc, section.open_cursor, self._queues[stream][-1])
+        trial_open = (enc.copy(), coder.copy(), cursor)
+        coder.encode_token(enc, END)
+        saved = [(s.open_encoder, s.open_coder, s.open_cursor) for s in self._sections[stream + 1 :]]
+        finished = self._layout(stream + 1, enc)
+        if finished.bits_if_finished > CODE_BITS:
+            for s, (e, c, k) in zip(self._sections[stream + 1 :], saved, strict=True):
+                s.open_encoder, s.open_coder, s.open_cursor = e, c, k
+            section.closed = self._full = True
             return
-        trial_encoder, trial_coder = draft.encoder.copy(), draft.coder.copy()
-        trial_coder.encode(trial_encoder, tick.q)
-        if draft.count >= MAX_TICKS or trial_encoder.bits_if_finished > CODE_BITS:
-            draft.full = True
-            return
-        draft.encoder, draft.coder, draft.count = trial_encoder, trial_coder, draft.count + 1
+        section.count += 1
+        section.open_encoder, section.open_coder, section.open_cursor = trial_open
 
     def _rebase(self, base: _Chain) -> None:
-        """Continue from ``base`` (the last delivered state, or the initial one): recompute pending."""
-        self.predictor.restore(base.predictor)
-        ticks, self.pending = self.pending, []
-        self._draft = _Draft(base, base.coder.copy())
-        self._predicted_to = None if base.end is None else base.end - 1
-        for tick in ticks:
-            self._process(tick)
+        """Continue from ``base`` (the last delivered state): recompute every pending sample."""
+        samples = [list(p) for p in self._queues]
+        self._queues = [[] for _ in self.specs]
+        for s, position in enumerate(base.streams):
+            self.predictors[s].restore(position.predictor)
+            self._cursor[s] = position.cursor
+            if position.cursor is not None and self._lost[s]:
+                self._cursor[s] = position.cursor + self._lost[s]  # type: ignore[operator]
+                self.predictors[s].skip(self._lost[s])  # type: ignore[arg-type]
+        self._start(base)
+        for s, stream_samples in enumerate(samples):
+            for sample in stream_samples:
+                cursor = self._cursor[s]
+                if cursor is not None and sample.index < cursor:
+                    sample.index = cursor
+                self._process(s, sample, draft=False)
+        self._refill()
 
-    # --- packets out ----------------------------------------------------------------------------
+    # --- packets out --------------------------------------------------------------------------------
+
+    def _in_draft(self) -> list[_Sample]:
+        return [x for s, sec in enumerate(self._sections) for x in self._queues[s][: sec.count]]
 
     def deadline(self) -> float | None:
         """When a packet must leave: the oldest unpredictable sample's latency bound, or the oldest
         predictable one's silence bound, whichever comes first (None: nothing pending)."""
-        if not self.pending:
+        firsts = [p[0].time for p in self._queues if p]
+        if not firsts:
             return None
-        silence = self.pending[0].time + self.max_silence
-        surprise = next((t.time + self.max_latency for t in self.pending if t.q.any()), silence)
-        return min(silence, surprise)
+        silence = min(firsts) + self.max_silence
+        surprises = [x.time for p in self._queues for x in p if any(x.q)]
+        return min(silence, min(surprises) + self.max_latency) if surprises else silence
 
     def ready(self, now: float) -> bool:
         """A packet should go out now: one is full, a sample is urgent, or latency is due."""
-        if not self.pending or self.in_flight is not None or self._draft.count == 0:
+        if self.in_flight is not None:
             return False
-        urgent = any(t.urgent for t in self.pending[: self._draft.count])
-        return self._draft.full or urgent or now >= self.deadline()  # type: ignore[operator]
+        draft = self._in_draft()
+        if not draft:
+            return False
+        return self._full or any(x.urgent for x in draft) or now >= self.deadline()  # type: ignore[operator]
 
     def take(self) -> EncodedPacket:
         """The next priority packet (call when ``ready``); it stays in flight until ``resolve``."""
-        draft = self._draft
-        if draft.count == 0:
+        draft = self._in_draft()
+        if not draft:
             raise RuntimeError("nothing to send")
-        ticks, rest = self.pending[: draft.count], self.pending[draft.count :]
-        end_state = rest[0].state_after_previous if rest else self.predictor.state()
-        chain = _Chain(ticks[-1].index + 1, end_state, draft.coder)
-        k0 = ticks[0].index & 0xFFFF
-        payload = bytes([k0 >> 8, k0 & 0xFF, len(ticks)]) + pack_bits(draft.encoder.finish(), CODE_BYTES)
-        urgent = any(t.urgent for t in ticks)
+        enc = self._layout(0)
+        bits = enc.finish()
+        payload = bytes([(FORMAT << 6) | self._base.id]) + pack_bits(bits, CODE_BYTES)
+        urgent = any(x.urgent for x in draft)
+        main = self._main_stream(urgent)  # before the taken samples leave the queues
+        main_first = self._first_index(main, draft)
+        positions, counts, serials = [], {}, []
+        for s, section in enumerate(self._sections):
+            taken, rest = self._queues[s][: section.count], self._queues[s][section.count :]
+            predictor = rest[0].state_before if rest else self.predictors[s].state()
+            coder = section.open_coder.copy()  # type: ignore[union-attr]
+            coder.encode_token(Encoder(), END)  # the model update END made (both ends make it)
+            positions.append(_Position(predictor, coder, section.open_cursor))
+            counts[self.specs[s].name] = len(taken)
+            serials.append([x.serial for x in taken])
+            self._queues[s] = rest
+        chain = _Chain(_next_id(self._base.id), positions)
         packet = PriorityPacket(self.seq % 256, Priority.TIME_SENSITIVE if urgent else Priority.ROUTINE,
-                                self.spec.stream, payload)  # fmt: skip
-        encoded = EncodedPacket(packet, ticks[0].index, len(ticks), draft.gap, [t.time for t in ticks],
-                                [t.time for t in ticks if t.q.any()],
-                                int(sum(np.count_nonzero(t.q) for t in ticks)))  # fmt: skip
-        self.in_flight = chain
+                                self.specs[main].stream, payload)  # fmt: skip
+        encoded = EncodedPacket(packet, main_first, len(draft), sum(sec.lost or 0 for sec in self._sections),
+                                [x.time for x in draft], [x.time for x in draft if any(x.q)],
+                                sum(1 for x in draft for v in x.q if v), counts, serials, len(bits))  # fmt: skip
+        carried = [sec.count > 0 or sec.lost is not None for sec in self._sections]
+        self.in_flight = (chain, carried)
         self.seq += 1
-        self.pending = rest
-        self._draft = _Draft(chain, chain.coder.copy())
-        for tick in rest:
-            self._add_to_draft(tick)
+        self._lost = [None] * len(self.specs)
+        self._start(chain)
+        self._refill()
         return encoded
+
+    def _main_stream(self, urgent: bool) -> int:
+        """The stream named in the header: the one whose sample the caller flagged urgent (an event),
+        else one with a sample urgent by its size, else the one with the oldest surprise."""
+        best, key = 0, None
+        for s, section in enumerate(self._sections):
+            for x in self._queues[s][: section.count]:
+                k = (not (urgent and x.flagged), not (urgent and x.urgent), not any(x.q), x.time)
+                if key is None or k < key:
+                    best, key = s, k
+        return best
+
+    def _first_index(self, stream: int, draft: list[_Sample]) -> int:
+        section = self._sections[stream]
+        samples = self._queues[stream][: section.count]
+        return samples[0].index if samples else (section.open_cursor or 0)
+
+    def _refill(self) -> None:
+        """Put the samples that are still pending into the fresh draft, oldest first across streams."""
+        nxt = [0] * len(self.specs)
+        while not self._full:
+            heads = [(q[nxt[s]].time, s) for s, q in enumerate(self._queues) if nxt[s] < len(q)]
+            if not heads:
+                return
+            _, s = min(heads)
+            if self._sections[s].count == nxt[s]:
+                self._add_to_draft_index(s, nxt[s])
+            nxt[s] += 1
+
+    def _add_to_draft_index(self, stream: int, i: int) -> None:
+        """Like ``_add_to_draft`` for the i-th pending sample (the next one the section lacks)."""
+        keep = self._queues[stream][i + 1 :]
+        self._queues[stream] = self._queues[stream][: i + 1]
+        self._add_to_draft(stream)
+        self._queues[stream].extend(keep)
 
     def resolve(self, delivered: bool) -> None:
         """The in-flight packet was delivered (ACK) or lost for good; re-base if lost."""
         if self.in_flight is None:
             return
-        chain, self.in_flight = self.in_flight, None
+        (chain, carried), self.in_flight = self.in_flight, None
         if delivered:
             self.delivered = chain
-        else:
-            self._rebase(self.delivered)
+            return
+        # the lost packet's samples are gone: the next packet says up to which tick, per stream (a
+        # stream that had not started on the shore starts afresh, its lost samples before its START)
+        for s, position in enumerate(self.delivered.streams):
+            end = chain.streams[s].cursor
+            if carried[s] and position.cursor is not None and end is not None:
+                self._lost[s] = end - position.cursor
+            else:
+                self._lost[s] = None
+        self._rebase(self.delivered)
+
+
+class StreamEncoder(PacketEncoder):
+    """A single stream's encoder (``tacit eval-compression``, tests): ``push(time, values)``."""
+
+    def __init__(self, spec: StreamSpec, max_latency: float = 10.0, urgent_threshold: float | None = None,
+                 max_silence: float = 60.0) -> None:  # fmt: skip
+        super().__init__([spec], max_latency, urgent_threshold, max_silence)
+        self.spec = spec
+
+    def push(self, time: float, values: np.ndarray | list[float], urgent: bool = False) -> bool:  # type: ignore[override]
+        return super().push(0, time, values, urgent)
+
+
+# --- the shore -----------------------------------------------------------------------------------------
 
 
 @dataclass
 class DecodedSpan:
-    first_tick: int
-    values: np.ndarray  # ticks x channels, the shore's reconstruction (within eps of the truth)
-    lost: tuple[int, int] | None  # [start, end) ticks this packet says were lost before it
+    """One stream's samples from one packet."""
+
+    spec: StreamSpec
+    ticks: np.ndarray  # the tick of each sample (sample time = tick x period, within period / 2)
+    values: np.ndarray  # samples x channels, the shore's reconstruction (within eps); NaN = absent
+    lost: tuple[int, int] | None  # [start, end) ticks in a lost packet (the shore cannot vouch for them)
+
+    @property
+    def first_tick(self) -> int:
+        return int(self.ticks[0]) if len(self.ticks) else (self.lost[1] if self.lost else 0)
+
+    @property
+    def times(self) -> np.ndarray:
+        return self.ticks * self.spec.period
 
 
-class StreamDecoder:
-    """The shore's side: payloads in, reconstructed samples out, in the vehicle's own chain."""
+class PacketDecoder:
+    """The shore's side: payloads in, each stream's reconstructed samples out, in the vehicle's chain."""
 
-    def __init__(self, spec: StreamSpec, keep: int = 64) -> None:
-        self.spec = spec
-        self.predictor = spec.predictor()
-        self._initial = _Chain(None, self.predictor.state(), _Coder.new(len(spec.channels)))
+    def __init__(self, specs: list[StreamSpec]) -> None:
+        self.specs = list(specs)
+        self.predictors = [s.predictor() for s in self.specs]
+        self._initial = _Chain(0, [_Position(p.state(), _Coder.new(len(s.channels)), None)
+                                   for p, s in zip(self.predictors, self.specs, strict=True)])  # fmt: skip
         self.snapshots: dict[int, _Chain] = {}
-        self.keep = keep
 
-    def _unwrap(self, k0_low: int, received_at: float) -> int:
-        """The full tick index: the one with these low 16 bits at or just before reception."""
-        now = self.spec.tick(received_at) + 1
-        return now - ((now - k0_low) % 65536)
+    def decode(self, payload: bytes, received_at: float) -> list[DecodedSpan]:
+        """Every stream's samples in a packet (empty streams included); ``CodecError`` if it is not
+        this format, its base state is not held here, or it is malformed."""
+        try:
+            return self._decode(payload, received_at)
+        except CodecError:
+            raise
+        except (ValueError, IndexError, ArithmeticError, TypeError) as exc:  # malformed beyond the checks
+            raise CodecError(f"malformed payload ({exc})") from None
 
-    def decode(self, payload: bytes, received_at: float) -> DecodedSpan:
-        """Reconstruct a packet's samples; ``CodecError`` if its base state is not held here."""
+    def _decode(self, payload: bytes, received_at: float) -> list[DecodedSpan]:
         if len(payload) != PAYLOAD_SIZE:
             raise CodecError(f"payload is {len(payload)} bytes, not {PAYLOAD_SIZE}")
-        k0_low, n = (payload[0] << 8) | payload[1], payload[2]
-        if n == 0:
-            raise CodecError("a packet holds at least one tick")
-        k0 = self._unwrap(k0_low, received_at)
-        decoder = Decoder(payload[HEADER_BYTES:])
-        gap = _decode_gap(decoder)
-        if gap == RESET:
-            base, lost = self._initial, None
+        version, base_id = payload[0] >> 6, payload[0] & 0x3F
+        if version != FORMAT:
+            raise CodecError(f"sample format version {version}; this shore decodes version {FORMAT}")
+        if base_id == 0:
+            base = self._initial
+        elif base_id in self.snapshots:
+            base = self.snapshots[base_id]
         else:
-            base_end = k0 - gap
-            base = self.snapshots.get(base_end)
-            if base is None:
-                raise CodecError(f"no state for tick {base_end}: an earlier packet was not received")
-            lost = (base_end, k0) if gap else None
-        self.predictor.restore(base.predictor)
-        coder = base.coder.copy()
-        for _ in range(gap if gap != RESET else 0):
-            self.predictor.skip()
-        values = np.zeros((n, len(self.spec.channels)))
-        for i in range(n):
-            prediction = self.predictor.predict()
-            q = coder.decode(decoder)
-            values[i] = prediction + q * self.spec.step
-            self.predictor.update(values[i])
-        self._remember(_Chain(k0 + n, self.predictor.state(), coder))
-        return DecodedSpan(k0, values, lost)
+            raise CodecError(f"no state for packet id {base_id}: an earlier packet was not received")
+        decoder = Decoder(payload[HEADER_BYTES:])
+        spans, positions = [], []
+        for s, spec in enumerate(self.specs):
+            span, position = self._section(decoder, s, spec, base.streams[s], received_at)
+            spans.append(span)
+            positions.append(position)
+        self.snapshots[_next_id(base_id)] = _Chain(_next_id(base_id), positions)
+        return spans
 
-    def _remember(self, chain: _Chain) -> None:
-        self.snapshots[chain.end] = chain  # type: ignore[index]
-        while len(self.snapshots) > self.keep:
-            del self.snapshots[min(self.snapshots)]
+    def _section(self, decoder: Decoder, s: int, spec: StreamSpec, base: _Position,
+                 received_at: float) -> tuple[DecodedSpan, _Position]:  # fmt: skip
+        predictor = self.predictors[s]
+        predictor.restore(base.predictor)
+        coder, cursor = base.coder.copy(), base.cursor
+        ticks: list[int] = []
+        rows: list[np.ndarray] = []
+        lost = None
+        step = spec.step
+        while True:
+            token = coder.decode_token(decoder)
+            if token == END:
+                break
+            if token == LOST:
+                if cursor is None or ticks:
+                    raise CodecError(f"{spec.name}: LOST where it cannot be")
+                n = coder.decode_count(decoder)
+                lost = (cursor + 1, cursor + 1 + n) if n else (cursor, cursor + 1)
+                cursor += n
+                predictor.skip(n)
+                continue
+            if token == START:
+                if cursor is not None:
+                    raise CodecError(f"{spec.name}: START after the stream started")
+                low = 0
+                for _ in range(TICK_BITS):
+                    low = (low << 1) | decoder.decode_bit()
+                now = spec.tick(received_at) + 1
+                index = now - ((now - low) % (1 << TICK_BITS))
+                prediction = predictor.predict()
+            elif cursor is None:
+                raise CodecError(f"{spec.name}: a sample before the stream's start")
+            elif token == SAME:
+                index = cursor
+                prediction = predictor.current()
+            else:
+                index = cursor + 1 if token == STEP else cursor + 2 + coder.decode_count(decoder)
+                predictor.skip(index - cursor - 1)
+                prediction = predictor.predict()
+            q = coder.decode_sample(decoder)
+            values = np.array([np.nan if v is None else prediction[c] + v * step[c] for c, v in enumerate(q)])
+            predictor.update(values)
+            ticks.append(index)
+            rows.append(values)
+            cursor = index
+            if len(rows) > CODE_BITS * 64:
+                raise CodecError("more samples than a packet can hold")
+        values = np.array(rows) if rows else np.zeros((0, len(spec.channels)))
+        span = DecodedSpan(spec, np.array(ticks, dtype=np.int64), values, lost)
+        return span, _Position(predictor.state(), coder, cursor)
+
+
+class StreamDecoder(PacketDecoder):
+    """A single stream's decoder: ``decode`` returns its one span."""
+
+    def __init__(self, spec: StreamSpec) -> None:
+        super().__init__([spec])
+        self.spec = spec
+
+    def decode(self, payload: bytes, received_at: float) -> DecodedSpan:  # type: ignore[override]
+        return super().decode(payload, received_at)[0]

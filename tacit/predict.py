@@ -20,8 +20,14 @@ both ends compute identical predictions; the quantizer in ``tacit.codec`` then g
     |x - mu| > eps (the quantizer's zero bin), i.e. |X - mu|^2 > T_h with T_h = eps^2.
 ``hold`` -- the last reconstructed value: send-on-delta's predictor, here with the packet codec.
 
-Before any data the prediction is ``initial`` (per channel). Across lost ticks (``skip``) the Kalman
-filters predict without update, so their uncertainty grows exactly as it does on the other side.
+Before any data the prediction is ``initial`` (per channel). Across ticks without a sample (``skip``)
+the Kalman filters predict without update, so their uncertainty grows exactly as it does on the other
+side; a gap longer than ``MAX_SKIP`` ticks advances them ``MAX_SKIP`` ticks (both ends alike: the
+prediction after a long gap is poor anyway, and a day's gap must not cost a million filter steps).
+A channel without a value in a tick (NaN: a blank cell, a sensor slower than the stream) is skipped
+for that channel only: the Kalman update leaves its level untouched (zero innovation, R = 1e12), the
+window mean and hold ignore it, and the gain tuning leaves it out. ``current`` is the prediction for a
+second sample in the same tick (no time passes: the filter is not advanced).
 """
 
 from __future__ import annotations
@@ -35,6 +41,8 @@ from filterpy.kalman import KalmanFilter
 ADAPT_EVERY = 16
 ADAPT_WINDOW = 64
 MEAN_WINDOW = 8
+MAX_SKIP = 64
+ABSENT_R = 1e12
 METHODS = ("kalman", "kalman-cv", "mean", "hold")
 
 
@@ -43,12 +51,16 @@ class Predictor(Protocol):
         """Advance one tick; the prediction for it (one value per channel)."""
         ...
 
-    def update(self, reconstructed: np.ndarray) -> None:
-        """Take the tick's reconstructed values (what the shore holds)."""
+    def current(self) -> np.ndarray:
+        """The prediction for another sample in the tick just predicted (no advance)."""
         ...
 
-    def skip(self) -> None:
-        """A tick whose values neither side holds (lost): advance without an update."""
+    def update(self, reconstructed: np.ndarray) -> None:
+        """Take the tick's reconstructed values (what the shore holds); NaN = that channel is absent."""
+        ...
+
+    def skip(self, ticks: int = 1) -> None:
+        """Ticks whose values neither side holds (absent or lost): advance without an update."""
         ...
 
     def state(self) -> object:
@@ -64,11 +76,15 @@ GAINS = np.array([1 / 64, 1 / 32, 1 / 16, 1 / 8, 1 / 4, 1 / 2, 3 / 4, 7 / 8])
 def _best_gain(history: np.ndarray) -> np.ndarray:
     """Per channel, the steady-state gain from ``GAINS`` with the smallest one-step prediction error
     over ``history`` (ticks x channels of reconstructed values). Every candidate runs at once."""
-    level = np.broadcast_to(history[0], (len(GAINS), history.shape[1])).copy()
+    present = ~np.isnan(history)
+    first = np.where(
+        present.any(axis=0), history[np.argmax(present, axis=0), np.arange(history.shape[1])], 0.0
+    )
+    level = np.broadcast_to(np.nan_to_num(first), (len(GAINS), history.shape[1])).copy()
     error = np.zeros_like(level)
     gains = GAINS[:, None]
     for row in history[1:]:
-        innovation = row - level
+        innovation = np.where(np.isnan(row), 0.0, row - level)
         error += innovation * innovation
         level += gains * innovation
     return GAINS[np.argmin(error, axis=0)]
@@ -100,18 +116,30 @@ class _AdaptiveKalman:
 
     def predict(self) -> np.ndarray:
         self.kf.predict()
+        return self.current()
+
+    def current(self) -> np.ndarray:
         return self.kf.x[:: self.order].copy()
 
     def update(self, reconstructed: np.ndarray) -> None:
-        self.kf.update(reconstructed)
-        self.history.append(np.array(reconstructed, dtype=float))
+        values = np.array(reconstructed, dtype=float)
+        absent = np.isnan(values)
+        if absent.all():
+            return
+        if absent.any():
+            level = self.kf.x[:: self.order]
+            self.kf.update(np.where(absent, level, values), R=np.diag(np.where(absent, ABSENT_R, 1.0)))
+        else:
+            self.kf.update(values)
+        self.history.append(values)
         self.count += 1
         if self.count % ADAPT_EVERY == 0 and len(self.history) >= 8:
             self.ratio = _ratio_for_gain(_best_gain(np.array(self.history)))
             self._set_noise()
 
-    def skip(self) -> None:
-        self.kf.predict()
+    def skip(self, ticks: int = 1) -> None:
+        for _ in range(min(ticks, MAX_SKIP)):
+            self.kf.predict()
 
     def state(self) -> object:
         return (self.kf.x.copy(), self.kf.P.copy(), self.ratio.copy(), list(self.history), self.count)
@@ -141,23 +169,36 @@ class WindowMean:
     """The paper's model-free predictor: mean of the last ``window`` reconstructed values."""
 
     def __init__(self, channels: int, initial: np.ndarray, window: int = MEAN_WINDOW) -> None:
-        self.initial = np.array(initial, dtype=float)
+        self.last = np.array(initial, dtype=float)  # each channel's last value (initial before any)
         self.values: deque[np.ndarray] = deque(maxlen=window)
 
     def predict(self) -> np.ndarray:
-        return np.mean(self.values, axis=0) if self.values else self.initial.copy()
+        return self.current()
+
+    def current(self) -> np.ndarray:
+        if not self.values:
+            return self.last.copy()
+        window = np.array(self.values)
+        present = ~np.isnan(window)
+        count = present.sum(axis=0)
+        total = np.where(present, window, 0.0).sum(axis=0)
+        return np.where(count > 0, total / np.maximum(count, 1), self.last)
 
     def update(self, reconstructed: np.ndarray) -> None:
-        self.values.append(np.array(reconstructed, dtype=float))
+        values = np.array(reconstructed, dtype=float)
+        self.values.append(values)
+        self.last = np.where(np.isnan(values), self.last, values)
 
-    def skip(self) -> None:
+    def skip(self, ticks: int = 1) -> None:
         pass
 
     def state(self) -> object:
-        return list(self.values)
+        return list(self.values), self.last.copy()
 
     def restore(self, state: object) -> None:
-        self.values = deque(state, maxlen=self.values.maxlen)  # type: ignore[call-overload]
+        values, last = state  # type: ignore[misc]
+        self.values = deque(values, maxlen=self.values.maxlen)
+        self.last = last.copy()
 
 
 class Hold(WindowMean):

@@ -1,4 +1,5 @@
-"""The sample codec: every sample the shore holds is within eps, losses are marked, never wrong."""
+"""The sample codec: every present sample the shore holds is within eps, none is lost silently, absent
+values stay absent, losses are marked, and decoding raises nothing but CodecError."""
 
 from __future__ import annotations
 
@@ -10,56 +11,90 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tacit.arithmetic import AdaptiveModel, Decoder, Encoder, pack_bits
-from tacit.codec import CodecError, StreamDecoder, StreamEncoder, StreamSpec
+from tacit.codec import (
+    FORMAT,
+    CodecError,
+    PacketDecoder,
+    PacketEncoder,
+    StreamDecoder,
+    StreamEncoder,
+    StreamSpec,
+)
 from tacit.packets import PAYLOAD_SIZE, Priority, Stream
 from tacit.predict import METHODS
+from tacit.streams import default_streams
 
 PERIOD = 0.5
 T0 = 1_700_000_000.0
 
 
-def spec(channels: int, eps: float | list[float], method: str = "kalman") -> StreamSpec:
+def spec(
+    channels: int, eps: float | list[float], method: str = "kalman", period: float = PERIOD
+) -> StreamSpec:
     eps_list = eps if isinstance(eps, list) else [eps] * channels
     return StreamSpec(
-        "t", Stream.KINEMATIC, tuple(f"c{i}" for i in range(channels)), tuple(eps_list), PERIOD, method
+        "t", Stream.KINEMATIC, tuple(f"c{i}" for i in range(channels)), tuple(eps_list), period, method
     )
 
 
-def run(s: StreamSpec, values: np.ndarray, lose: set[int] = frozenset(), max_latency: float = 10.0,
-        times: np.ndarray | None = None) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray], list]:  # fmt: skip
-    """Encode, drop the packets numbered in ``lose``, decode: (truth by tick, shore by tick, spans)."""
-    enc, dec = StreamEncoder(s, max_latency), StreamDecoder(s)
-    times = T0 + np.arange(len(values)) * PERIOD if times is None else times
-    truth, shore, spans, number = {}, {}, [], 0
+class Run:
+    """Encode samples, drop the packets numbered in ``lose``, decode; what the shore holds per sample."""
 
-    def send(now: float) -> None:
-        nonlocal number
-        packet = enc.take()
-        lost = number in lose
-        number += 1
-        enc.resolve(not lost)
-        if not lost:
-            span = dec.decode(packet.packet.payload, now)
-            spans.append(span)
-            for i, row in enumerate(span.values):
-                shore[span.first_tick + i] = row
+    def __init__(self, s: StreamSpec, lose: set[int] = frozenset(), max_latency: float = 10.0,
+                 max_silence: float = 60.0) -> None:  # fmt: skip
+        self.spec = s
+        self.enc, self.dec = StreamEncoder(s, max_latency, max_silence=max_silence), StreamDecoder(s)
+        self.lose, self.number = lose, 0
+        self.truth: list[tuple[float, np.ndarray]] = []  # per sample the encoder accepted
+        self.shore: dict[int, tuple[int, np.ndarray]] = {}  # sample number -> (tick, values)
+        self.spans: list = []
+        self.packets: list = []
 
-    for t, x in zip(times, values, strict=True):
-        while (due := enc.deadline()) is not None and due <= t and enc.ready(due):
-            send(due)
-        if enc.push(t, x):
-            truth[s.tick(t)] = np.asarray(x, dtype=float)
-        while enc.ready(t):
-            send(t)
-    while enc.pending and enc.ready(due := max(enc.deadline(), times[-1])):
-        send(due)
-    return truth, shore, spans
+    def send(self, now: float) -> None:
+        encoded = self.enc.take()
+        self.packets.append(encoded)
+        lost = self.number in self.lose
+        self.number += 1
+        self.enc.resolve(not lost)
+        if lost:
+            return
+        span = self.dec.decode(encoded.packet.payload, now)
+        self.spans.append(span)
+        assert len(span.ticks) == len(encoded.serials[0])
+        for serial, tick, row in zip(encoded.serials[0], span.ticks, span.values, strict=True):
+            self.shore[serial] = (int(tick), row)
+
+    def feed(self, times: np.ndarray, values: np.ndarray) -> Run:
+        for t, x in zip(times, values, strict=True):
+            while (due := self.enc.deadline()) is not None and due <= t and self.enc.ready(due):
+                self.send(due)
+            if self.enc.push(t, x):
+                self.truth.append((t, np.asarray(x, dtype=float)))
+            while self.enc.ready(t):
+                self.send(t)
+        while self.enc.pending and self.enc.ready(due := max(self.enc.deadline(), times[-1])):
+            self.send(due)
+        return self
+
+    def check(self) -> None:
+        """Every held sample: within eps where present, absent where absent, dated within half a tick."""
+        eps = np.asarray(self.spec.eps)
+        for serial, (tick, row) in self.shore.items():
+            t, x = self.truth[serial]
+            absent = ~np.isfinite(x)
+            assert np.array_equal(np.isnan(row), absent), (serial, row, x)
+            assert np.all(np.abs(row[~absent] - x[~absent]) <= eps[~absent]), (serial, row, x)
+            assert abs(
+                tick * self.spec.period - t
+            ) <= self.spec.time_precision + 1e-6 or tick == self._cursor_tick(serial)
+
+    def _cursor_tick(self, serial: int) -> int:
+        """A sample older than its stream's last tick is dated with that tick (out-of-order input)."""
+        return max(self.spec.tick(t) for t, _ in self.truth[: serial + 1])
 
 
-def assert_within(s: StreamSpec, truth: dict, shore: dict) -> None:
-    eps = np.asarray(s.eps)
-    for tick, row in shore.items():
-        assert np.all(np.abs(row - truth[tick]) <= eps), (tick, row, truth[tick])
+def grid(n: int) -> np.ndarray:
+    return T0 + np.arange(n) * PERIOD
 
 
 @pytest.mark.parametrize("method", METHODS)
@@ -69,20 +104,24 @@ def test_bound_holds_on_random_walks_and_noise(method: str) -> None:
     noise = rng.normal(50, 10, size=(400, 3))
     jumps = np.repeat(rng.uniform(-1000, 1000, size=(8, 1)), 50, axis=0)
     values = np.hstack([walk, noise, jumps])
-    s = spec(7, [0.5, 1, 2, 3, 5, 8, 0.1], method)
-    truth, shore, _ = run(s, values)
-    assert set(shore) == set(truth)
-    assert_within(s, truth, shore)
+    run = Run(spec(7, [0.5, 1, 2, 3, 5, 8, 0.1], method)).feed(grid(400), values)
+    assert set(run.shore) == set(range(len(run.truth))) == set(range(400))
+    run.check()
 
 
-@given(st.lists(st.lists(st.floats(-1e4, 1e4), min_size=2, max_size=2), min_size=1, max_size=120),
+@given(st.lists(st.tuples(st.floats(0, 3), st.lists(st.one_of(st.floats(-1e4, 1e4), st.just(float("nan"))),
+                                                  min_size=2, max_size=2)), min_size=1, max_size=120),
        st.floats(0.01, 100), st.sampled_from(METHODS))  # fmt: skip
-@settings(max_examples=40, deadline=None)
-def test_bound_holds_on_arbitrary_series(rows: list[list[float]], eps: float, method: str) -> None:
-    s = spec(2, eps, method)
-    truth, shore, _ = run(s, np.array(rows))
-    assert set(shore) == set(truth)
-    assert_within(s, truth, shore)
+@settings(max_examples=60, deadline=None)
+def test_gaps_jitter_nans_and_duplicate_times_lose_nothing(rows: list, eps: float, method: str) -> None:
+    """Random intervals (0: a duplicate time; up to 6 ticks: gaps; any fraction: jitter), NaN cells."""
+    times = T0 + np.cumsum([gap for gap, _ in rows])
+    values = np.array([v for _, v in rows])
+    run = Run(spec(2, eps, method)).feed(times, values)
+    accepted = [i for i, v in enumerate(values) if not np.isnan(v).all()]
+    assert len(run.truth) == len(accepted)  # only a sample with no value at all is not a sample
+    assert set(run.shore) == set(range(len(run.truth)))  # none lost silently
+    run.check()
 
 
 def real_imu(shared_data) -> tuple[np.ndarray, np.ndarray, list[str]]:  # noqa: ANN001
@@ -91,44 +130,49 @@ def real_imu(shared_data) -> tuple[np.ndarray, np.ndarray, list[str]]:  # noqa: 
     return d["t_unix_s"], np.column_stack([d[c] for c in cols]), cols
 
 
-def test_bound_holds_on_real_imu(shared_data) -> None:  # noqa: ANN001
+def test_bound_holds_on_real_imu_with_dropouts_and_jitter(shared_data) -> None:  # noqa: ANN001
     times, values, cols = real_imu(shared_data)
-    s = StreamSpec("imu", Stream.KINEMATIC, tuple(cols), tuple(0.5 * values.std(axis=0)), 0.5)
-    truth, shore, spans = run(s, values, times=times)
-    assert set(shore) == set(truth) and len(spans) > 10
-    assert_within(s, truth, shore)
+    rng = np.random.default_rng(5)
+    keep = rng.random(len(times)) > 0.05
+    times = times + rng.uniform(-0.3, 0.3, len(times)) * 0.5
+    values = values.copy()
+    values[rng.random(values.shape) < 0.02] = np.nan
+    s = StreamSpec("imu", Stream.KINEMATIC, tuple(cols), tuple(0.5 * np.nanstd(values, axis=0)), 0.5)
+    order = np.argsort(times[keep])
+    run = Run(s).feed(times[keep][order], values[keep][order])
+    assert set(run.shore) == set(range(len(run.truth))) and len(run.spans) > 10
+    run.check()
 
 
 def test_lost_packets_are_marked_and_the_rest_stays_exact(shared_data) -> None:  # noqa: ANN001
     times, values, cols = real_imu(shared_data)
     s = StreamSpec("imu", Stream.KINEMATIC, tuple(cols), tuple(0.5 * values.std(axis=0)), 0.5)
-    truth, shore, spans = run(s, values, lose={3, 4, 10}, times=times)
-    missing = set(truth) - set(shore)
-    assert missing, "the lost packets' ticks must be missing on the shore, not filled in"
-    marked = set()
-    for span in spans:
-        if span.lost:
-            marked.update(range(*span.lost))
-    assert missing <= marked  # every tick the shore lacks is one a later packet declared lost
-    assert_within(s, truth, shore)
+    run = Run(s, lose={3, 4, 10}).feed(times, values)
+    missing = set(range(len(run.truth))) - set(run.shore)
+    assert missing, "the lost packets' samples must be missing on the shore, not filled in"
+    marked = {k for span in run.spans if span.lost for k in range(*span.lost)}
+    assert {s.tick(run.truth[i][0]) for i in missing} <= marked  # declared lost by a later packet
+    run.check()
 
 
-def test_packet_based_on_an_unknown_state_is_refused() -> None:
+def test_packet_based_on_an_unknown_state_or_another_format_is_refused() -> None:
     s = spec(2, 1.0)
     enc = StreamEncoder(s)
-    for i in range(200):
+    for i in range(400):
         enc.push(T0 + i * PERIOD, [i % 7, (i * 3) % 11])
     first = enc.take()
     enc.resolve(True)
     assert enc.ready(T0 + 1e6)
     second = enc.take()
     with pytest.raises(CodecError, match="not received"):
-        StreamDecoder(s).decode(second.packet.payload, T0 + 200 * PERIOD)
+        StreamDecoder(s).decode(second.packet.payload, T0 + 400 * PERIOD)
     decoder = StreamDecoder(s)
-    decoder.decode(first.packet.payload, T0 + 200 * PERIOD)
-    assert (
-        decoder.decode(second.packet.payload, T0 + 200 * PERIOD).first_tick == first.first_tick + first.ticks
-    )
+    decoder.decode(first.packet.payload, T0 + 400 * PERIOD)
+    span = decoder.decode(second.packet.payload, T0 + 400 * PERIOD)
+    assert span.first_tick == s.tick(T0) + first.ticks
+    other = bytes([((FORMAT + 1) % 4) << 6 | (first.packet.payload[0] & 0x3F)]) + first.packet.payload[1:]
+    with pytest.raises(CodecError, match="format version"):
+        StreamDecoder(s).decode(other, T0 + 400 * PERIOD)
 
 
 def test_latency_bound_silence_bound_and_urgent_samples() -> None:
@@ -147,21 +191,64 @@ def test_latency_bound_silence_bound_and_urgent_samples() -> None:
     assert enc.take().packet.priority is Priority.TIME_SENSITIVE
 
 
-def test_duplicate_ticks_are_dropped_and_gaps_end_a_packet() -> None:
+def test_duplicate_ticks_are_kept_and_gaps_stay_inside_the_packet() -> None:
     s = spec(1, 1.0)
-    enc = StreamEncoder(s)
-    assert enc.push(T0, [1.0]) and not enc.push(T0 + 0.01, [9.0])
-    enc.push(T0 + 0.5, [1.0])
-    enc.push(T0 + 5.0, [1.0])  # 8 ticks missing from the sensor
-    assert enc.ready(T0 + 5.0)
-    packet = enc.take()
-    assert packet.ticks == 2
-    enc.resolve(True)
-    enc.push(T0 + 5.5, [1.0])
-    dec = StreamDecoder(s)
-    dec.decode(packet.packet.payload, T0 + 6)
-    span = dec.decode(enc.take().packet.payload, T0 + 7)
-    assert span.lost == (s.tick(T0) + 2, s.tick(T0 + 5.0)) and span.first_tick == s.tick(T0 + 5.0)
+    run = Run(s, max_latency=4000, max_silence=4000)
+    times = np.array([T0, T0 + 0.01, T0 + 0.5, T0 + 5.0, T0 + 5.5, T0 + 3600.0])
+    run.feed(times, np.array([[1.0], [9.0], [1.0], [1.0], [1.0], [2.0]]))
+    assert len(run.packets) == 1 and run.packets[0].ticks == 6  # one packet: the gaps are coded in it
+    ticks = [run.shore[i][0] for i in range(6)]
+    assert ticks == [s.tick(t) for t in times] and ticks[0] == ticks[1]  # both samples of the tick
+    run.check()
+
+
+def test_absent_channels_are_absent_on_the_shore() -> None:
+    s = spec(3, 0.1)
+    values = np.array([[1.0, np.nan, 3.0], [np.nan, np.nan, 3.1], [1.1, 2.0, np.nan]] * 30)
+    run = Run(s).feed(grid(len(values)), values)
+    assert set(run.shore) == set(range(len(values)))
+    run.check()
+
+
+def test_a_quiet_stream_costs_hundredths_of_a_bit_per_sample() -> None:
+    s = spec(3, 0.5)
+    rng = np.random.default_rng(1)
+    n = 6000
+    run = Run(s, max_latency=1e6, max_silence=1e6).feed(grid(n), 10 + rng.uniform(-0.2, 0.2, size=(n, 3)))
+    bits = len(run.packets) * 256 / (3 * n)
+    assert bits < 0.1 and max(p.ticks for p in run.packets) > 255  # no 255-tick cap
+    run.check()
+
+
+def test_streams_share_packets_and_a_quiet_one_rides_along() -> None:
+    streams = default_streams()
+    specs = list(streams.values())
+    enc, dec = PacketEncoder(specs, max_latency=10.0), PacketDecoder(specs)
+    rng = np.random.default_rng(2)
+    sent, packets = {0: [], 1: []}, []
+    for i in range(400):  # IMU at 4 Hz, the environment at 1 Hz with oxygen every 30 s
+        t = T0 + i * 0.25
+        imu = rng.normal(0, 30, 9)
+        enc.push(0, t, imu)
+        sent[0].append(imu)
+        if i % 4 == 0:
+            env = np.array([20.0 + i * 1e-4, 1.0, 8.0 if i % 120 == 0 else np.nan])
+            enc.push(1, t, env)
+            sent[1].append(env)
+        while enc.ready(t):
+            encoded = enc.take()
+            enc.resolve(True)
+            packets.append((encoded, dec.decode(encoded.packet.payload, t)))
+    assert all(len(spans) == 2 for _, spans in packets)
+    assert sum(1 for _, spans in packets if len(spans[1].ticks)) >= len(packets) // 2  # env rides along
+    for stream in (0, 1):
+        got = {n: row for encoded, spans in packets
+               for n, row in zip(encoded.serials[stream], spans[stream].values, strict=True)}  # fmt: skip
+        eps = np.asarray(specs[stream].eps)
+        for n, row in got.items():
+            truth = sent[stream][n]
+            assert np.array_equal(np.isnan(row), np.isnan(truth))
+            assert np.all(np.abs(row - truth)[~np.isnan(truth)] <= eps[~np.isnan(truth)])
 
 
 def test_payload_is_thirty_bytes_and_garbage_is_a_codec_error() -> None:
@@ -174,15 +261,27 @@ def test_payload_is_thirty_bytes_and_garbage_is_a_codec_error() -> None:
     with pytest.raises(CodecError):
         dec.decode(bytes(10), T0)
     with pytest.raises(CodecError):
-        dec.decode(bytes(PAYLOAD_SIZE), T0)  # zero ticks
+        dec.decode(bytes(PAYLOAD_SIZE), T0)  # format 0
     rng = random.Random(1)
     for _ in range(200):
-        junk = bytes(rng.randrange(256) for _ in range(PAYLOAD_SIZE))
+        junk = bytes([FORMAT << 6]) + bytes(rng.randrange(256) for _ in range(PAYLOAD_SIZE - 1))
         try:
             span = StreamDecoder(s).decode(junk, T0)
         except CodecError:
             continue
         assert span.values.shape[1] == 3  # decodes to *something* of the right shape, never crashes
+
+
+@given(st.binary(min_size=0, max_size=40), st.booleans())
+@settings(max_examples=300, deadline=None)
+def test_random_payload_bytes_raise_nothing_but_codec_error(payload: bytes, right_format: bool) -> None:
+    if right_format and payload:
+        payload = bytes([(FORMAT << 6) | (payload[0] & 0x3F)]) + payload[1:]
+    decoder = PacketDecoder(list(default_streams().values()))
+    try:
+        decoder.decode(payload, T0)
+    except CodecError:
+        pass
 
 
 @given(st.lists(st.integers(0, 14), max_size=300))
@@ -206,25 +305,36 @@ def test_any_loss_pattern_leaves_the_shore_exact_or_marked(seed: int, lose: set[
                                                            latency: float) -> None:  # fmt: skip
     """Regression: a packet lost while nothing else was pending once left the two ends out of step."""
     rng = np.random.default_rng(seed)
-    values = np.cumsum(rng.normal(0, 1, size=(200, 3)), axis=0) + rng.normal(0, 1, size=(200, 3))
+    n = 200
+    values = np.cumsum(rng.normal(0, 1, size=(n, 3)), axis=0) + rng.normal(0, 1, size=(n, 3))
+    times = T0 + np.cumsum(rng.choice([0.0, 0.5, 0.5, 0.5, 1.0, 2.5], size=n))
     s = spec(3, 0.7, method)
-    truth, shore, spans = run(s, values, lose=lose, max_latency=latency)
-    assert_within(s, truth, shore)
-    marked = {k for span in spans if span.lost for k in range(*span.lost)}
-    first_delivered = min((span.first_tick for span in spans), default=None)
-    for tick in set(truth) - set(shore):
+    run = Run(s, lose=lose, max_latency=latency).feed(times, values)
+    run.check()
+    marked = {k for span in run.spans if span.lost for k in range(*span.lost)}
+    delivered = sorted(run.shore)
+    for serial in set(range(len(run.truth))) - set(run.shore):
         # missing on the shore: declared lost by a later packet, or before anything arrived, or after
-        assert tick in marked or first_delivered is None or tick < first_delivered or tick > max(shore)
+        tick = s.tick(run.truth[serial][0])
+        assert tick in marked or not delivered or serial < delivered[0] or serial > delivered[-1]
 
 
-def test_urgency_of_a_dropped_duplicate_sample_is_kept() -> None:
+def test_urgency_of_a_second_sample_in_a_tick_counts() -> None:
     s = spec(1, 1.0)
     enc = StreamEncoder(s, max_latency=30.0)
     enc.push(T0, [0.0])
-    assert not enc.push(T0 + 0.1, [9.0], urgent=True)  # same tick: the value is dropped...
-    assert enc.ready(T0 + 0.1)  # ...its urgency is not
-    assert enc.take().packet.priority is Priority.TIME_SENSITIVE
-    enc.resolve(True)
-    assert not enc.push(T0 + 0.2, [9.0], urgent=True)  # nothing pending: carried to the next tick
-    enc.push(T0 + 0.5, [0.0])
-    assert enc.ready(T0 + 0.5) and enc.take().packet.priority is Priority.TIME_SENSITIVE
+    assert enc.push(T0 + 0.1, [9.0], urgent=True)  # same tick: kept, and urgent
+    assert enc.ready(T0 + 0.1)
+    encoded = enc.take()
+    assert encoded.packet.priority is Priority.TIME_SENSITIVE and encoded.ticks == 2
+
+
+def test_the_header_names_the_stream_of_the_event() -> None:
+    specs = list(default_streams().values())
+    enc = PacketEncoder(specs, max_latency=10.0, urgent_threshold=20)
+    enc.push(0, T0, [300.0] * 9)  # urgent by its size (|q| >= 20 steps)
+    enc.push(1, T0 + 0.1, [25.0, 1.0, 8.0], urgent=True)  # an event the caller flagged
+    encoded = enc.take()
+    assert (
+        encoded.packet.priority is Priority.TIME_SENSITIVE and encoded.packet.stream is Stream.ENVIRONMENTAL
+    )

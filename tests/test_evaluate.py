@@ -62,3 +62,35 @@ def test_human_table_and_clear_errors(shared_data: Path, tmp_path: Path) -> None
     assert bad.returncode == 2 and "no column(s) ['nope']" in bad.stderr
     missing = evaluate(str(tmp_path / "none.csv"), "--eps", "1")
     assert missing.returncode == 2 and "none.csv" in missing.stderr
+
+
+def test_files_as_owners_publish_them(tmp_path: Path) -> None:
+    """ISO-8601 with a zone, blank / NaN / missing cells, a text column, per-channel eps by name."""
+    lines = ["datetime,site,temp_c,cond"]
+    for i in range(300):
+        hour, minute = divmod(i * 5, 60)
+        temp = "" if 100 <= i < 130 else ("missing" if i % 37 == 0 else f"{10 + 0.01 * i:.2f}")
+        lines.append(f"2021-06-{1 + hour // 24:02d}T{hour % 24:02d}:{minute:02d}:00-06:00,A{i % 3},{temp},"
+                     f"{'NaN' if i % 50 == 0 else 300 + i % 7}")  # fmt: skip
+    path = tmp_path / "stream.csv"
+    path.write_text("\n".join(lines) + "\n")
+    result = evaluate(str(path), "--eps", "temp_c=0.1,cond=1", "--max-latency", "3600", "--json")
+    assert result.returncode == 0, result.stderr
+    assert "ISO-8601 with zone" in result.stderr and "skipped text column 'site', row 2" in result.stderr
+    report = json.loads(result.stdout)
+    assert report["channels"] == ["temp_c", "cond"] and report["eps"] == [0.1, 1.0]
+    blank = sum(1 for i in range(300) if 100 <= i < 130 or i % 37 == 0) + sum(
+        1 for i in range(300) if i % 50 == 0
+    )
+    assert report["samples_absent"] == blank and report["samples_not_represented"] == 0
+    assert report["time_precision_s"] == 150.0 and report["max_error_ratio"] <= 1.0
+    refused = evaluate(str(path), "--columns", "site,temp_c", "--eps", "0.1")
+    assert refused.returncode == 2 and "column 'site', row 2" in refused.stderr
+
+
+def test_epoch_milliseconds_are_detected(tmp_path: Path) -> None:
+    path = tmp_path / "ms.csv"
+    path.write_text("timestamp,x\n" + "".join(f"{1_600_000_000_000 + 500 * i},{i % 5}\n" for i in range(100)))
+    result = evaluate(str(path), "--eps", "0.5", "--json")
+    assert result.returncode == 0, result.stderr
+    assert "UNIX time in ms" in result.stderr and json.loads(result.stdout)["period_s"] == 0.5

@@ -164,7 +164,7 @@ class Agent:
             elif kind == "env" and values[0] is not None:
                 temperature, depth, oxygen = values
                 event = self.plume.add(self.mav.telemetry.time, pose.north, pose.east, temperature)
-                self.compressor.add(Stream.ENVIRONMENTAL, stamp, [temperature, depth, oxygen or 0.0],
+                self.compressor.add(Stream.ENVIRONMENTAL, stamp, [temperature, depth, oxygen],
                                     urgent=event is not None)  # fmt: skip
                 if event is not None:
                     self._plume(event, pose)

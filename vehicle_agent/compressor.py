@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tacit.codec import EncodedPacket, StreamEncoder, StreamSpec
+from tacit.codec import EncodedPacket, PacketEncoder, StreamSpec
 from tacit.packets import Stream
 
 
@@ -78,24 +78,27 @@ class PlumeDetector:
 
 
 class Compressor:
+    """Every stream through one packet encoder: a packet carries the due samples of all streams (a quiet
+    one rides along). Each sample is pushed at its sensor's own time and rate; a value that is None or
+    NaN (a sensor without a reading) is coded as absent, and the shore stores it as absent."""
+
     def __init__(self, streams: dict[Stream, StreamSpec], max_latency: float = 10.0, max_silence: float = 60.0,
                  urgent_threshold: float | None = 20.0) -> None:  # fmt: skip
-        self.encoders = {
-            k: StreamEncoder(spec, max_latency, urgent_threshold, max_silence) for k, spec in streams.items()
-        }
+        self.order = list(streams)
+        self.encoder = PacketEncoder(list(streams.values()), max_latency, urgent_threshold, max_silence)
         self.samples = 0
 
-    def add(self, stream: Stream, time: float, values: list[float], urgent: bool = False) -> None:
-        if self.encoders[stream].push(time, values, urgent=urgent):
+    def add(self, stream: Stream, time: float, values: list[float | None], urgent: bool = False) -> None:
+        row = [float("nan") if v is None else v for v in values]
+        if self.encoder.push(self.order.index(stream), time, row, urgent=urgent):
             self.samples += 1
 
     def ready(self, now: float) -> list[tuple[Stream, EncodedPacket]]:
-        """Packets to send now (each stays in flight until ``resolve``)."""
-        out = []
-        for stream, encoder in self.encoders.items():
-            if encoder.ready(now):
-                out.append((stream, encoder.take()))
-        return out
+        """Packets to send now (each stays in flight until ``resolve``), with the stream its header names."""
+        if not self.encoder.ready(now):
+            return []
+        encoded = self.encoder.take()
+        return [(Stream(encoded.packet.stream), encoded)]
 
     def resolve(self, stream: Stream, delivered: bool) -> None:
-        self.encoders[stream].resolve(delivered)
+        self.encoder.resolve(delivered)

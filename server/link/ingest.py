@@ -20,7 +20,7 @@ from server.events import EventBus
 from server.models import Command, Frame, LinkEvent, Packet, Telemetry, Vehicle, now
 from server.services import commands
 from tacit import packets
-from tacit.codec import CodecError, StreamDecoder, StreamSpec
+from tacit.codec import CodecError, PacketDecoder, StreamSpec
 from tacit.link import SeenWindow, from_frame
 from tacit.navigation import Pose
 from tacit.packets import CheckpointPacket, CommandStatus, PacketError, PriorityPacket, Stream
@@ -37,7 +37,7 @@ class VehicleState:
     id: int
     name: str
     address: int
-    decoders: dict[Stream, StreamDecoder]
+    decoder: PacketDecoder  # every stream of the vehicle: they share packets
     seen: SeenWindow = field(default_factory=SeenWindow)
     last_heard: float | None = None
     snr_in: float | None = None
@@ -91,8 +91,8 @@ class Ingest:
         with self._lock:
             for v in rows:
                 if v.address not in self.vehicles or self.vehicles[v.address].id != v.id:
-                    decoders = {k: StreamDecoder(spec) for k, spec in self.streams.items()}
-                    self.vehicles[v.address] = VehicleState(v.id, v.name, v.address, decoders)  # type: ignore[arg-type]
+                    decoder = PacketDecoder(list(self.streams.values()))
+                    self.vehicles[v.address] = VehicleState(v.id, v.name, v.address, decoder)  # type: ignore[arg-type]
             for address in set(self.vehicles) - {v.address for v in rows}:
                 del self.vehicles[address]
 
@@ -189,30 +189,38 @@ class Ingest:
         return events
 
     def _priority(self, batch: _Batch, v: VehicleState, pp: PriorityPacket, body: dict, at: float) -> Events:
-        spec = self.streams.get(pp.stream)
-        if spec is None:
-            body["error"] = f"no stream {pp.stream.name}"
-            return []
         try:
-            span = v.decoders[pp.stream].decode(pp.payload, at)
+            spans = v.decoder.decode(pp.payload, at)
         except CodecError as exc:
             body["error"] = str(exc)
             batch.events.append({"vehicle_id": v.id, "kind": "undecodable", "at": at,
-                                 "detail": {"stream": spec.name, "error": str(exc)}})  # fmt: skip
-            return [
-                ("link", {"event": "undecodable", "vehicle": v.name, "stream": spec.name, "error": str(exc)})
-            ]
-        if span.lost:  # the shore cannot vouch for these ticks: stored as uncertain, without values
-            batch.telemetry.extend({"vehicle_id": v.id, "stream": spec.name, "tick": k, "time": k * spec.period,
-                                    "values": [], "certain": False} for k in range(*span.lost))  # fmt: skip
-        batch.telemetry.extend({"vehicle_id": v.id, "stream": spec.name, "tick": span.first_tick + i,
-                                "time": (span.first_tick + i) * spec.period, "certain": True,
-                                "values": [round(float(x), 6) for x in values]}
-                               for i, values in enumerate(span.values))  # fmt: skip
-        v.bytes_saved += max(0, span.values.size * 2 - packets.PACKET_SIZE)
-        body.update(stream_name=spec.name, first_tick=span.first_tick, ticks=len(span.values),
-                    lost=list(span.lost) if span.lost else None)  # fmt: skip
-        return [("telemetry", {"vehicle": v.name, "stream": spec.name, "channels": list(spec.channels),
-                               "first_time": span.first_tick * spec.period, "period": spec.period,
-                               "values": [[round(float(x), 4) for x in row] for row in span.values],
-                               "lost": list(span.lost) if span.lost else None})]  # fmt: skip
+                                 "detail": {"stream": pp.stream.name.lower(), "error": str(exc)}})  # fmt: skip
+            return [("link", {"event": "undecodable", "vehicle": v.name, "stream": pp.stream.name.lower(),
+                              "error": str(exc)})]  # fmt: skip
+        events: Events = []
+        carried = []
+        for span in spans:
+            spec = span.spec
+            if span.lost:  # the shore cannot vouch for these ticks: stored as uncertain, without values
+                batch.telemetry.extend({"vehicle_id": v.id, "stream": spec.name, "tick": k, "time": k * spec.period,
+                                        "values": [], "certain": False} for k in range(*span.lost))  # fmt: skip
+            if not len(span.ticks) and not span.lost:
+                continue
+            carried.append(spec.name)
+            # an absent channel is stored as absent (None), never as a made-up value
+            rows = [[None if x != x else round(float(x), 6) for x in values] for values in span.values]
+            batch.telemetry.extend({"vehicle_id": v.id, "stream": spec.name, "tick": int(k),
+                                    "time": int(k) * spec.period, "certain": True, "values": row}
+                                   for k, row in zip(span.ticks, rows, strict=True))  # fmt: skip
+            v.bytes_saved += max(0, int((span.values == span.values).sum()) * 2 - packets.PACKET_SIZE)
+            events.append(("telemetry", {"vehicle": v.name, "stream": spec.name, "channels": list(spec.channels),
+                                         "first_time": span.first_tick * spec.period, "period": spec.period,
+                                         "ticks": [int(k) for k in span.ticks],
+                                         "values": [[None if x is None else round(x, 4) for x in row] for row in rows],
+                                         "lost": list(span.lost) if span.lost else None}))  # fmt: skip
+        main = next((s for s in spans if s.spec.stream == pp.stream and len(s.ticks)), None)
+        main = main or next((s for s in spans if len(s.ticks)), spans[0])
+        body.update(stream_name=main.spec.name, streams=carried, first_tick=main.first_tick,
+                    ticks=sum(len(s.ticks) for s in spans),
+                    lost=list(main.lost) if main.lost else None)  # fmt: skip
+        return events
