@@ -78,6 +78,40 @@ def test_consecutive_commands_are_executed_only_at_their_own_target() -> None:
     assert (m.status.last_command, m.status.command_status) == (3, CommandStatus.EXECUTED)
 
 
+def test_arrival_is_reported_for_the_move_even_after_other_commands_meanwhile() -> None:
+    """A request for a check-point, a parameter and a refused command come while a move is under way:
+    each is reported, and on arrival the check-point names the move as executed (not the latest seq)."""
+    m = fsm()
+    m.on_control(control(Command.MOVE, 1, distance=10, angle=0), HOME, 0)
+    target = Target(*m.status.target)
+    m.on_control(control(Command.REQUEST_CHECKPOINT, 2), Pose(3, 0, 0, 0), 1)
+    assert (m.status.last_command, m.status.command_status) == (2, CommandStatus.EXECUTED)
+    m.on_control(control(Command.SET_PARAM, 3, param_id=1, param_value=0.7), Pose(4, 0, 0, 0), 2)
+    assert (
+        m.on_control(control(Command.GOTO_DEPTH, 4, depth=50), Pose(5, 0, 0, 0), 3)[0]
+        is CommandStatus.REFUSED
+    )
+    assert m.step(4, Pose(6, 0, 0, 0), None, 4) == target  # still steering to the move's target
+    m.step(10, Pose(10, 0, 0, 0), target, 10)
+    assert (m.status.last_command, m.status.command_status) == (1, CommandStatus.EXECUTED)
+    assert m.state is MissionState.HOLDING
+
+    m.on_control(control(Command.RETURN_HOME, 5), Pose(10, 0, 0, 0), 11)
+    m.on_control(control(Command.REQUEST_CHECKPOINT, 6), Pose(5, 0, 0, 0), 12)
+    m.step(20, Pose(0.1, 0, 0, 0), Target(0.0, 0.0, 0.0), 20)
+    assert m.state is MissionState.FINISHED
+    assert (m.status.last_command, m.status.command_status) == (5, CommandStatus.EXECUTED)
+
+    m.on_control(control(Command.MOVE, 7, distance=5, angle=0), HOME, 21)
+    m.on_control(control(Command.HOLD, 8), Pose(2, 0, 0, 0), 22)  # the move is abandoned: nothing to report
+    m.step(23, Pose(2, 0, 0, 0), Target(*m.status.target), 23)
+    assert (m.status.last_command, m.status.command_status, m.status.commanded) == (
+        8,
+        CommandStatus.EXECUTED,
+        0,
+    )
+
+
 def test_a_waypoint_counts_only_when_it_is_the_one_reached() -> None:
     m = fsm()
     m.on_control(control(Command.START_MISSION, 1, param_id=1), HOME, 0)

@@ -35,6 +35,12 @@ from tacit.packets import Command, CommandStatus, ControlFlag, ControlPacket, Mi
 ACTIVE = {MissionState.PREPROGRAMMED, MissionState.SELF_DETERMINED, MissionState.AWAITING_COMMAND,
           MissionState.COMMANDED, MissionState.HOLDING, MissionState.RETURNING}  # fmt: skip
 HOME = Target(0.0, 0.0, 0.0)  # compared with, never handed out (a Target is mutable)
+NEW_COURSE = {
+    Command.HOLD,
+    Command.RESUME,
+    Command.START_MISSION,
+    Command.ABORT_MISSION,
+}  # end a command's run
 PARAMS = {1: "plume_threshold", 2: "checkpoint_interval", 3: "cruise_speed", 4: "link_lost_timeout"}
 
 
@@ -88,6 +94,7 @@ class MissionStatus:
     resume_state: MissionState | None = None
     last_command: int = 0
     command_status: CommandStatus = CommandStatus.NONE
+    commanded: int = 0  # the command whose target is being steered to (reported executed on arrival)
     reason: Reason = Reason.OK
     params: dict[str, float] = field(default_factory=dict)
 
@@ -149,6 +156,7 @@ class MissionFSM:
             Command.REQUEST_CHECKPOINT: lambda p, _pose, _now: (CommandStatus.EXECUTED, Reason.OK),
         }[packet.command]  # fmt: skip
         status, reason = handler(packet, pose, now)
+        self._started(packet.command, status, packet.seq)
         self._report(packet.seq, status, reason)
         return status, reason
 
@@ -162,6 +170,14 @@ class MissionFSM:
         self.status.target = target
         self._go(MissionState.COMMANDED)
         return CommandStatus.EXECUTING, Reason.OK
+
+    def _started(self, command: Command, status: CommandStatus, seq: int) -> None:
+        """Which command the vehicle now works on: a later set_param, request_checkpoint or refused command
+        is reported meanwhile, but arrival is reported for this one."""
+        if status is CommandStatus.EXECUTING:
+            self.status.commanded = seq
+        elif status is CommandStatus.EXECUTED and command in NEW_COURSE:
+            self.status.commanded = 0  # whatever was under way is over
 
     def _move(self, p: ControlPacket, pose: Pose, _now: float) -> tuple[CommandStatus, Reason]:
         refused = self.limits.check(Command.MOVE, p.distance, speed=p.speed)
@@ -264,13 +280,15 @@ class MissionFSM:
             if reached == HOME and math.hypot(pose.north, pose.east) < 1.0:
                 s.mission = None
                 self._go(MissionState.FINISHED)
-                if s.command_status is CommandStatus.EXECUTING:
-                    self._report(s.last_command, CommandStatus.EXECUTED)
+                if s.commanded:  # a commanded return home
+                    self._report(s.commanded, CommandStatus.EXECUTED)
+                    s.commanded = 0
                 return None
             return Target(0.0, 0.0, 0.0)
         target = Target(*s.target) if s.target else None
         if s.state is MissionState.COMMANDED and target is not None and reached == target:
-            self._report(s.last_command, CommandStatus.EXECUTED)
+            self._report(s.commanded or s.last_command, CommandStatus.EXECUTED)
+            s.commanded = 0
             if s.resume_state is MissionState.PREPROGRAMMED and s.mission is not None:
                 s.resume_state = None
                 self._go(MissionState.PREPROGRAMMED)
