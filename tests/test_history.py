@@ -94,3 +94,24 @@ def test_history_has_every_step_attempt_reason_and_where_and_when(client: TestCl
 
     schema = client.get("/openapi.json").json()["components"]["schemas"]
     assert "vehicle time" in schema["CommandReport"]["properties"]["time"]["description"]
+
+
+def test_a_move_abandoned_for_a_newer_one_is_superseded(client: TestClient) -> None:
+    """The vehicle reports only its latest command: when it takes on a new course, the older move that was
+    still executing will never be reported executed; the shore marks it superseded, naming the newer."""
+    post = lambda body: client.post("/api/v1/vehicles/1/commands", json=body, headers=OP).json()  # noqa: E731
+    first, probe = post({"command": "move", "distance": 10}), post({"command": "request_checkpoint"})
+    checkpoint(client, first["seq"], CommandStatus.EXECUTING)
+    checkpoint(client, probe["seq"], CommandStatus.EXECUTED)  # no new course: the move goes on
+    assert client.get(f"/api/v1/commands/{first['id']}", headers=OBS).json()["status"] == "executing"
+    second = post({"command": "goto_depth", "depth": 2})
+    checkpoint(client, second["seq"], CommandStatus.EXECUTING)
+    detail = client.get(f"/api/v1/commands/{first['id']}", headers=OBS).json()
+    assert (
+        detail["status"] == "superseded"
+        and detail["history"][-1]["detail"] == f"by command {second['seq']} (goto_depth)"
+    )
+    checkpoint(
+        client, first["seq"], CommandStatus.EXECUTED
+    )  # a late copy of an old check-point changes nothing
+    assert client.get(f"/api/v1/commands/{first['id']}", headers=OBS).json()["status"] == "superseded"

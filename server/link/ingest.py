@@ -187,6 +187,10 @@ class Ingest:
         if command and commands.advance(s, command, status, reason, reason=reason, report=report):
             events.append(("command", {"id": command.id, "vehicle": v.name, "seq": command.seq,
                                        "status": status.value, "reason": reason, "report": report}))  # fmt: skip
+            if status in (commands.Status.EXECUTING, commands.Status.EXECUTED):
+                for old in commands.supersede_older(s, command):
+                    events.append(("command", {"id": old.id, "vehicle": v.name, "seq": old.seq,
+                                               "status": commands.Status.SUPERSEDED.value, "reason": ""}))  # fmt: skip
         return events
 
     def _priority(self, batch: _Batch, v: VehicleState, pp: PriorityPacket, body: dict, at: float) -> Events:

@@ -149,6 +149,23 @@ def advance(s: Session, command: Command, status: Status, detail: str = "", reas
 
 
 REPORT_FIELDS = ("time", "state", "north", "east", "depth", "heading")
+# commands that set the vehicle's course: once the vehicle takes one on, an older one still executing never ends
+NEW_COURSE = frozenset(
+    {"move", "goto_depth", "return_home", "hold", "resume", "start_mission", "abort_mission"}
+)
+
+
+def supersede_older(s: Session, command: Command) -> list[Command]:
+    """The vehicle reported ``command`` executing or executed: if it set a new course, the vehicle's older
+    commands still executing were abandoned on board; mark them superseded (it reports only its latest)."""
+    if command.command not in NEW_COURSE:
+        return []
+    query = select(Command).where(Command.vehicle_id == command.vehicle_id, Command.id < command.id,  # type: ignore[operator]
+                                  Command.status == Status.EXECUTING.value)  # fmt: skip
+    older = list(s.exec(query))
+    return [
+        c for c in older if advance(s, c, Status.SUPERSEDED, f"by command {command.seq} ({command.command})")
+    ]
 
 
 def report_of(checkpoint: Mapping[str, object]) -> dict:
