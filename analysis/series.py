@@ -177,6 +177,8 @@ def load_tlog(path: Path, columns: list[str]) -> Series:
         raise ValueError("tlog columns are MESSAGE.field, all of one message type, e.g. RAW_IMU.xacc")
     kind = kinds.pop()
     fields = [c.split(".", 1)[1] for c in columns]
+    if not Path(path).is_file():  # else pymavlink takes the name for a serial port: "could not open port"
+        raise FileNotFoundError(f"{path}: no such file")
     conn = mavutil.mavlink_connection(str(path), robust_parsing=True)
     times, values = [], []
     try:

@@ -94,6 +94,7 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
     from server.app import create_app
     from server.settings import Settings
 
+    free_port(args.host, args.port)
     data = Path(args.data_dir).resolve()
     (data / "missions").mkdir(parents=True, exist_ok=True)
     _log_to(data / "server.log")
@@ -139,11 +140,24 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
         await shutdown(stack, server, serving)
 
 
+def free_port(host: str, port: int) -> None:
+    """Fail in one line, before anything starts, if the API's port is taken."""
+    from server.app import PortBusy, check_port
+
+    try:
+        check_port(host, port)
+    except PortBusy as exc:
+        raise DemoError(str(exc)) from None
+
+
 async def shutdown(stack: Stack, server: Any, serving: asyncio.Task) -> None:
     """Children first (agent, then simulator), then the server, which closes the database cleanly."""
     await asyncio.to_thread(stack.close)
     server.should_exit = True
-    await serving
+    try:
+        await serving
+    except SystemExit:  # uvicorn could not start (the caller says why); not a traceback at exit
+        pass
 
 
 async def _register(http: Any, key: str) -> int:

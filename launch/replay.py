@@ -16,10 +16,12 @@ import math
 import sys
 import time
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
+from typing import TextIO
 
 from analysis.series import measured_per_tick
-from launch.demo import _log_to, _register, _secrets, shutdown
+from launch.demo import DemoError, _log_to, _register, _secrets, free_port, shutdown
 from launch.stack import Stack, StackConfig
 from tacit.packets import Stream
 from tacit.streams import IMU_CHANNELS, default_streams
@@ -31,11 +33,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--range", type=float, default=300.0, help="shore modem's distance (m)")
     parser.add_argument("--extra-loss", type=float, default=0.0, help="extra frame loss probability 0..1")
     parser.add_argument("--data-dir", default="data/replay", help="database, logs and the agent's tlog")
-    parser.add_argument("--port", type=int, default=8010, help="API and dashboard port (to watch it live)")
+    parser.add_argument("--port", type=int, default=8010,
+                        help="API and dashboard port: its URL and token are printed at once, to watch it live")  # fmt: skip
     parser.add_argument(
         "--settle", type=float, default=25.0, help="seconds after the log ends for the last packets"
     )
-    parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    parser.add_argument("--json", action="store_true",
+                        help="one JSON object per line: the live view's URLs and token at once, the summary last")  # fmt: skip
 
 
 def run(args: argparse.Namespace) -> int:
@@ -47,7 +51,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"tacit replay: {exc}", file=sys.stderr)
         return 2
     duration = (frames[-1][0] - frames[0][0]) / args.time_scale
-    summary = asyncio.run(_replay(args, duration))
+    try:
+        summary = asyncio.run(_replay(args, duration))
+    except DemoError as exc:
+        print(f"tacit replay: {exc}", file=sys.stderr)
+        return 1
     if args.json:
         print(json.dumps(summary))
     else:
@@ -63,6 +71,7 @@ async def _replay(args: argparse.Namespace, duration: float) -> dict:
     from server.app import create_app
     from server.settings import Settings
 
+    free_port("127.0.0.1", args.port)
     data = Path(args.data_dir).resolve()
     data.mkdir(parents=True, exist_ok=True)
     _log_to(data / "server.log")
@@ -77,20 +86,49 @@ async def _replay(args: argparse.Namespace, duration: float) -> dict:
     server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=args.port, log_config=None))
     serving = asyncio.create_task(server.serve())
     started = time.time()
+    api = f"http://127.0.0.1:{args.port}"
     try:
         while not server.started:
+            if serving.done():
+                raise DemoError(f"the server did not start (is port {args.port} free?)")
             await asyncio.sleep(0.05)
-        async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{args.port}",
-                                     headers={"Authorization": f"Bearer {secret['token']}"}) as http:  # fmt: skip
+        async with httpx.AsyncClient(
+            base_url=api, headers={"Authorization": f"Bearer {secret['token']}"}
+        ) as http:
             await _register(http, secret["key"])
         stack.write_agent_config(max_silence=20)
         stack.start_agent()
-        await asyncio.sleep(
-            duration + args.settle
-        )  # the dive, then the last packets' latency and a poll or two
+        live = {"dashboard_url": api + "/", "api_url": api + "/api/v1", "token": secret["token"],
+                "data_dir": str(data), "seconds": round(duration + args.settle, 1)}  # fmt: skip
+        if args.json:
+            print(json.dumps(live), flush=True)
+        else:
+            print(f"Replaying {args.tlog} ({live['seconds']} s). Watch it live:\n  Dashboard: {live['dashboard_url']}\n"
+                  f"  Operator token: {live['token']}\n", flush=True)  # fmt: skip
+        stats = app.state.shore.ingest.stats
+        # the dive, then the last packets' latency and a poll or two
+        await wait_with_progress(duration + args.settle, lambda: stats["packets"])
         return _summary(app.state.shore.db, data, started)
     finally:
         await shutdown(stack, server, serving)
+
+
+async def wait_with_progress(seconds: float, packets: Callable[[], int], file: TextIO | None = None,
+                             disable: bool | None = None, step: float = 0.5) -> None:  # fmt: skip
+    """Wait ``seconds`` with a progress bar on stderr (seconds elapsed, packets stored so far); the bar
+    is left out when stderr is not a terminal unless ``disable`` is False."""
+    from tqdm import tqdm
+
+    loop = asyncio.get_running_loop()
+    end = loop.time() + seconds
+    with tqdm(total=round(seconds, 1), unit="s", desc="replay", file=file, disable=disable,
+              bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} s {postfix}") as bar:  # fmt: skip
+        while (left := end - loop.time()) > 0:
+            await asyncio.sleep(min(step, left))
+            bar.n = round(min(seconds, seconds - (end - loop.time())), 1)
+            bar.set_postfix_str(f"{packets()} packets stored")
+        bar.n = bar.total
+        bar.refresh()
 
 
 def _summary(db, data: Path, started: float) -> dict:  # noqa: ANN001

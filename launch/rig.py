@@ -22,7 +22,7 @@ class Rig:
 
     def __init__(self, distance: float, scale: float, extra_loss: float = 0.0, noise: float = 95.0,
                  mission: bool = False, attempts: int = 4, agent: bool = True,
-                 environment: dict | None = None) -> None:  # fmt: skip
+                 environment: dict | None = None, agent_config: dict | None = None) -> None:  # fmt: skip
         self.dir = Path(tempfile.mkdtemp(prefix="tacit-bench-"))
         self.scale = scale
         self.stack = Stack(StackConfig(self.dir, range_m=distance, time_scale=scale, extra_loss=extra_loss,
@@ -41,7 +41,7 @@ class Rig:
             "/vehicles", json={"name": "rov1", "address": VEHICLE_ADDRESS, "key": KEY}
         ).raise_for_status()
         missions = [{"builtin": "square", "number": 1, "side": 20.0, "depth": 2.0}] if mission else None
-        self.stack.write_agent_config(checkpoint_interval=60, missions=missions)
+        self.stack.write_agent_config(checkpoint_interval=60, missions=missions, **(agent_config or {}))
         self.quiet = None
         if agent:
             self.stack.start_agent()

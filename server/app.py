@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import socket
 import sys
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -30,6 +31,7 @@ from server.shore import Shore
 
 log = logging.getLogger("tacit.server")
 WEB = Path(__file__).resolve().parent / "web"
+DOCS_ASSETS = "/docs-assets"
 
 DESCRIPTION = """
 Tacit's shore control center. Writes (vehicles, commands, missions) need an operator's bearer token,
@@ -60,7 +62,8 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
 
 
 def create_app(settings: Settings) -> FastAPI:
-    app = FastAPI(title="Tacit", version="1", description=DESCRIPTION, lifespan=lifespan)
+    app = FastAPI(title="Tacit", version="1", description=DESCRIPTION, lifespan=lifespan, docs_url=None,
+                  redoc_url=None)  # fmt: skip
     shore = Shore.build(settings, make_engine(settings.database_url))
     app.state.shore = shore
     if settings.cors_origins:
@@ -110,9 +113,45 @@ def create_app(settings: Settings) -> FastAPI:
         body = exc.detail if isinstance(exc.detail, dict) else {"detail": exc.detail, "field": None}
         return JSONResponse(body, status_code=exc.status_code, headers=exc.headers)
 
+    _offline_docs(app)
     if WEB.is_dir():
         app.mount("/", StaticFiles(directory=WEB, html=True), name="web")
     return app
+
+
+def _offline_docs(app: FastAPI) -> None:
+    """Swagger UI at /docs from files installed with the server (swagger-ui-bundle), not from a CDN:
+    shore stations are usually offline."""
+    from fastapi.openapi.docs import get_swagger_ui_html
+    from fastapi.responses import HTMLResponse
+    from swagger_ui_bundle import swagger_ui_path
+
+    app.mount(DOCS_ASSETS, StaticFiles(directory=swagger_ui_path), name="docs-assets")
+
+    @app.get("/docs", include_in_schema=False)
+    def docs() -> HTMLResponse:
+        return get_swagger_ui_html(openapi_url=app.openapi_url or "/openapi.json", title="Tacit API",
+                                   swagger_js_url=f"{DOCS_ASSETS}/swagger-ui-bundle.js",
+                                   swagger_css_url=f"{DOCS_ASSETS}/swagger-ui.css",
+                                   swagger_favicon_url=f"{DOCS_ASSETS}/favicon-32x32.png")  # fmt: skip
+
+
+class PortBusy(OSError):
+    pass
+
+
+def check_port(host: str, port: int, option: str = "--port") -> None:
+    """Raise ``PortBusy`` (one line for the operator) if something already listens on ``host:port``;
+    checked before anything starts, rather than learnt from uvicorn's exit inside a task."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as uvicorn binds: TIME_WAIT is fine
+        try:
+            probe.bind((host, port))
+        except OSError as exc:
+            raise PortBusy(
+                f"cannot listen on {host}:{port} ({exc.strerror}); choose another with {option}"
+            ) from None
 
 
 def jsonable(errors: list) -> list:
@@ -149,6 +188,11 @@ def run(args: argparse.Namespace) -> int:
     except (SettingsError, OSError) as exc:
         print(f"tacit serve: {exc}", file=sys.stderr)
         return 2
+    try:
+        check_port(settings.host, settings.port)
+    except PortBusy as exc:
+        print(f"tacit serve: {exc}", file=sys.stderr)
+        return 1
     if not settings.write_tokens:
         log.warning("no operator token configured (TACIT_WRITE_TOKENS): every write will be refused")
     uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level="info")

@@ -60,11 +60,15 @@ class Command(SQLModel, table=True):
 
 
 class CommandEvent(SQLModel, table=True):
+    """One step of a command's life: when the shore learnt it, and, for the steps the vehicle reports,
+    the check-point that said so (its vehicle time, mission state and pose: where and when)."""
+
     id: int | None = Field(default=None, primary_key=True)
     command_id: int = Field(foreign_key="command.id", index=True)
     status: str = Field(max_length=16)
     detail: str = Field(default="", max_length=256)
     at: float = Field(default_factory=now)
+    report: dict | None = Field(default=None, sa_column=Column(JSON, nullable=True))
 
 
 class Frame(SQLModel, table=True):

@@ -73,14 +73,40 @@ class CommandOut(BaseModel):
     updated_at: float
 
 
+class CommandReport(BaseModel):
+    """What the vehicle's check-point said with a status: when (its clock) and where."""
+
+    time: float = Field(description="vehicle time, UNIX s (whole seconds): when the status changed on board")
+    state: str = Field(description="the vehicle's mission state then")
+    north: float = Field(description="m from home")
+    east: float = Field(description="m from home")
+    depth: float = Field(description="m, positive down")
+    heading: float = Field(description="deg from north")
+
+
 class CommandEventOut(BaseModel):
+    """One step of a command's life, oldest first: queued; sent (one row per attempt, detail
+    "attempt N"); acknowledged (the vehicle's modem ACKed); executing, executed, refused (with the vehicle's
+    reason), superseded (from the vehicle's check-points, with ``report``); failed (detail: why)."""
+
     status: str
-    detail: str
-    at: float
+    detail: str = Field(
+        description="attempt number for sent, the vehicle's reason for refused, why for failed"
+    )
+    at: float = Field(description="shore time, UNIX s: when the shore learnt it")
+    report: CommandReport | None = Field(
+        None, description="for the steps a check-point reported: the vehicle's time and pose then"
+    )
 
 
 class CommandDetail(CommandOut):
     history: list[CommandEventOut]
+
+
+class CommandListed(CommandOut):
+    history: list[CommandEventOut] | None = Field(
+        None, description="with ?history=true: as GET /commands/{id}"
+    )
 
 
 class Waypoint(BaseModel):

@@ -273,6 +273,9 @@ def build_config(args: argparse.Namespace) -> SimConfig:
         if args.mavlink_port is not None:
             vehicle.tcp_port = args.mavlink_port
     config.validate()
+    for vehicle in config.vehicles:
+        if vehicle.replay and not Path(vehicle.replay).is_file():
+            raise FileNotFoundError(f"{vehicle.replay}: no such file (the .tlog to replay)")
     return config
 
 

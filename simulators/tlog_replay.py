@@ -19,6 +19,8 @@ log = logging.getLogger("simulators.replay")
 
 def read_tlog(path: str | Path) -> list[tuple[float, bytes]]:
     """(timestamp, raw MAVLink frame) for every message of a tlog, in order."""
+    if not Path(path).is_file():  # else pymavlink takes the name for a serial port: "could not open port"
+        raise FileNotFoundError(f"{path}: no such file")
     conn = mavutil.mavlink_connection(str(path), robust_parsing=True)
     out: list[tuple[float, bytes]] = []
     try:

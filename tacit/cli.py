@@ -70,6 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv[first + 1 :])
     logging.basicConfig(level=options.log_level.upper(),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")  # fmt: skip
+    logging.getLogger("alembic").setLevel(logging.WARNING)  # its plugin set-up chatter is not for operators
     try:
         return int(module.run(args) or 0)
     except KeyboardInterrupt:

@@ -160,3 +160,35 @@ def test_agent_on_a_replayed_real_dive_sends_priority_and_checkpoint_packets(
     zacc = [row["values"][2] for row in certain]
     assert all(-1100 < z < -900 for z in zacc)  # the real accelerometer's gravity, reconstructed within eps
     assert list((system.tmp / "tlogs").glob("*.tlog"))  # the agent recorded the session
+
+
+def test_consecutive_moves_are_executed_only_when_the_vehicle_got_there(system_factory) -> None:  # noqa: ANN001
+    """The second move starts while the vehicle sits on the first one's target: "executed" must wait
+    until the vehicle (the simulator's truth) reached the second target, and say where and when."""
+    system = system_factory()
+    wait_for(lambda: system.checkpoint(), what="first check-point")
+    for distance_m, angle, depth in ((6.0, 0.0, 1.0), (6.0, 90.0, 0.0)):
+        start = system.truth.latest
+        course = math.radians(start.heading + angle)
+        expected = (start.north + distance_m * math.cos(course), start.east + distance_m * math.sin(course))
+        command = system.command(command="move", distance=distance_m, angle=angle, depth=depth)
+        seen: list[tuple[str, float]] = []  # (status, how far the true vehicle was from the target then)
+
+        def executed() -> bool:
+            status = system.status(command)  # noqa: B023
+            seen.append((status, distance(system.truth.latest, *expected)))  # noqa: B023
+            return status == "executed"
+
+        wait_for(executed, timeout=120, every=0.1, what="command executed")
+        assert seen[-1][1] <= TOLERANCE_DR, f"executed {seen[-1][1]:.2f} m from the target: {seen}"
+        assert max(far for status, far in seen if status != "executed") > 3.0  # it was seen under way
+        detail = system.client.get(f"/api/v1/commands/{command}", headers=OP).json()
+        steps = {e["status"]: e for e in detail["history"]}
+        assert list(steps)[-2:] == ["executing", "executed"]
+        report = steps["executed"]["report"]  # where and when, from the vehicle's check-point
+        assert (
+            math.hypot(report["north"] - system.truth.latest.north, report["east"] - system.truth.latest.east)
+            <= 2.0
+        )
+        # whole seconds of the agent's clock (the simulation runs 5x faster): the move took some
+        assert steps["executing"]["report"]["time"] < report["time"] <= steps["executed"]["at"] + 1

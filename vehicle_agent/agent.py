@@ -118,6 +118,7 @@ class Agent:
         self.link.on_control = self._on_control
         self.link.on_repeat = self._on_repeat
         self._repeat_answered = -1e9
+        self._report: CheckpointPacket | None = None  # the check-point of the last status change, until sent
         self.samples: deque[tuple[str, float, tuple]] = deque(maxlen=10_000)
         self.mav.listeners.append(self._on_mavlink)
         self.shore_heard_at: float | None = None
@@ -208,7 +209,10 @@ class Agent:
             priority_count=self.state.priority_count % 65536, flags=flags)  # fmt: skip
 
     def _send_checkpoint(self) -> None:
-        packet = self.checkpoint()
+        packet, report, self._report = self.checkpoint(), self._report, None
+        same = report is not None and report.last_command == packet.last_command
+        if same and report.command_status is packet.command_status:  # type: ignore[union-attr]
+            packet = with_seq(report, packet.seq)  # the pose and time of the tick the status changed
         self.state.packet_seq += 1
         self.link.send(packet.encode(), urgent=True)
         self.fsm.checkpoint_sent(self.mav.telemetry.time)
@@ -240,9 +244,12 @@ class Agent:
             self.shore_heard_at = tel.time  # counting starts now (or the autopilot rebooted)
         self._drain_samples(pose)
         before = self.fsm.status.to_dict()
-        target = self.fsm.step(tel.time, pose, self.navigator.arrived, self.shore_heard_at)
+        target = self.fsm.step(tel.time, pose, self.navigator.reached, self.shore_heard_at)
         if target != self.navigator.target:
             self.navigator.set_target(target)
+        reported = (self.fsm.status.last_command, self.fsm.status.command_status.name)
+        if reported != (before["last_command"], before["command_status"]):
+            self._report = self.checkpoint()  # where and when it happened (e.g. arrival), even if sent later
         self._send_packets()
         if self.fsm.checkpoint_due and self.link.backlog < 4:
             self._send_checkpoint()

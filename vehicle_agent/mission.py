@@ -13,6 +13,11 @@
 
 No I/O here: the agent feeds it events and the pose, and gets back the target to steer to and
 whether a check-point is due. Its state is plain data, persisted by the agent after every change.
+
+Arrival is always arrival *at a target*: the navigator reports which target it has reached, and a state
+counts it only when that is the target the state steers to. A command that arrives while the vehicle
+sits on the previous command's target is therefore executing until the vehicle reaches the new one
+(a bare "arrived" flag belongs to whatever the navigator was steering to, which may be the old target).
 """
 
 from __future__ import annotations
@@ -29,6 +34,13 @@ from tacit.packets import Command, CommandStatus, ControlFlag, ControlPacket, Mi
 
 ACTIVE = {MissionState.PREPROGRAMMED, MissionState.SELF_DETERMINED, MissionState.AWAITING_COMMAND,
           MissionState.COMMANDED, MissionState.HOLDING, MissionState.RETURNING}  # fmt: skip
+HOME = Target(0.0, 0.0, 0.0)  # compared with, never handed out (a Target is mutable)
+NEW_COURSE = {
+    Command.HOLD,
+    Command.RESUME,
+    Command.START_MISSION,
+    Command.ABORT_MISSION,
+}  # end a command's run
 PARAMS = {1: "plume_threshold", 2: "checkpoint_interval", 3: "cruise_speed", 4: "link_lost_timeout"}
 
 
@@ -82,6 +94,7 @@ class MissionStatus:
     resume_state: MissionState | None = None
     last_command: int = 0
     command_status: CommandStatus = CommandStatus.NONE
+    commanded: int = 0  # the command whose target is being steered to (reported executed on arrival)
     reason: Reason = Reason.OK
     params: dict[str, float] = field(default_factory=dict)
 
@@ -143,6 +156,7 @@ class MissionFSM:
             Command.REQUEST_CHECKPOINT: lambda p, _pose, _now: (CommandStatus.EXECUTED, Reason.OK),
         }[packet.command]  # fmt: skip
         status, reason = handler(packet, pose, now)
+        self._started(packet.command, status, packet.seq)
         self._report(packet.seq, status, reason)
         return status, reason
 
@@ -156,6 +170,14 @@ class MissionFSM:
         self.status.target = target
         self._go(MissionState.COMMANDED)
         return CommandStatus.EXECUTING, Reason.OK
+
+    def _started(self, command: Command, status: CommandStatus, seq: int) -> None:
+        """Which command the vehicle now works on: a later set_param, request_checkpoint or refused command
+        is reported meanwhile, but arrival is reported for this one."""
+        if status is CommandStatus.EXECUTING:
+            self.status.commanded = seq
+        elif status is CommandStatus.EXECUTED and command in NEW_COURSE:
+            self.status.commanded = 0  # whatever was under way is over
 
     def _move(self, p: ControlPacket, pose: Pose, _now: float) -> tuple[CommandStatus, Reason]:
         refused = self.limits.check(Command.MOVE, p.distance, speed=p.speed)
@@ -220,8 +242,11 @@ class MissionFSM:
 
     # --- time -----------------------------------------------------------------------------------
 
-    def step(self, now: float, pose: Pose, arrived: bool, shore_heard_at: float | None) -> Target | None:
-        """Advance on time and arrival; the target to steer to (None: stay idle)."""
+    def step(
+        self, now: float, pose: Pose, reached: Target | None, shore_heard_at: float | None
+    ) -> Target | None:
+        """Advance on time and arrival; the target to steer to (None: stay idle). ``reached`` is the
+        target the navigator has arrived at (None while under way): it counts only for the same target."""
         s = self.status
         if (
             now - self._last_checkpoint >= s.params["checkpoint_interval"]
@@ -237,7 +262,7 @@ class MissionFSM:
         if s.started_at is not None and s.mission is not None and now - s.started_at > self.plans[s.mission].duration_s \
                 and s.state in ACTIVE and s.state is not MissionState.RETURNING:  # fmt: skip
             self._go(MissionState.RETURNING)
-        return self._target(pose, arrived)
+        return self._target(pose, reached)
 
     def _lost(self, pose: Pose) -> None:
         targets = {"hold": (pose.north, pose.east, pose.depth), "surface": (pose.north, pose.east, 0.0),
@@ -245,36 +270,39 @@ class MissionFSM:
         self.status.target = targets[self.lost_action]
         self._go(MissionState.LINK_LOST)
 
-    def _target(self, pose: Pose, arrived: bool) -> Target | None:
+    def _target(self, pose: Pose, reached: Target | None) -> Target | None:
         s = self.status
         if s.state is MissionState.WAITING or s.state is MissionState.FINISHED:
             return None
         if s.state in (MissionState.PREPROGRAMMED, MissionState.AWAITING_COMMAND):
-            return self._waypoint(arrived)
+            return self._waypoint(reached)
         if s.state is MissionState.RETURNING:
-            if arrived and math.hypot(pose.north, pose.east) < 1.0:
+            if reached == HOME and math.hypot(pose.north, pose.east) < 1.0:
                 s.mission = None
                 self._go(MissionState.FINISHED)
-                if s.command_status is CommandStatus.EXECUTING:
-                    self._report(s.last_command, CommandStatus.EXECUTED)
+                if s.commanded:  # a commanded return home
+                    self._report(s.commanded, CommandStatus.EXECUTED)
+                    s.commanded = 0
                 return None
             return Target(0.0, 0.0, 0.0)
-        if s.state is MissionState.COMMANDED and arrived:
-            self._report(s.last_command, CommandStatus.EXECUTED)
+        target = Target(*s.target) if s.target else None
+        if s.state is MissionState.COMMANDED and target is not None and reached == target:
+            self._report(s.commanded or s.last_command, CommandStatus.EXECUTED)
+            s.commanded = 0
             if s.resume_state is MissionState.PREPROGRAMMED and s.mission is not None:
                 s.resume_state = None
                 self._go(MissionState.PREPROGRAMMED)
-                return self._waypoint(False)
+                return self._waypoint(None)
             self._go(MissionState.HOLDING)
-        return Target(*s.target) if s.target else None
+        return target
 
-    def _waypoint(self, arrived: bool) -> Target | None:
+    def _waypoint(self, reached: Target | None) -> Target | None:
         s = self.status
         plan = self.plans.get(s.mission) if s.mission is not None else None
         if plan is None:
             self._go(MissionState.HOLDING)
             return None
-        if arrived and s.waypoint < len(plan.waypoints):
+        if s.waypoint < len(plan.waypoints) and reached == Target(*plan.waypoints[s.waypoint]):
             s.waypoint += 1
             self.checkpoint_due = True
         if s.waypoint >= len(plan.waypoints):

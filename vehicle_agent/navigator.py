@@ -111,6 +111,12 @@ class Navigator:
         self.target = target
         self.arrived = False
 
+    @property
+    def reached(self) -> Target | None:
+        """The target the vehicle has arrived at (None while under way). ``arrived`` alone is about
+        whatever was being steered to, which after a new command is the previous target."""
+        return self.target if self.arrived else None
+
     def _due(self, what: str, period: float, now: float) -> bool:
         if now - self._sent.get(what, -math.inf) >= period or now < self._sent.get(what, 0.0):
             self._sent[what] = now

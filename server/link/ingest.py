@@ -183,9 +183,14 @@ class Ingest:
         query = select(Command).where(Command.vehicle_id == v.id, Command.seq == cp.last_command)
         command = s.exec(query).first()
         reason = cp.reason.name.lower() if cp.command_status is CommandStatus.REFUSED else ""
-        if command and commands.advance(s, command, status, reason, reason=reason):
+        report = commands.report_of(body)
+        if command and commands.advance(s, command, status, reason, reason=reason, report=report):
             events.append(("command", {"id": command.id, "vehicle": v.name, "seq": command.seq,
-                                       "status": status.value, "reason": reason}))  # fmt: skip
+                                       "status": status.value, "reason": reason, "report": report}))  # fmt: skip
+            if status in (commands.Status.EXECUTING, commands.Status.EXECUTED):
+                for old in commands.supersede_older(s, command):
+                    events.append(("command", {"id": old.id, "vehicle": v.name, "seq": old.seq,
+                                               "status": commands.Status.SUPERSEDED.value, "reason": ""}))  # fmt: skip
         return events
 
     def _priority(self, batch: _Batch, v: VehicleState, pp: PriorityPacket, body: dict, at: float) -> Events:

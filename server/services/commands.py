@@ -133,25 +133,60 @@ def submit(s: Session, vehicle: Vehicle, body: CommandIn, pose: Pose | None = No
 
 
 def advance(s: Session, command: Command, status: Status, detail: str = "", reason: str | None = None,
-            **extra: object) -> bool:  # fmt: skip
+            report: dict | None = None, **extra: object) -> bool:  # fmt: skip
     """Move ``command`` to ``status`` if the lifecycle allows it, with a history row; False if not.
-    ``reason`` replaces the stored reason (the vehicle's, or why it failed). The caller commits."""
+    ``reason`` replaces the stored reason (the vehicle's, or why it failed); ``report`` is what the
+    vehicle's check-point said with it (``report_of``). The caller commits."""
     if not allowed(command.status, status):
         return False
     values = {"status": status.value, "updated_at": now(), **extra}
     if reason is not None:
         values["reason"] = reason
     s.execute(update(Command).where(Command.id == command.id).values(**values))
-    s.execute(
-        insert(CommandEvent).values(command_id=command.id, status=status.value, detail=detail, at=now())
-    )
+    s.execute(insert(CommandEvent).values(command_id=command.id, status=status.value, detail=detail, at=now(),
+                                          report=report))  # fmt: skip
     return True
 
 
+REPORT_FIELDS = ("time", "state", "north", "east", "depth", "heading")
+# commands that set the vehicle's course: once the vehicle takes one on, an older one still executing never ends
+NEW_COURSE = frozenset(
+    {"move", "goto_depth", "return_home", "hold", "resume", "start_mission", "abort_mission"}
+)
+
+
+def supersede_older(s: Session, command: Command) -> list[Command]:
+    """The vehicle reported ``command`` executing or executed: if it set a new course, the vehicle's older
+    commands still executing were abandoned on board; mark them superseded (it reports only its latest)."""
+    if command.command not in NEW_COURSE:
+        return []
+    query = select(Command).where(Command.vehicle_id == command.vehicle_id, Command.id < command.id,  # type: ignore[operator]
+                                  Command.status == Status.EXECUTING.value)  # fmt: skip
+    older = list(s.exec(query))
+    return [
+        c for c in older if advance(s, c, Status.SUPERSEDED, f"by command {command.seq} ({command.command})")
+    ]
+
+
+def report_of(checkpoint: Mapping[str, object]) -> dict:
+    """What a command's history keeps of the check-point that reported its status: the vehicle's time
+    (UNIX s, when the status changed on board) and its mission state and pose at that moment."""
+    return {key: checkpoint[key] for key in REPORT_FIELDS if key in checkpoint}
+
+
 def history(s: Session, command_id: int) -> list[CommandEvent]:
-    return list(
-        s.exec(select(CommandEvent).where(CommandEvent.command_id == command_id).order_by(CommandEvent.id))
-    )
+    return histories(s, [command_id]).get(command_id, [])
+
+
+def histories(s: Session, command_ids: list[int]) -> dict[int, list[CommandEvent]]:
+    """The history of each command, oldest step first (one query for a whole page of commands)."""
+    out: dict[int, list[CommandEvent]] = {}
+    if not command_ids:
+        return out
+    query = select(CommandEvent).where(CommandEvent.command_id.in_(command_ids)).order_by(CommandEvent.id)  # type: ignore[attr-defined]
+    for event in s.exec(query):
+        out.setdefault(event.command_id, []).append(event)
+    return out
 
 
 class CommandDesk:
