@@ -26,6 +26,7 @@ from server.db import make_engine, migrate
 from server.events import EventBus
 from server.link.engine import LinkEngine
 from server.link.ingest import Ingest
+from server.schemas import json_safe
 from server.settings import Settings, SettingsError
 from tacit.streams import default_streams
 
@@ -111,8 +112,7 @@ def create_app(settings: Settings) -> FastAPI:
 
 
 def jsonable(errors: list) -> list:
-    return [{k: (v if isinstance(v, (str, int, float, list, type(None))) else str(v)) for k, v in e.items()}
-            for e in errors]  # fmt: skip
+    return json_safe(errors)  # a NaN or Infinity in the input is echoed as text, never a JSON encoder error
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from tacit.packets import MAC_SIZE, ControlPacket, PacketError, PacketType, decode_control, packet_type
 
 KEY_SIZE = 32
+MAX_KEY_SIZE = 64
 _DOMAIN = b"tacit-control-v1"
 
 
@@ -55,6 +56,8 @@ def parse_key(text: str) -> bytes:
         raise ValueError("a vehicle key is hex text") from None
     if len(key) < 16:
         raise ValueError(f"a vehicle key needs at least 16 bytes, got {len(key)}")
+    if len(key) > MAX_KEY_SIZE:
+        raise ValueError(f"a vehicle key has at most {MAX_KEY_SIZE} bytes, got {len(key)}")
     return key
 
 

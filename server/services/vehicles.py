@@ -45,7 +45,7 @@ def get(s: Session, vehicle_id: int) -> Vehicle:
 
 def set_limits(s: Session, vehicle_id: int, limits: Limits) -> Vehicle:
     vehicle = get(s, vehicle_id)
-    for name, value in limits.model_dump().items():
+    for name, value in limits.model_dump(exclude_unset=True).items():  # a partial update changes only those
         setattr(vehicle, name, value)
     s.add(vehicle)
     s.commit()
