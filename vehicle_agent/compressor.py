@@ -77,6 +77,12 @@ class PlumeDetector:
         return math.degrees(math.atan2(gradient[1], gradient[0])) % 360.0
 
 
+def _restart(encoder: StreamEncoder) -> None:
+    """Base the encoder's next packet on the initial state (its gap then says RESET)."""
+    encoder.delivered = encoder.initial
+    encoder._rebase(encoder.initial)  # noqa: SLF001 - the codec's own re-base, as after a lost packet
+
+
 class Compressor:
     def __init__(self, streams: dict[Stream, StreamSpec], max_latency: float = 10.0, max_silence: float = 60.0,
                  urgent_threshold: float | None = 20.0) -> None:  # fmt: skip
@@ -84,6 +90,7 @@ class Compressor:
             k: StreamEncoder(spec, max_latency, urgent_threshold, max_silence) for k, spec in streams.items()
         }
         self.samples = 0
+        self._restart_after: set[Stream] = set()
 
     def add(self, stream: Stream, time: float, values: list[float], urgent: bool = False) -> None:
         if self.encoders[stream].push(time, values, urgent=urgent):
@@ -99,3 +106,16 @@ class Compressor:
 
     def resolve(self, stream: Stream, delivered: bool) -> None:
         self.encoders[stream].resolve(delivered)
+        if stream in self._restart_after:
+            self._restart_after.discard(stream)
+            _restart(self.encoders[stream])
+
+    def restart_chains(self) -> None:
+        """The shore lost its decoder states (its SYNC asked): every stream starts again from the initial
+        state, so the next packet of each decodes without any history. A packet in flight keeps its
+        chain; the restart applies when it is resolved."""
+        for stream, encoder in self.encoders.items():
+            if encoder.in_flight is None:
+                _restart(encoder)
+            else:
+                self._restart_after.add(stream)

@@ -13,6 +13,11 @@ Each attempt is signed afresh (same sequence number, current time stamp), so a c
 in the queue still falls inside the vehicle's replay window, and the vehicle's sequence window still
 executes it once however many copies arrive.
 A server restart resumes queued and sent commands from the database.
+
+SYNC: the Micro-Modem's poll carries no data, so it cannot be authenticated; the vehicle resets its
+link-lost timer only on authentic control packets. With no command to send, a vehicle's slot carries
+a SYNC control packet (the shore's time, signed with the newest key) every ``SYNC_INTERVAL`` seconds,
+and at once when ingest found that the vehicle's sample chains must restart (``needs_restart``).
 """
 
 from __future__ import annotations
@@ -27,17 +32,22 @@ from sqlmodel import Session, select
 
 from server.db import writing
 from server.events import EventBus
+from server.link import keys
 from server.link.ingest import IncomingFrame, Ingest, VehicleState
 from server.models import Command, CommandEvent, Frame, LinkEvent, Vehicle, now
 from server.services import commands
 from server.settings import Settings
+from tacit import auth, rates
 from tacit import modem as mm
-from tacit import rates
 from tacit.link import capacity, choose_rate
+from tacit.packets import SYNC_RESTART_CHAINS, ControlPacket
+from tacit.packets import Command as Kind
 
 log = logging.getLogger("tacit.server.link")
 
 PENDING = ("queued", "sent")
+SYNC_INTERVAL = 60.0  # s between SYNC heartbeats (a third to a fifth of the agent's link_lost_timeout)
+SYNC_RETRY = 5.0  # s between SYNCs asking for a chain restart, until one is acknowledged
 
 
 class LinkEngine:
@@ -53,8 +63,11 @@ class LinkEngine:
         self._frames: asyncio.Queue[IncomingFrame] = asyncio.Queue()
         self._worker: asyncio.Task[None] | None = None
         self._last_ping: dict[int, float] = {}
+        self._last_sync: dict[int, float] = {}
+        self._sync_seq = 0
         self.started_at = time.time()
-        self.counters = {"commands_sent": 0, "commands_acked": 0, "polls": 0, "pings": 0, "frames_in": 0}
+        self.counters = {"commands_sent": 0, "commands_acked": 0, "polls": 0, "pings": 0, "frames_in": 0,
+                         "syncs": 0}  # fmt: skip
 
     # --- lifecycle ------------------------------------------------------------------------------
 
@@ -157,6 +170,10 @@ class LinkEngine:
         if command is not None:
             await self._send_command(vehicle, command)
             return True
+        since = time.time() - self._last_sync.get(vehicle.address, 0.0)
+        if since > (SYNC_RETRY if vehicle.needs_restart else SYNC_INTERVAL) / self.settings.time_scale:
+            await self._sync(vehicle)
+            return True
         if (
             time.time() - self._last_ping.get(vehicle.address, 0.0)
             > self.settings.ping_interval / self.settings.time_scale
@@ -184,6 +201,30 @@ class LinkEngine:
             )
             return latest
         return None
+
+    async def _sync(self, vehicle: VehicleState) -> None:
+        """One SYNC: the shore's time, signed with the vehicle's newest key; asks for a chain restart if
+        ingest needs one (cleared once the vehicle's modem acknowledged it)."""
+        self._last_sync[vehicle.address] = time.time()
+        restart = vehicle.needs_restart
+        row = await asyncio.to_thread(self._vehicle_row, vehicle.id)
+        if row is None:
+            return
+        version, key = keys.current(row)
+        self._sync_seq += 1
+        packet = ControlPacket(Kind.SYNC, seq=self._sync_seq, time=int(time.time()),
+                               param_id=SYNC_RESTART_CHAINS if restart else 0)  # fmt: skip
+        frame = auth.sign(packet, key, vehicle.address, epoch=version)
+        result = await self.driver.send(vehicle.address, [frame], rate=0, ack=True,  # type: ignore[union-attr]
+                                        ack_timeout=self._ack_timeout(vehicle))  # fmt: skip
+        self.counters["syncs"] += 1
+        if restart and result.all_acked:
+            vehicle.needs_restart = False
+            log.info("vehicle %s: asked to restart its sample chains", vehicle.name)
+
+    def _vehicle_row(self, vehicle_id: int) -> Vehicle | None:
+        with Session(self.db) as s:
+            return s.get(Vehicle, vehicle_id)
 
     def _range(self, vehicle: VehicleState) -> float:
         return vehicle.range_m if vehicle.range_m is not None else self.settings.default_range

@@ -62,6 +62,7 @@ def rotate_key(s: Session, vehicle_id: int, key_hex: str | None = None) -> Vehic
         key = auth.parse_key(key_hex) if key_hex else auth.new_key()
     except ValueError as exc:
         raise Conflict("key", str(exc)) from None
+    vehicle.previous_key_hex = vehicle.previous_key_hex or vehicle.key_hex  # staged: see server.link.keys
     vehicle.key_hex = key.hex()
     vehicle.key_version += 1
     s.add(vehicle)
