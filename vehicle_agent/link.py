@@ -148,5 +148,8 @@ class VehicleLink:
             log.warning("control frame rejected: %s (%s)", exc, type(exc).__name__)
             return
         self.counters["controls"] += 1
-        log.info("control seq %d accepted: %s", packet.seq, packet.command.name)
+        if packet.command is Command.SYNC:  # a heartbeat, not a command: its counter is not a command seq
+            log.info("SYNC %d accepted (shore time %d)", packet.seq, packet.time)
+        else:
+            log.info("control seq %d accepted: %s", packet.seq, packet.command.name)
         self.on_control(packet)
