@@ -139,6 +139,9 @@ class PacketOut(BaseModel):
     priority: int
     body: dict
     at: float
+    auth: str = Field(
+        "pending", description="verified / pending (no check-point covered it yet) / forged / replayed"
+    )
 
 
 class TelemetryOut(BaseModel):
@@ -148,6 +151,7 @@ class TelemetryOut(BaseModel):
     time: float
     values: list
     certain: bool
+    verified: bool = Field(False, description="a check-point's MAC covered the packet it came in")
 
 
 class Page(BaseModel):

@@ -249,3 +249,27 @@ def test_a_lost_state_file_still_refuses_a_captured_command(tmp_path: Path) -> N
         receiver.accept(captured, now)
     resent = auth.sign(ControlPacket(Command.MOVE, seq=5, time=now, distance=5), KEY, ADDRESS)
     assert receiver.accept(resent, now).seq == 5  # the shore's next attempt is signed afresh
+
+
+def test_the_api_shows_what_is_verified(tmp_path: Path) -> None:
+    from fastapi.testclient import TestClient
+
+    from server.app import create_app
+    from server.settings import Settings
+
+    app = create_app(Settings(database_url=f"sqlite:///{tmp_path}/tacit.db", map_enabled=False,
+                              read_tokens=["observer"], write_tokens=["operator"]))  # fmt: skip
+    with TestClient(app) as client:
+        key = client.post("/api/v1/vehicles", json={"name": "rov1", "address": ADDRESS},
+                          headers={"Authorization": "Bearer operator"}).json()["key"]  # fmt: skip
+        ingest, vehicle = app.state.link.ingest, Vehicle_(bytes.fromhex(key))
+        vehicle.measure(10)
+        send(ingest, vehicle.priority())
+        obs = {"Authorization": "Bearer observer"}
+        assert {r["verified"] for r in client.get("/api/v1/telemetry", headers=obs).json()["items"]} == {
+            False
+        }
+        assert client.get("/api/v1/packets", headers=obs).json()["items"][0]["auth"] == "pending"
+        send(ingest, vehicle.checkpoint())
+        assert {r["verified"] for r in client.get("/api/v1/telemetry", headers=obs).json()["items"]} == {True}
+        assert {p["auth"] for p in client.get("/api/v1/packets", headers=obs).json()["items"]} == {"verified"}
