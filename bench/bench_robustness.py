@@ -2,10 +2,15 @@
 
 Every row has a test in the suite at a small budget (named in the last column); this runs them bigger.
   fuzz      random and mutated input to each parser: anything but its typed error is a crash
-  attacks   forged, bit-flipped, replayed and stale control packets through the vehicle's gate
+  attacks   forged, bit-flipped, replayed and stale control packets through the vehicle's gate; forged
+            SYNC heartbeats (the only packets besides commands that hold off the link-lost failsafe);
+            forged, bit-flipped and replayed check-points and forged priority packets through the
+            shore's ingest (accepted = applied, or telemetry marked verified)
   api       schemathesis over the server's OpenAPI (every operation, --api-examples each): 5xx = failure
+  rest      non-finite numbers, oversized keys and names, partial updates (tests/test_bad_input.py)
   faults    the running system (sim, serve, agent as processes): 50 % frame loss, the server SIGKILLed
-            mid-mission, the agent SIGKILLed mid-mission: stored packets lost, commands executed twice
+            mid-mission, the agent SIGKILLed mid-mission: stored packets lost, commands executed twice,
+            priority packets decoded after the restart
 
 Run: .venv/bin/python bench/bench_robustness.py [--cases 20000] [--api-examples 50] [--no-faults]
 """
@@ -14,6 +19,8 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import dataclasses
+import math
 import os
 import random
 import re
@@ -75,6 +82,8 @@ def fuzzing(cases: int) -> None:
          "test_nmea: random_bytes, mutated_sentences")  # fmt: skip
     fuzz("NMEA reader (mutated sentences)", cases, lambda r: mutate(r, r.choice(VALID_LINES)), nmea.parse,
          nmea.NmeaError, "test_nmea: mutated_sentences")  # fmt: skip
+    fuzz("NMEA reader (overlong and non-finite numbers)", cases, numeric_fields, parse_bounded, nmea.NmeaError,
+         "test_nmea: overlong_and_non_finite, fuzzed_numeric_fields")  # fmt: skip
     fuzz("packet decoder (random frames)", cases, lambda r: r.randbytes(r.choice((31, 32, 32, 33))), packets.decode,
          packets.PacketError, "test_packets: random_bytes")  # fmt: skip
     fuzz("packet decoder (bit-flipped)", cases, lambda r: mutate(r, VALID_FRAME)[:32], packets.decode,
@@ -88,6 +97,27 @@ def fuzzing(cases: int) -> None:
         *driver_garbage(cases // 20),
         "test_modem: garbage_from_modem",
     )
+
+
+def numeric_fields(rng: random.Random) -> bytes:
+    """A known sentence with one field replaced by an overlong or non-finite number."""
+    cls = rng.choice(nmea.SENTENCES)
+    fields = ["1"] * (len(cls.PREFIX) + len(dataclasses.fields(cls)))
+    fields[rng.randrange(len(fields))] = rng.choice(
+        ["9" * rng.randint(20, 900), "nan", "inf", "-Infinity", "1e999", "0." + "1" * rng.randint(20, 60)]
+    )
+    body = cls.TALKERS[0] + cls.SID + "," + ",".join(fields)
+    return f"${body}*{nmea.checksum(body)}".encode()
+
+
+def parse_bounded(line: bytes) -> None:
+    """Parse; a non-finite float or an integer too long for a column slipping through is a crash."""
+    parsed = nmea.parse(line)
+    for value in dataclasses.astuple(parsed) if dataclasses.is_dataclass(parsed) else ():
+        if isinstance(value, float) and not math.isfinite(value):
+            raise AssertionError("non-finite value parsed")
+        if isinstance(value, int) and abs(value) >= 2**63:
+            raise AssertionError("integer too large for a database column parsed")
 
 
 def driver_garbage(lines: int) -> tuple[str, str]:
@@ -161,6 +191,94 @@ def attacks(cases: int) -> None:
         )
 
 
+def sync_attacks(cases: int) -> None:
+    """Forged SYNC heartbeats: each one accepted would reset the vehicle's link-lost timer."""
+    key, address, now = bytes(range(32)), 2, time.time()
+    gate = auth.ControlReceiver(key, address)
+    genuine = [
+        auth.sign(ControlPacket(Command.SYNC, seq=i + 1, time=int(now)), key, address) for i in range(cases)
+    ]
+    for frame in genuine:
+        gate.accept(frame, now)
+    rng = random.Random(4)
+    kinds = {
+        "SYNC forged (a stranger's key)": lambda i: auth.sign(
+            ControlPacket(Command.SYNC, seq=10**6 + i, time=int(now) + 1), rng.randbytes(32), address),
+        "SYNC bit-flipped": lambda i: mutate(rng, genuine[i % len(genuine)])[:32],
+        "SYNC replayed": lambda i: genuine[i % len(genuine)],
+    }  # fmt: skip
+    for name, make in kinds.items():
+        accepted = 0
+        for i in range(cases):
+            try:
+                gate.accept(make(i), now)
+                accepted += 1
+            except packets.PacketError:
+                pass
+        row("attacks", name, f"{cases:,}", f"{accepted} accepted", "test_auth: sync_corrects_the_clock")
+
+
+def flip(rng: random.Random, frame: bytes) -> bytes:
+    """``frame`` with one to three distinct bits inverted (never the frame itself)."""
+    out = bytearray(frame)
+    for bit in rng.sample(range(len(frame) * 8), rng.randint(1, 3)):
+        out[bit // 8] ^= 1 << (bit % 8)
+    return bytes(out)
+
+
+def shore_attacks(cases: int) -> None:
+    """Vehicle -> shore forgeries through the real ingest on a SQLite file: forged, bit-flipped and
+    replayed check-points (accepted = applied), forged priority packets (accepted = marked verified)."""
+    import tempfile
+
+    from sqlmodel import Session, select
+
+    from server.db import make_engine, migrate
+    from server.events import EventBus
+    from server.link.ingest import IncomingFrame, Ingest
+    from server.models import Packet, Vehicle
+
+    url = f"sqlite:///{tempfile.mkdtemp(prefix='tacit-attacks-')}/tacit.db"
+    migrate(url)
+    db = make_engine(url)
+    key, address = bytes(range(32)), 2
+    with Session(db) as s:
+        s.add(Vehicle(name="rov1", address=address, key_hex=key.hex()))
+        s.commit()
+    ingest = Ingest(db, EventBus(), default_streams())
+    ingest.load_vehicles()
+    rng, t0 = random.Random(5), int(time.time())
+
+    def checkpoint(i: int, signer: bytes, stamp: int) -> bytes:
+        cp = CheckpointPacket(
+            seq=i % 256, time=stamp, state=MissionState.PREPROGRAMMED, north=-3000.0, depth=300.0
+        )
+        return auth.sign_checkpoint(cp, signer, 1, address, [])
+
+    genuine = checkpoint(0, key, t0)
+    ingest.handle(IncomingFrame(address, 1, genuine))
+    kinds = {
+        "check-point forged (a stranger's key)": lambda i: checkpoint(i, rng.randbytes(32), t0 + i),
+        "check-point bit-flipped (1-3 bits)": lambda i: flip(rng, checkpoint(i, key, t0 + 1 + i)),
+        "check-point replayed (older than the last)": lambda i: checkpoint(i, key, t0 - 1 - i),
+        "priority packet forged (any 30 bytes)": lambda i: bytes([0xA0 | rng.randrange(16), i % 256]) + rng.randbytes(30),
+    }  # fmt: skip
+    for name, make in kinds.items():
+        before = ingest.stats["verified"]
+        for i in range(cases):
+            ingest.handle(IncomingFrame(address, 1, make(i)))
+        if name.startswith("priority"):  # a genuine check-point after them covers nothing of theirs
+            ingest.handle(IncomingFrame(address, 1, checkpoint(cases, key, t0 + 10**6)))
+            with Session(db) as s:
+                accepted = len(
+                    s.exec(select(Packet).where(Packet.type == "priority", Packet.auth == "verified")).all()
+                )
+        else:
+            accepted = ingest.stats["verified"] - before
+        row("attacks", name, f"{cases:,}", f"{accepted} accepted", "test_trust: forged_*")
+    db.dispose()
+
+
 def api(examples: int) -> None:
     result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "tests/test_schemathesis.py"],
                             cwd=ROOT, capture_output=True, text=True, env={**os.environ, "TACIT_API_EXAMPLES": str(examples)})  # fmt: skip
@@ -168,6 +286,12 @@ def api(examples: int) -> None:
     failed = int(m.group(1)) if (m := re.search(r"(\d+) failed", result.stdout)) else 0
     row("api", "schemathesis, every operation", f"{passed + failed} ops x {examples}", f"{failed} failed",
         "test_schemathesis")  # fmt: skip
+    result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "tests/test_bad_input.py"],
+                            cwd=ROOT, capture_output=True, text=True)  # fmt: skip
+    passed = int(m.group(1)) if (m := re.search(r"(\d+) passed", result.stdout)) else 0
+    failed = int(m.group(1)) if (m := re.search(r"(\d+) failed", result.stdout)) else 0
+    row("api", "NaN/Infinity/1e999 in every float, 100 kB keys, partial PUT", f"{passed + failed} tests "
+        "(150 property examples)", f"{failed} failed", "test_bad_input")  # fmt: skip
 
 
 def faults() -> None:
@@ -221,6 +345,7 @@ def kill_mid_mission(victim: str) -> None:
         wait_for(lambda: http.get("/packets", params={"limit": 1}).json()["total"] >= 5, 60, what="packets")
         queued = http.post("/vehicles/1/commands", json={"command": "goto_depth", "depth": 3.0}).json()
         before = {p["id"] for p in http.get("/packets", params={"limit": 1000}).json()["items"]}
+        killed_at = time.time()
         if victim == "server":
             rig.kill_server()
             rig.start_server()
@@ -231,7 +356,16 @@ def kill_mid_mission(victim: str) -> None:
                  what="queued command executed")  # fmt: skip
         after = {p["id"] for p in http.get("/packets", params={"limit": 1000}).json()["items"]}
         twice = sum(n - 1 for n in rig.executed_per_seq().values())
-        row("faults", f"{victim} SIGKILLed mid-mission", "1", f"{len(before - after)} packets lost, {twice} executed twice",
+
+        def after_restart() -> list[dict]:
+            items = http.get("/packets", params={"limit": 1000, "type": "priority"}).json()["items"]
+            return [p for p in items if p["at"] > killed_at]
+
+        wait_for(lambda: any("error" not in p["body"] for p in after_restart()), 120, what="a packet decoded")
+        late = after_restart()
+        decoded = sum(1 for p in late if "error" not in p["body"])
+        row("faults", f"{victim} SIGKILLed mid-mission", "1", f"{len(before - after)} packets lost, {twice} executed "
+            f"twice, {decoded}/{len(late)} priority packets decoded after restart",
             "test_faults" if victim == "server" else "test_agent_system: survives_an_agent_restart")  # fmt: skip
     finally:
         rig.close()
@@ -249,6 +383,8 @@ def main() -> None:
     options = parser.parse_args()
     fuzzing(options.cases)
     attacks(max(100, options.cases // 20))
+    sync_attacks(max(100, options.cases // 20))
+    shore_attacks(max(100, options.cases // 100))
     api(options.api_examples)
     if not options.no_faults:
         faults()

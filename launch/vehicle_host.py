@@ -8,7 +8,7 @@ import threading
 from concurrent.futures import Future
 
 from tacit import auth, modem
-from tacit.packets import ControlPacket
+from tacit.packets import CheckpointPacket, Command, ControlPacket
 from vehicle_agent.link import VehicleLink
 
 
@@ -17,14 +17,18 @@ class VehicleSide:
         self.loop = asyncio.new_event_loop()
         self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
         self.thread.start()
-        self.controls: list[ControlPacket] = []
+        self.controls: list[ControlPacket] = []  # commands (the shore's SYNC heartbeats are in syncs)
+        self.syncs: list[ControlPacket] = []
+        self.key, self.address = key, address
         self.results: list[bool] = []
         settings = modem.DriverSettings(
             url=pty, address=address, echo_timeout=2, reconnect_min=0.2, keepalive=60
         )
         self.driver = modem.ModemDriver(settings)
         self.link = VehicleLink(self.driver, auth.ControlReceiver(key, address))
-        self.link.on_control = self.controls.append
+        self.link.on_control = lambda p: (self.syncs if p.command is Command.SYNC else self.controls).append(
+            p
+        )
         self.call(self.driver.start())
 
     def call(self, coro):  # noqa: ANN001, ANN201
@@ -33,6 +37,11 @@ class VehicleSide:
 
     def send(self, packet: bytes, urgent: bool = False) -> None:
         self.loop.call_soon_threadsafe(lambda: self.link.send(packet, urgent, self.results.append))
+
+    def signed(self, checkpoint: CheckpointPacket, covered: list[bytes] = ()) -> bytes:  # type: ignore[assignment]
+        """A check-point signed with this vehicle's key (version 1), covering these priority packets."""
+        hashes = [auth.packet_hash(p) for p in covered]
+        return auth.sign_checkpoint(checkpoint, self.key, 1, self.address, hashes)
 
     def close(self) -> None:
         self.call(self.driver.stop())

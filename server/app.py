@@ -26,6 +26,7 @@ from server.api import commands, data, missions, vehicles
 from server.auth import require_read
 from server.db import make_engine, migrate
 from server.errors import ApiError
+from server.schemas import json_safe
 from server.settings import Settings, SettingsError
 from server.shore import Shore
 
@@ -155,8 +156,7 @@ def check_port(host: str, port: int, option: str = "--port") -> None:
 
 
 def jsonable(errors: list) -> list:
-    return [{k: (v if isinstance(v, (str, int, float, list, type(None))) else str(v)) for k, v in e.items()}
-            for e in errors]  # fmt: skip
+    return json_safe(errors)  # a NaN or Infinity in the input is echoed as text, never a JSON encoder error
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import threading
 import weakref
 from collections.abc import Iterator
@@ -26,7 +27,10 @@ def make_engine(url: str) -> Engine:
     IMMEDIATE takes the write lock up front and waits its turn. Reads stay deferred and, in WAL mode,
     never wait for a writer."""
     if url.startswith("sqlite:///") and url != "sqlite:///:memory:":
-        Path(url.removeprefix("sqlite:///")).parent.mkdir(parents=True, exist_ok=True)
+        path = Path(url.removeprefix("sqlite:///"))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        os.close(os.open(path, os.O_WRONLY | os.O_CREAT, 0o600))  # owner-only: it holds the vehicle keys
+        os.chmod(path, 0o600)  # SQLite gives its -wal and -shm files the database file's mode
     engine = create_engine(url, connect_args={"check_same_thread": False} if url.startswith("sqlite") else {})
     if url.startswith("sqlite"):
 

@@ -18,6 +18,9 @@ class Vehicle(SQLModel, table=True):
     address: int = Field(unique=True, ge=1, le=127)
     key_hex: str = Field(max_length=128)
     key_version: int = Field(default=1, sa_column_kwargs={"server_default": "1"})
+    # During a staged rotation: the last key the vehicle confirmed (version key_version - 1); commands
+    # are signed with it until a check-point signed with the new key arrives. None: nothing staged.
+    previous_key_hex: str | None = Field(default=None, max_length=128)
     next_seq: int = Field(default=1)
     max_depth: float = 100.0
     max_distance: float = 500.0
@@ -97,6 +100,9 @@ class Packet(SQLModel, table=True):
     priority: int = 0
     body: dict = Field(default_factory=dict, sa_column=Column(JSON, nullable=False))
     at: float = Field(default_factory=now, index=True)
+    # "verified" (a check-point's MAC vouched for it), "pending" (no check-point covered it yet),
+    # "forged" (its MAC failed, or a verified check-point vouched for another packet with its seq)
+    auth: str = Field(default="pending", max_length=16, sa_column_kwargs={"server_default": "pending"})
 
 
 class Telemetry(SQLModel, table=True):
@@ -109,7 +115,8 @@ class Telemetry(SQLModel, table=True):
     time: float
     values: list = Field(default_factory=list, sa_column=Column(JSON, nullable=False))
     certain: bool = True
-    packet_id: int | None = Field(default=None, foreign_key="packet.id")
+    packet_id: int | None = Field(default=None, foreign_key="packet.id", index=True)
+    verified: bool = Field(default=False, sa_column_kwargs={"server_default": "0"})  # its packet's MAC held
 
     __table_args__ = (Index("ix_telemetry_vehicle_stream_time", "vehicle_id", "stream", "time"),)
 
@@ -120,3 +127,11 @@ class LinkEvent(SQLModel, table=True):
     kind: str = Field(max_length=32)
     detail: dict = Field(default_factory=dict, sa_column=Column(JSON, nullable=False))
     at: float = Field(default_factory=now, index=True)
+
+
+class LinkState(SQLModel, table=True):
+    """Per-vehicle link state the shore needs to go on after a restart (``server.link.ingest``)."""
+
+    vehicle_id: int = Field(foreign_key="vehicle.id", primary_key=True)
+    state: dict = Field(default_factory=dict, sa_column=Column(JSON, nullable=False))
+    updated_at: float = Field(default_factory=now)

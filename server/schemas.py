@@ -1,20 +1,34 @@
-"""Request and response bodies of the REST API (v1)."""
+"""Request and response bodies of the REST API (v1).
+
+Every request body refuses NaN and +-Infinity (JSON has no such numbers, but Python's parser reads
+``NaN``, ``Infinity`` and ``1e999`` into them): a 422 names the field. Strings and lists are bounded.
+``json_safe`` makes anything echoed back in an error body encodable (non-finite floats as text).
+"""
 
 from __future__ import annotations
 
-from typing import Literal
+import math
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from tacit.packets import Command as CommandKind
 
 COMMANDS = tuple(c.name.lower() for c in CommandKind)
+# Request bodies: unknown fields and non-finite numbers are errors.
+STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
+FLOAT32_MAX = 3.4028234663852886e38
+MAX_KEY_HEX = 128  # 64 bytes: twice what HMAC-SHA256 needs
+
 CommandName = Literal["move", "goto_depth", "hold", "resume", "start_mission", "abort_mission", "return_home",
                       "set_param", "request_checkpoint"]  # fmt: skip
 
 
 class Limits(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    """Also the body of PUT /limits: only the fields sent are changed (the service dumps with
+    ``exclude_unset``), so ``{}`` changes nothing."""
+
+    model_config = STRICT
     max_depth: float = Field(100.0, gt=0, le=327, description="m")
     max_distance: float = Field(500.0, gt=0, le=6553.5, description="m, per move")
     max_speed: float = Field(1.0, gt=0, le=2.55, description="m/s")
@@ -24,7 +38,16 @@ class Limits(BaseModel):
 class VehicleIn(Limits):
     name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")
     address: int = Field(ge=1, le=127, description="the vehicle modem's address")
-    key: str | None = Field(None, description="hex, >= 16 bytes; generated when absent")
+    key: str | None = Field(
+        None, max_length=MAX_KEY_HEX, description="hex, 16 to 64 bytes; generated when absent"
+    )
+
+
+class KeyIn(BaseModel):
+    model_config = STRICT
+    key: str | None = Field(
+        None, max_length=MAX_KEY_HEX, description="hex, 16 to 64 bytes; generated when absent"
+    )
 
 
 class VehicleOut(Limits):
@@ -39,7 +62,7 @@ class VehicleCreated(VehicleOut):
 
 
 class CommandIn(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = STRICT
     command: CommandName
     distance: float = Field(0.0, ge=0, le=6553.5, description="m")
     angle: float = Field(
@@ -50,7 +73,7 @@ class CommandIn(BaseModel):
     )
     speed: float = Field(0.0, ge=0, le=2.55, description="m/s; 0 = vehicle default")
     param_id: int = Field(0, ge=0, le=255)
-    param_value: float = 0.0
+    param_value: float = Field(0.0, ge=-FLOAT32_MAX, le=FLOAT32_MAX, description="a float32")
     absolute_angle: bool = False
     delay_sensitive: bool = False
 
@@ -110,18 +133,18 @@ class CommandListed(CommandOut):
 
 
 class Waypoint(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = STRICT
     north: float = Field(ge=-3276, le=3276)
     east: float = Field(ge=-3276, le=3276)
     depth: float = Field(ge=0, le=327)
 
 
 class MissionIn(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = STRICT
     name: str = Field(min_length=1, max_length=128)
     number: int = Field(ge=0, le=255, description="the mission id the vehicle knows it by")
     waypoints: list[Waypoint] = Field(default_factory=list, max_length=255)
-    duration_s: float = Field(1800, gt=0, description="T_mission")
+    duration_s: float = Field(1800, gt=0, le=30 * 86400, description="T_mission, s (at most 30 days)")
 
 
 class MissionOut(BaseModel):
@@ -142,6 +165,9 @@ class PacketOut(BaseModel):
     priority: int
     body: dict
     at: float
+    auth: str = Field(
+        "pending", description="verified / pending (no check-point covered it yet) / forged / replayed"
+    )
 
 
 class TelemetryOut(BaseModel):
@@ -151,6 +177,7 @@ class TelemetryOut(BaseModel):
     time: float
     values: list
     certain: bool
+    verified: bool = Field(False, description="a check-point's MAC covered the packet it came in")
 
 
 class Page(BaseModel):
@@ -163,3 +190,16 @@ class Page(BaseModel):
 class Problem(BaseModel):
     detail: str
     field: str | None = None
+
+
+def json_safe(value: Any) -> Any:
+    """``value`` with every non-finite float as text and anything else JSON cannot hold as ``str``."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else str(value)
+    if isinstance(value, (str, int, bool, type(None))):
+        return value
+    if isinstance(value, dict):
+        return {str(k): json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    return str(value)

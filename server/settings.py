@@ -45,6 +45,12 @@ class Settings(BaseSettings):
     sound_speed: float = Field(1500.0, gt=0)
     shore_position: tuple[float, float, float] = (0.0, 0.0, 1.0)  # north, east, depth of the shore modem
     default_range: float = Field(1000.0, gt=0)  # used for slot timing until a ping measures it
+    sync_interval: float = Field(
+        60.0, gt=0
+    )  # s between SYNC heartbeats (a fifth of the agent's link_lost_timeout)
+    sync_retry: float = Field(
+        5.0, gt=0
+    )  # s between SYNCs asking for a chain restart, until one is acknowledged
     time_scale: float = Field(1.0, gt=0)  # simulations faster than real time: acoustic timings divide by this
 
     @field_validator("write_tokens", "read_tokens", "cors_origins", mode="before")

@@ -1,29 +1,60 @@
-"""Authentication of control packets: a truncated HMAC and a replay window.
+"""Authentication of both directions of the acoustic link, and the replay defences.
 
-An acoustic command must not be spoofable: anyone with a Micro-Modem in the water can transmit.
-Each control packet carries a 64-bit truncated HMAC-SHA256 under a per-vehicle key. 64 bits is
-longer than MAVLink 2 signing's 48: at 80 bit/s an attacker gets well under one guess per second,
-so forging by brute force would take ~10^11 years; the cost is 8 of 32 bytes, affordable because a
-control packet has few fields. The MAC also covers the destination address (not transmitted), so a
-packet signed for one vehicle cannot be replayed to another sharing the key.
+Anyone with a Micro-Modem in the water can transmit, claiming any address, in either direction.
 
-Replays are stopped by the sequence number (a sliding window remembers which of the last 64 were
-seen, as IPsec does, so a retransmission that arrives late still counts once) and by the time stamp
-(a packet older or newer than ``max_age`` seconds against the vehicle's clock is rejected, so a
-recording played back after the window's state is lost still fails).
+Shore -> vehicle. Each control packet carries a 64-bit truncated HMAC-SHA256 under the vehicle's key
+of the epoch it names (byte 22: key version mod 256). 64 bits is longer than MAVLink 2 signing's 48:
+at 80 bit/s an attacker gets well under one guess per second, so forging by brute force would take
+~10^11 years; the cost is 8 of 32 bytes, affordable because a control packet has few fields. The MAC
+also covers the destination address (not transmitted), so a packet signed for one vehicle cannot be
+replayed to another sharing the key.
+
+Replays of commands are stopped by the sequence number (a sliding window remembers which of the last
+64 were seen, as IPsec does, so a retransmission that arrives late still counts once), by the time
+stamp (older or newer than ``max_age`` seconds against the vehicle's corrected clock is rejected) and,
+when the window was lost with the agent's state, by a time floor (nothing stamped before the agent
+started again). SYNC packets (the shore's heartbeat and clock) have their own counter: (time, seq)
+must grow, and their time may differ from the vehicle's clock by at most ``max_correction``.
+
+Vehicle -> shore. A check-point carries a 32-bit MAC over its 28 bytes, the vehicle's address and the
+SHA-256 of every priority packet it lists as covered (a 16-bit map of the seqs before it), so one
+32-bit tag vouches for the check-point and for up to 16 priority packets: a priority packet spends no
+bits on authentication, and its data is shown as unverified until a check-point covers it. Forgery
+odds: 2^-32 per attempt. A forged frame is one rate-0 transmission (>= 3.2 s of airtime at 80 bit/s
+plus the cycle), so a transmitter sending nothing else makes at most ~27,000 attempts a day; the shore
+tries at most ``MAX_COMBINATIONS`` candidate sets per check-point (when two packets claim one seq), so
+the odds of one success are at most 27,000 x 4 x 2^-32 = 2.5e-5 a day (one in ~110 years), and every
+failed attempt is logged. The key parity bit (key version mod 2) in the header says which of the two
+keys of a staged rotation signed it.
+
 """
 
 from __future__ import annotations
 
 import hashlib
 import hmac
+import itertools
 import os
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
 
-from tacit.packets import MAC_SIZE, ControlPacket, PacketError, PacketType, decode_control, packet_type
+from tacit.packets import (
+    CHECKPOINT_MAC_SIZE,
+    MAC_SIZE,
+    CheckpointPacket,
+    Command,
+    ControlPacket,
+    PacketError,
+    PacketType,
+    decode_control,
+    packet_type,
+)
 
 KEY_SIZE = 32
-_DOMAIN = b"tacit-control-v1"
+MAX_KEY_SIZE = 64
+_DOMAIN = b"tacit-control-v2"
+_CP_DOMAIN = b"tacit-checkpoint-v2"
+MAX_COMBINATIONS = 4
 
 
 class AuthError(PacketError):
@@ -55,6 +86,8 @@ def parse_key(text: str) -> bytes:
         raise ValueError("a vehicle key is hex text") from None
     if len(key) < 16:
         raise ValueError(f"a vehicle key needs at least 16 bytes, got {len(key)}")
+    if len(key) > MAX_KEY_SIZE:
+        raise ValueError(f"a vehicle key has at most {MAX_KEY_SIZE} bytes, got {len(key)}")
     return key
 
 
@@ -63,35 +96,95 @@ def mac(key: bytes, address: int, signed: bytes) -> bytes:
     return hmac.new(key, _DOMAIN + bytes([address & 0xFF]) + signed, hashlib.sha256).digest()[:MAC_SIZE]
 
 
-def sign(packet: ControlPacket, key: bytes, address: int) -> bytes:
-    """The 32-byte frame of a control packet, signed for the vehicle at ``address``."""
+def sign(packet: ControlPacket, key: bytes, address: int, epoch: int | None = None) -> bytes:
+    """The 32-byte frame of a control packet, signed for the vehicle at ``address`` (with the key of
+    ``epoch``, stamped in the packet, when given)."""
+    if epoch is not None:
+        packet = replace(packet, key_epoch=epoch % 256)
     signed = packet.signed_part()
     return signed + mac(key, address, signed)
 
 
-def verify(frame: bytes, key: bytes, address: int) -> ControlPacket:
-    """Decode a control frame whose MAC is valid; raises ``BadMac`` or ``PacketError`` otherwise."""
+Keys = Mapping[int, bytes]  # key version -> key
+
+
+def verify(frame: bytes, key: bytes | Keys, address: int) -> ControlPacket:
+    """Decode a control frame whose MAC is valid under the key of the epoch it names (or ``key``, if
+    one key is given); raises ``BadMac`` or ``PacketError`` otherwise."""
     if packet_type(frame) is not PacketType.CONTROL:
         raise PacketError("not a control packet")
     frame = bytes(frame)
-    if not hmac.compare_digest(mac(key, address, frame[:24]), frame[24:]):
+    if isinstance(key, (bytes, bytearray)):
+        candidates = [bytes(key)]
+    else:
+        candidates = [k for version, k in key.items() if version % 256 == frame[22]]
+        if not candidates:
+            raise BadMac(f"control packet names key epoch {frame[22]}, which this vehicle does not hold")
+    if not any(hmac.compare_digest(mac(k, address, frame[:24]), frame[24:]) for k in candidates):
         raise BadMac("control packet MAC does not match this vehicle's key")
     return decode_control(frame)
 
 
+def packet_hash(packet: bytes) -> bytes:
+    """What a check-point's MAC covers of a priority packet."""
+    return hashlib.sha256(bytes(packet)).digest()
+
+
+def checkpoint_mac(key: bytes, address: int, signed: bytes, covered: Sequence[bytes]) -> bytes:
+    """The 32-bit tag of a check-point's first 28 bytes and the hashes of the packets it covers."""
+    message = _CP_DOMAIN + bytes([address & 0xFF]) + signed + b"".join(covered)
+    return hmac.new(key, message, hashlib.sha256).digest()[:CHECKPOINT_MAC_SIZE]
+
+
+def sign_checkpoint(packet: CheckpointPacket, key: bytes, version: int, address: int,
+                    covered: Sequence[bytes]) -> bytes:  # fmt: skip
+    """The 32-byte frame of a check-point whose ``covered`` map lists the priority packets with the
+    given hashes (oldest first), signed with the key of ``version`` by the vehicle at ``address``."""
+    packet = replace(packet, key_parity=version & 1, mac=bytes(CHECKPOINT_MAC_SIZE))
+    signed = packet.signed_part()
+    return signed + checkpoint_mac(key, address, signed, covered)
+
+
+def verify_checkpoint(packet: CheckpointPacket, keys: Keys, address: int,
+                      candidates: Sequence[Sequence[bytes]]) -> tuple[int, tuple[bytes, ...]]:  # fmt: skip
+    """Check a decoded check-point: ``candidates[i]`` are the hashes of the packets the shore holds for
+    its i-th covered seq (usually one). Returns (key version, the hashes that matched); raises
+    ``BadMac`` if none does, or if more than ``MAX_COMBINATIONS`` sets would have to be tried."""
+    versions = [v for v in keys if v % 2 == packet.key_parity]
+    if not versions:
+        raise BadMac("no key of this parity")
+    if any(not c for c in candidates):
+        raise BadMac("a covered priority packet was never received here")
+    combinations = 1
+    for c in candidates:
+        combinations *= len(c)
+    if combinations > MAX_COMBINATIONS:
+        raise BadMac(f"{combinations} candidate sets of covered packets (at most {MAX_COMBINATIONS} tried)")
+    signed = replace(packet, mac=bytes(CHECKPOINT_MAC_SIZE)).signed_part()
+    for version in versions:
+        for chosen in itertools.product(*candidates):
+            if hmac.compare_digest(checkpoint_mac(keys[version], address, signed, chosen), packet.mac):
+                return version, chosen
+    raise BadMac("check-point MAC does not match")
+
+
 @dataclass
 class ReplayWindow:
-    """Accepts each control sequence number once, and only from a recent time stamp."""
+    """Accepts each control sequence number once, and only from a recent time stamp (and none stamped
+    before ``floor``: set when the window's memory was lost)."""
 
     max_age: float = 600.0
     size: int = 64
     highest: int = 0
     seen: int = 0  # bit i set: sequence (highest - i) was accepted
+    floor: int = 0
 
     def check(self, seq: int, stamp: int, now: float) -> None:
         """Raise ``Replayed`` or ``OutOfWindow`` if (seq, stamp) must not be accepted."""
         if abs(now - stamp) > self.max_age:
             raise OutOfWindow(f"control seq {seq} is stamped {stamp - now:+.0f} s from now")
+        if stamp < self.floor:
+            raise Replayed(f"control seq {seq} is stamped before the replay window was reset")
         if seq > self.highest:
             return
         offset = self.highest - seq
@@ -111,22 +204,47 @@ class ReplayWindow:
             self.seen |= 1 << (self.highest - seq)
 
     def to_dict(self) -> dict[str, int]:
-        return {"highest": self.highest, "seen": self.seen}
+        return {"highest": self.highest, "seen": self.seen, "floor": self.floor}
 
     @classmethod
     def from_dict(cls, data: dict[str, int], max_age: float = 600.0) -> ReplayWindow:
-        return cls(max_age=max_age, highest=int(data["highest"]), seen=int(data["seen"]))
+        return cls(max_age=max_age, highest=int(data["highest"]), seen=int(data["seen"]),
+                   floor=int(data.get("floor", 0)))  # fmt: skip
+
+
+@dataclass
+class SyncWindow:
+    """Accepts SYNC packets whose (time, seq) grows, within ``max_correction`` s of the local clock."""
+
+    max_correction: float = 86400.0
+    last: tuple[int, int] = (0, 0)
+
+    def accept(self, packet: ControlPacket, local_now: float) -> None:
+        if abs(packet.time - local_now) > self.max_correction:
+            raise OutOfWindow(f"SYNC stamped {packet.time - local_now:+.0f} s from the local clock "
+                              f"(at most {self.max_correction:.0f} s is corrected)")  # fmt: skip
+        if (packet.time, packet.seq) <= self.last:
+            raise Replayed(f"SYNC ({packet.time}, {packet.seq}) is not newer than {self.last}")
+        self.last = (packet.time, packet.seq)
 
 
 @dataclass
 class ControlReceiver:
-    """The vehicle's gate for control frames: MAC, then replay window, then decoded packet."""
+    """The vehicle's gate for control frames: MAC (under the key epoch it names), then the replay
+    window (commands) or the SYNC window (heartbeats), then the decoded packet.
 
-    key: bytes
+    ``accept`` takes the local clock and ``offset``, the correction learnt from the shore's SYNC time
+    (commands are checked against local + offset; SYNC against the local clock within its limit)."""
+
+    key: bytes | Keys
     address: int
     window: ReplayWindow = field(default_factory=ReplayWindow)
+    sync: SyncWindow = field(default_factory=SyncWindow)
 
-    def accept(self, frame: bytes, now: float) -> ControlPacket:
+    def accept(self, frame: bytes, now: float, offset: float = 0.0) -> ControlPacket:
         packet = verify(frame, self.key, self.address)
-        self.window.accept(packet.seq, packet.time, now)
+        if packet.command is Command.SYNC:
+            self.sync.accept(packet, now)
+        else:
+            self.window.accept(packet.seq, packet.time, now + offset)
         return packet

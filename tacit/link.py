@@ -11,6 +11,7 @@ packets per frame.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
@@ -23,8 +24,9 @@ BULK_RATE_SNR_DB: dict[int, float] = {0: float("-inf"), 1: 14.0, 5: 20.0}
 
 
 def choose_rate(snr_db: float | None, loss_sensitive: bool, packets: int = 1) -> int:
-    """The rate for a transmission of ``packets`` 32-byte packets."""
-    if loss_sensitive or snr_db is None or packets <= 1:
+    """The rate for a transmission of ``packets`` 32-byte packets (rate 0 when the SNR is unknown or
+    not a number: a ``nan`` from the modem must never leave no rate to choose)."""
+    if loss_sensitive or snr_db is None or not math.isfinite(snr_db) or packets <= 1:
         return 0
     usable = [r for r, threshold in BULK_RATE_SNR_DB.items() if snr_db >= threshold]
     return max(usable)

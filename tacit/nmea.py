@@ -7,11 +7,16 @@ annotation (``int``, ``float``, ``str``, ``bool`` as 0/1, ``bytes`` as ASCII hex
 layout differs between host and modem (``TXD``) has one class per direction.
 
 ``parse`` raises only ``NmeaError`` subclasses, so a reader loop can report a bad line and go on.
+Numeric fields are bounded: an integer field has at most ``MAX_INT_DIGITS`` characters (a 900-digit address
+would overflow a database column downstream) and a float field is finite and at most ``MAX_DIGITS``
+characters long (a ``nan`` SNR would poison every comparison made with it). Such a line is rejected
+like any malformed one, so only that line is skipped, never the batch around it.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 from dataclasses import dataclass
 from typing import Any, ClassVar, get_type_hints
@@ -20,6 +25,8 @@ HOST = "CC"
 MODEM = "CA"
 NAV = "SN"
 MAX_LINE = 1024
+MAX_DIGITS = 24  # a numeric field longer than this is garbage, not a Micro-Modem value
+MAX_INT_DIGITS = 18  # an integer field's characters: it always fits a 64-bit database column
 
 
 class NmeaError(ValueError):
@@ -423,10 +430,16 @@ _TALKER_ID = re.compile(r"^[A-Z]{2}[A-Z0-9]{3}$")
 def _convert(cls: type[Sentence], name: str, text: str) -> Any:
     kind = _HINTS[cls][name]
     try:
+        limit = MAX_INT_DIGITS if kind is int else MAX_DIGITS
+        if kind in (int, float) and len(text.strip()) > limit:
+            raise ValueError(f"numeric field of {len(text)} characters (at most {limit})")
         if kind is int:
             return int(text)
         if kind is float:
-            return float(text)
+            value = float(text)
+            if not math.isfinite(value):
+                raise ValueError(f"{text!r} is not a finite number")
+            return value
         if kind is bool:
             if text not in ("0", "1"):
                 raise ValueError(f"expected 0 or 1, got {text!r}")

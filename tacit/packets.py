@@ -3,9 +3,14 @@
 Every packet is exactly one rate-0 Micro-Modem frame (32 bytes). Integers are big-endian.
 Byte 0 is a header common to all packets::
 
-    bit 7-6  version (1)
+    bit 7-6  version (2; version 1 had no key epoch in control packets and no MAC in check-points)
     bit 5-4  type: 0 control (shore -> vehicle), 1 check-point, 2 priority (vehicle -> shore)
-    bit 3-0  type-specific: control flags; priority: priority level (bits 3-2) and stream (bits 1-0)
+    bit 3-0  type-specific: control flags; check-point flags and key parity; priority: priority
+             level (bits 3-2) and stream (bits 1-0)
+
+Both directions are authenticated with the vehicle's key (``tacit.auth``): a control packet carries a
+64-bit MAC; a check-point carries a 32-bit MAC that also covers the priority packets it lists, so
+priority packets spend nothing on authentication of their own.
 
 Control packet (shore -> vehicle), authenticated (see ``tacit.auth``):
 
@@ -22,21 +27,31 @@ depth       14    i16                -327.68 .. 327.67           0.01          m
 speed       16    u8                 0 .. 2.55 (0 = default)     0.01          m/s
 param_id    17    u8                 0 .. 255                    1             -
 param_value 18    f32                finite float32                            -
-reserved    22    2 bytes, zero
+key_epoch   22    u8                 0 .. 255                    1             key version mod 256
+reserved    23    1 byte, zero
 mac         24    8 bytes            truncated HMAC-SHA256 (64 bits)
 ==========  ====  =================  ==========================  ============  ==========
 
 ``angle`` is the heading change relative to the vehicle's heading (the paper's control packet),
 or a true bearing from north when the absolute-angle flag is set. ``depth`` is the vertical
-difference for MOVE (positive = deeper) and the target depth for GOTO_DEPTH.
+difference for MOVE (positive = deeper) and the target depth for GOTO_DEPTH. ``key_epoch`` names
+the key the MAC was made with, so old and new keys can both be valid during a rotation.
 
-Check-point packet (vehicle -> shore): "still here, still predictable", and the state the shore's
-predictors resynchronise on:
+A SYNC control packet is the shore's authenticated "I am here": its ``seq`` is a heartbeat counter
+(not a command sequence number; the pair (time, seq) only ever grows), ``time`` is the shore's clock,
+and ``param_id`` bit 0 asks the vehicle to restart its sample chains (the shore lost their state).
+Only authentic control packets, SYNC included, reset the vehicle's link-lost timer: an
+unauthenticated Micro-Modem poll ($CCCYC) is answered but proves nothing.
+
+Check-point packet (vehicle -> shore): "still here, still predictable", the state the shore's
+predictors resynchronise on, the final statuses of recent commands, and the MAC that vouches for it
+and for the priority packets sent before it:
 
 ==============  ====  ====  ==========================  ============  ==========
 field           off   type  range                       resolution    unit
 ==============  ====  ====  ==========================  ============  ==========
-header          0     u8    type 1, low bits 0
+header          0     u8    type 1; bits 2-0 flags: bit0 position fix, bit1 armed, bit2 link-lost
+                            mode; bit 3 key parity (key version mod 2)
 seq             1     u8    0 .. 255 (vehicle packet counter, wraps)
 time            2     u32   0 .. 4294967295             1             s (UNIX)
 state           6     u8    ``MissionState``
@@ -47,14 +62,15 @@ east            11    i16   -3276.8 .. 3276.7           0.1           m from hom
 depth           13    u16   0 .. 655.35                 0.01          m
 heading         15    u16   0 .. 359.99                 0.01          deg
 battery         17    u8    0 .. 25.5                   0.1           V
-last_command    18    u32   0 .. 4294967295             1             control seq
-command_status  22    u8    ``CommandStatus``
-reason          23    u8    ``Reason``
-temperature     24    i16   -327.68 .. 327.67           0.01          degC
-oxygen          26    u16   0 .. 655.34 (655.35 = none) 0.01          mg/L
-priority_count  28    u16   0 .. 65535 (wraps)          1             packets
-flags           30    u8    bit0 position fix, bit1 armed, bit2 link-lost mode
-reserved        31    1 byte, zero
+last_command    18    u16   0 .. 65535 (control seq mod 65536; the shore takes its latest match)
+outcome         20    u8    bits 7-4 ``CommandStatus`` of last_command, bits 3-0 ``Reason``
+settled         21    u8    2 bits each for last_command-1 (bits 1-0) .. last_command-4 (bits 7-6):
+                            0 unknown, 1 executed, 2 refused, 3 superseded (a final status)
+temperature     22    i16   -327.68 .. 327.67           0.01          degC
+oxygen          24    u16   0 .. 655.34 (655.35 = none) 0.01          mg/L
+covered         26    u16   bit i set: the priority packet with seq (seq - 1 - i) mod 256 is covered
+mac             28    4 B   HMAC-SHA256 truncated to 32 bits over bytes 0-27, the vehicle address and
+                            the SHA-256 of each covered priority packet, oldest first
 ==============  ====  ====  ==========================  ============  ==========
 
 Priority packet (vehicle -> shore), the paper's "two bytes of priority/type, thirty bytes of
@@ -74,8 +90,10 @@ from dataclasses import dataclass, fields, replace
 from typing import ClassVar
 
 PACKET_SIZE = 32
-VERSION = 1
+VERSION = 2
 MAC_SIZE = 8
+CHECKPOINT_MAC_SIZE = 4
+COVER_BITS = 16  # how far back (in vehicle packet seqs) a check-point's MAC can reach
 PAYLOAD_SIZE = 30
 OXYGEN_NONE = 655.35
 FLOAT32_MAX = struct.unpack(">f", b"\x7f\x7f\xff\xff")[0]
@@ -111,6 +129,10 @@ class Command(enum.IntEnum):
     RETURN_HOME = 7
     SET_PARAM = 8  # param_id, param_value
     REQUEST_CHECKPOINT = 9
+    SYNC = 10  # the shore's authenticated heartbeat: its time; param_id bit0 = restart sample chains
+
+
+SYNC_RESTART_CHAINS = 1
 
 
 class ControlFlag(enum.IntFlag):
@@ -139,6 +161,24 @@ class CommandStatus(enum.IntEnum):
     EXECUTED = 2
     REFUSED = 3
     SUPERSEDED = 4
+
+
+# The check-point's ``settled`` byte: 2-bit codes of final statuses.
+SETTLED_CODES = {CommandStatus.EXECUTED: 1, CommandStatus.REFUSED: 2, CommandStatus.SUPERSEDED: 3}
+SETTLED_STATUS = {code: status for status, code in SETTLED_CODES.items()}
+
+
+def pack_settled(statuses: list[CommandStatus | None]) -> int:
+    """The ``settled`` byte for the final statuses of last_command-1, -2, -3, -4 (None: unknown)."""
+    out = 0
+    for i, status in enumerate(statuses[:4]):
+        out |= SETTLED_CODES.get(status, 0) << (2 * i) if status is not None else 0
+    return out
+
+
+def unpack_settled(byte: int) -> list[CommandStatus | None]:
+    """The final statuses of last_command-1 .. -4 (None: unknown) from a ``settled`` byte."""
+    return [SETTLED_STATUS.get((byte >> (2 * i)) & 3) for i in range(4)]
 
 
 class Reason(enum.IntEnum):
@@ -283,6 +323,7 @@ class ControlPacket(_Packet):
     param_id: int = 0
     param_value: float = 0.0
     flags: ControlFlag = ControlFlag(0)
+    key_epoch: int = 0
 
     TYPE: ClassVar = PacketType.CONTROL
     FIELDS: ClassVar = (
@@ -295,20 +336,21 @@ class ControlPacket(_Packet):
         _u("speed", "B", 0.01, "m/s"),
         _u("param_id", "B"),
         Field("param_value", "f", -FLOAT32_MAX, FLOAT32_MAX),
+        _u("key_epoch", "B"),
     )
-    TAIL: ClassVar = 2 + MAC_SIZE
+    TAIL: ClassVar = 1 + MAC_SIZE
 
     def _header_low(self) -> int:
         return int(self.flags) & 0x0F
 
     def signed_part(self) -> bytes:
         """The 24 bytes the MAC covers."""
-        return self._body() + bytes(2)
+        return self._body() + bytes(1)
 
 
 @dataclass(frozen=True)
 class CheckpointPacket(_Packet):
-    """Vehicle -> shore heartbeat and predictor resynchronisation point."""
+    """Vehicle -> shore heartbeat and predictor resynchronisation point (MAC: ``tacit.auth``)."""
 
     seq: int
     time: int
@@ -320,13 +362,16 @@ class CheckpointPacket(_Packet):
     depth: float = 0.0
     heading: float = 0.0
     battery: float = 0.0
-    last_command: int = 0
+    last_command: int = 0  # low 16 bits of the control seq
     command_status: CommandStatus = CommandStatus.NONE
     reason: Reason = Reason.OK
+    settled: int = 0  # see ``pack_settled``
     temperature: float = 0.0
     oxygen: float = OXYGEN_NONE
-    priority_count: int = 0
+    covered: int = 0
     flags: int = 0
+    key_parity: int = 0
+    mac: bytes = bytes(CHECKPOINT_MAC_SIZE)
 
     TYPE: ClassVar = PacketType.CHECKPOINT
     FIELDS: ClassVar = (
@@ -340,18 +385,47 @@ class CheckpointPacket(_Packet):
         _u("depth", "H", 0.01, "m"),
         Field("heading", "H", 0.0, 359.99, 0.01, "deg"),
         _u("battery", "B", 0.1, "V"),
-        _u("last_command", "I"),
-        _e("command_status", CommandStatus),
-        _e("reason", Reason),
+        _u("last_command", "H"),
+        _u("outcome", "B"),
+        _u("settled", "B"),
         _u("temperature", "h", 0.01, "degC"),
         _u("oxygen", "H", 0.01, "mg/L"),
-        _u("priority_count", "H"),
-        _u("flags", "B", hi=7),
+        _u("covered", "H"),
     )
-    TAIL: ClassVar = 1
+    TAIL: ClassVar = CHECKPOINT_MAC_SIZE
+
+    @property
+    def outcome(self) -> int:
+        return (int(CommandStatus(self.command_status)) << 4) | int(Reason(self.reason))
+
+    def _header_low(self) -> int:
+        if not 0 <= self.flags <= 7:
+            raise FieldRangeError("flags", self.flags, 0, 7, "")
+        return self.flags | ((self.key_parity & 1) << 3)
+
+    def signed_part(self) -> bytes:
+        """The 28 bytes the MAC covers (with the covered priority packets' hashes)."""
+        return self._body()
 
     def encode(self) -> bytes:
-        return self._body() + bytes(self.TAIL)
+        if len(self.mac) != CHECKPOINT_MAC_SIZE:
+            raise FieldRangeError("mac", f"{len(self.mac)} bytes", 4, 4, "bytes")
+        return self._body() + bytes(self.mac)
+
+    def covered_seqs(self) -> list[int]:
+        """The seqs of the priority packets the MAC covers, oldest first."""
+        return [(self.seq - 1 - i) % 256 for i in reversed(range(COVER_BITS)) if self.covered >> i & 1]
+
+
+def cover_bitmap(checkpoint_seq: int, seqs: list[int]) -> int:
+    """The ``covered`` bitmap of a check-point with seq ``checkpoint_seq`` for priority packet ``seqs``
+    (those further back than ``COVER_BITS`` are left out)."""
+    bitmap = 0
+    for seq in seqs:
+        back = (checkpoint_seq - 1 - seq) % 256
+        if back < COVER_BITS:
+            bitmap |= 1 << back
+    return bitmap
 
 
 @dataclass(frozen=True)
@@ -409,7 +483,7 @@ def decode_control(frame: bytes) -> ControlPacket:
         raise PacketError(f"unknown control flags {flags:#x}")
     if not math.isfinite(values["param_value"]):
         raise PacketError("param_value is not finite")
-    _check_zero(frame, 22, 24)
+    _check_zero(frame, 23, 24)
     return ControlPacket(flags=ControlFlag(flags), **values)
 
 
@@ -420,10 +494,14 @@ def decode(frame: bytes) -> Packet:
     if kind is PacketType.CONTROL:
         return decode_control(frame)
     if kind is PacketType.CHECKPOINT:
-        if frame[0] & 0x0F:
-            raise PacketError("check-point header low bits are not zero")
-        _check_zero(frame, 31, 32)
-        return CheckpointPacket(**CheckpointPacket._unpack_fields(frame))
+        values = CheckpointPacket._unpack_fields(frame)
+        outcome = values.pop("outcome")
+        try:
+            status, reason = CommandStatus(outcome >> 4), Reason(outcome & 0x0F)
+        except ValueError:
+            raise PacketError(f"outcome: unknown status/reason {outcome:#04x}") from None
+        return CheckpointPacket(**values, command_status=status, reason=reason, flags=frame[0] & 0x07,
+                                key_parity=frame[0] >> 3 & 1, mac=frame[28:32])  # fmt: skip
     return PriorityPacket(
         seq=frame[1],
         priority=Priority((frame[0] >> 2) & 0x03),
@@ -450,6 +528,6 @@ def as_dict(packet: Packet) -> dict[str, object]:
     return out
 
 
-assert ControlPacket.body_size() == 22 and ControlPacket.body_size() + ControlPacket.TAIL == PACKET_SIZE
+assert ControlPacket.body_size() == 23 and ControlPacket.body_size() + ControlPacket.TAIL == PACKET_SIZE
 assert CheckpointPacket.body_size() + CheckpointPacket.TAIL == PACKET_SIZE
 assert PriorityPacket.body_size() + PriorityPacket.TAIL == PACKET_SIZE

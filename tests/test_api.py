@@ -66,7 +66,7 @@ def test_command_crosses_the_channel_and_a_priority_packet_is_stored(
 
                 report = CheckpointPacket(seq=1, time=int(time.time()), state=MissionState.COMMANDED, depth=6.5,
                                           last_command=1, command_status=CommandStatus.EXECUTED)  # fmt: skip
-                vehicle.send(report.encode())
+                vehicle.send(vehicle.signed(report))
                 wait_for(lambda: client.get("/api/v1/packets", headers=OBS).json()["total"] >= 1)
                 listed = client.get("/api/v1/packets?type=checkpoint", headers=OBS).json()["items"][0]
                 assert listed["body"]["depth"] == 6.5 and listed["seq"] == 1
@@ -89,7 +89,9 @@ def test_stopping_the_shore_modem_loses_nothing(tmp_path: Path, database_url: st
                 f"/api/v1/vehicles/{created['id']}/commands", json={"command": "hold"}, headers=OP
             ).json()
             wait_for(lambda: status_of(client, first["id"]) == "acknowledged")
-            vehicle.send(CheckpointPacket(seq=5, time=int(time.time()), state=MissionState.HOLDING).encode())
+            vehicle.send(
+                vehicle.signed(CheckpointPacket(seq=5, time=int(time.time()), state=MissionState.HOLDING))
+            )
             wait_for(lambda: client.get("/api/v1/packets", headers=OBS).json()["total"] == 1)
         # the simulator (both modems) is gone: the server keeps serving and queues
         wait_for(lambda: client.get("/api/v1/link", headers=OBS).json()["modem"] != "ready", timeout=30)

@@ -8,7 +8,15 @@ from hypothesis import strategies as st
 
 from tacit import auth
 from tacit.auth import BadMac, ControlReceiver, OutOfWindow, Replayed, ReplayWindow
-from tacit.packets import Command, ControlPacket, PacketError
+from tacit.packets import (
+    CheckpointPacket,
+    Command,
+    ControlPacket,
+    MissionState,
+    PacketError,
+    cover_bitmap,
+    decode,
+)
 
 KEY = bytes(range(32))
 NOW = 1_800_000_000
@@ -88,3 +96,100 @@ def test_key_parsing_errors_are_clear() -> None:
         auth.parse_key("not hex")
     with pytest.raises(ValueError, match="16 bytes"):
         auth.parse_key("00ff")
+
+
+# --- key epochs, SYNC, the fresh-window floor ---------------------------------------------------
+
+NEW = bytes(range(32, 64))
+
+
+def test_old_and_new_key_are_both_valid_by_the_epoch_they_name() -> None:
+    receiver = ControlReceiver({1: KEY, 2: NEW}, 2)
+    packet = ControlPacket(Command.HOLD, seq=1, time=NOW)
+    assert receiver.accept(auth.sign(packet, KEY, 2, epoch=1), NOW).key_epoch == 1
+    assert receiver.accept(auth.sign(ControlPacket(Command.HOLD, seq=2, time=NOW), NEW, 2, epoch=2), NOW)
+    with pytest.raises(BadMac):  # the right key under the wrong epoch
+        receiver.accept(auth.sign(ControlPacket(Command.HOLD, seq=3, time=NOW), NEW, 2, epoch=1), NOW)
+    with pytest.raises(BadMac, match="epoch 3"):
+        receiver.accept(auth.sign(ControlPacket(Command.HOLD, seq=4, time=NOW), NEW, 2, epoch=3), NOW)
+
+
+def test_sync_corrects_the_clock_within_limits_and_never_replays() -> None:
+    receiver = ControlReceiver(KEY, 2, sync=auth.SyncWindow(max_correction=3600))
+    skewed = NOW - 1500  # the vehicle's clock is 25 minutes slow: commands would be out of window
+    sync = auth.sign(ControlPacket(Command.SYNC, seq=1, time=NOW), KEY, 2)
+    assert receiver.accept(sync, skewed).time == NOW
+    with pytest.raises(Replayed):
+        receiver.accept(sync, skewed)
+    with pytest.raises(OutOfWindow):  # commands use the corrected clock: without the offset, too old
+        receiver.accept(frame(1), skewed)
+    assert receiver.accept(frame(1), skewed, offset=NOW - skewed).seq == 1
+    far = auth.sign(ControlPacket(Command.SYNC, seq=2, time=NOW + 7200), KEY, 2)
+    with pytest.raises(OutOfWindow, match="corrected"):
+        receiver.accept(far, NOW)
+
+
+def test_a_fresh_window_refuses_frames_stamped_before_the_restart() -> None:
+    captured = frame(1, stamp=NOW - 60)  # recorded a minute before the agent lost its state
+    receiver = ControlReceiver(KEY, 2, ReplayWindow(floor=NOW - 5))
+    with pytest.raises(Replayed, match="before the replay window"):
+        receiver.accept(captured, NOW)
+    assert receiver.accept(frame(1, stamp=NOW), NOW).seq == 1  # the shore re-signs each attempt
+
+
+# --- check-points ---------------------------------------------------------------------------------
+
+
+def _checkpoint(covered_seqs: list[int], seq: int = 20) -> CheckpointPacket:
+    return CheckpointPacket(seq=seq, time=NOW, state=MissionState.PREPROGRAMMED, north=12.5,
+                            covered=cover_bitmap(seq, covered_seqs))  # fmt: skip
+
+
+PRIORITY = [bytes([0x80 | 0x20, s]) + bytes([s]) * 30 for s in range(20)]
+
+
+def test_checkpoint_mac_covers_itself_and_the_priority_packets() -> None:
+    cp = _checkpoint([17, 18, 19])
+    frame_ = auth.sign_checkpoint(cp, KEY, 1, 2, [auth.packet_hash(PRIORITY[s]) for s in (17, 18, 19)])
+    decoded = decode(frame_)
+    assert decoded.covered_seqs() == [17, 18, 19]
+    hashes = [[auth.packet_hash(PRIORITY[s])] for s in decoded.covered_seqs()]
+    assert auth.verify_checkpoint(decoded, {1: KEY}, 2, hashes)[0] == 1
+    forged_priority = [[auth.packet_hash(PRIORITY[17])], [auth.packet_hash(PRIORITY[0])], hashes[2]]
+    with pytest.raises(BadMac):
+        auth.verify_checkpoint(decoded, {1: KEY}, 2, forged_priority)
+    with pytest.raises(BadMac):  # another vehicle's address
+        auth.verify_checkpoint(decoded, {1: KEY}, 3, hashes)
+    with pytest.raises(BadMac):  # a packet never received cannot be vouched for
+        auth.verify_checkpoint(decoded, {1: KEY}, 2, [[], *hashes[1:]])
+    # a forged copy of seq 18 arrived too: both candidates are tried, the genuine one matches
+    two = [hashes[0], [auth.packet_hash(PRIORITY[0]), hashes[1][0]], hashes[2]]
+    assert auth.verify_checkpoint(decoded, {1: KEY}, 2, two)[1][1] == hashes[1][0]
+    many = [[auth.packet_hash(PRIORITY[i]) for i in range(3)]] * 3
+    with pytest.raises(BadMac, match="at most"):
+        auth.verify_checkpoint(decoded, {1: KEY}, 2, many)
+
+
+@given(st.integers(0, 255))
+def test_any_flipped_bit_in_a_checkpoint_is_rejected(bit: int) -> None:
+    cp = _checkpoint([19])
+    data = bytearray(auth.sign_checkpoint(cp, KEY, 1, 2, [auth.packet_hash(PRIORITY[19])]))
+    data[bit // 8] ^= 1 << (bit % 8)
+    try:
+        decoded = decode(bytes(data))
+    except PacketError:
+        return
+    if not isinstance(decoded, CheckpointPacket):
+        return
+    hashes = [[auth.packet_hash(PRIORITY[s % 20])] for s in decoded.covered_seqs()]
+    with pytest.raises(BadMac):
+        auth.verify_checkpoint(decoded, {1: KEY, 2: NEW}, 2, hashes)
+
+
+def test_checkpoint_key_parity_selects_old_or_new_key() -> None:
+    cp = _checkpoint([])
+    decoded = decode(auth.sign_checkpoint(cp, NEW, 2, 2, []))
+    assert decoded.key_parity == 0
+    assert auth.verify_checkpoint(decoded, {1: KEY, 2: NEW}, 2, [])[0] == 2
+    with pytest.raises(BadMac):
+        auth.verify_checkpoint(decoded, {1: KEY}, 2, [])

@@ -15,10 +15,14 @@ from server.models import Command
 from server.services.commands import Status, advance
 from server.settings import Settings
 from server.shore import Shore
+from tacit import auth
 from tacit.packets import CheckpointPacket, CommandStatus, MissionState, Reason
 
 OP = {"Authorization": "Bearer operator-token"}
 OBS = {"Authorization": "Bearer observer-token"}
+
+
+KEY = "7e" * 32
 
 
 @pytest.fixture
@@ -26,7 +30,12 @@ def client(tmp_path: Path, database_url: str):  # noqa: ANN201
     settings = Settings(database_url=database_url, modem_url="", map_enabled=False, write_tokens=["operator-token"],
                         read_tokens=["observer-token"], ping_interval=3600)  # fmt: skip
     with TestClient(create_app(settings)) as c:
-        assert c.post("/api/v1/vehicles", json={"name": "rov1", "address": 2}, headers=OP).status_code == 201
+        assert (
+            c.post(
+                "/api/v1/vehicles", json={"name": "rov1", "address": 2, "key": KEY}, headers=OP
+            ).status_code
+            == 201
+        )
         yield c
 
 
@@ -50,7 +59,10 @@ def checkpoint(
     stamp = int(time.time()) - 3
     packet = CheckpointPacket(seq=seq, time=stamp, state=MissionState.COMMANDED, last_command=seq,
                               command_status=status, reason=reason, **pose)  # fmt: skip
-    shore(client).ingest.handle(IncomingFrame(src=2, dest=1, data=packet.encode()))
+    frame = auth.sign_checkpoint(
+        packet, bytes.fromhex(KEY), 1, 2, []
+    )  # signed by the vehicle (key version 1)
+    shore(client).ingest.handle(IncomingFrame(src=2, dest=1, data=frame))
     return stamp
 
 

@@ -8,7 +8,8 @@ from sqlalchemy import inspect
 
 from server.db import alembic_config, make_engine, migrate
 
-TABLES = {"vehicle", "mission", "command", "commandevent", "frame", "packet", "telemetry", "linkevent"}
+TABLES = {"vehicle", "mission", "command", "commandevent", "frame", "packet", "telemetry", "linkevent",
+          "linkstate"}  # fmt: skip
 
 
 def tables(url: str) -> set[str]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import pytest
 from hypothesis import given, settings
@@ -127,3 +128,56 @@ def test_mutated_sentences_are_parsed_or_rejected(sentence, position: int, char:
         nmea.parse(mutated)
     except nmea.NmeaError:
         pass
+
+
+@pytest.mark.parametrize(
+    "body",
+    [
+        "CARXD," + "9" * 900 + ",1,0,1,00",  # an address no column can hold
+        "CARXD,2," + "1" * 30 + ",0,1,00",
+        "CAMPR,2,1,nan",
+        "CAMPR,2,1,inf",
+        "CAMPR,2,1,-Infinity",
+        "CAMPR,2,1,1e999",
+        "CAMPR,2,1," + "0." + "1" * 40,
+    ],
+)
+def test_overlong_and_non_finite_numbers_are_field_errors(body: str) -> None:
+    with pytest.raises(nmea.FieldError):
+        nmea.parse(f"${body}*{nmea.checksum(body)}")
+
+
+def test_nan_snr_in_cst_is_rejected_not_parsed() -> None:
+    body = REAL_CST[1:].replace(",-1.2,", ",nan,")
+    with pytest.raises(nmea.FieldError, match="finite"):
+        nmea.parse(f"${body}*{nmea.checksum(body)}")
+
+
+@given(
+    st.sampled_from(nmea.SENTENCES),
+    st.integers(0, 40),
+    st.one_of(
+        st.text(alphabet="0123456789", min_size=1, max_size=2000),
+        st.sampled_from(["nan", "NaN", "inf", "-inf", "Infinity", "1e999", "-1e999", "1e-999", "+0", "-0"]),
+        st.text(alphabet="0123456789.eE+-", min_size=1, max_size=60),
+    ),
+)
+@settings(max_examples=400)
+def test_fuzzed_numeric_fields_parse_to_bounded_finite_values_or_field_errors(
+    cls, index: int, text: str
+) -> None:  # noqa: ANN001
+    """Any field replaced with a numeric-looking string: the line parses with every int short and every
+    float finite, or it is rejected with an ``NmeaError`` (never OverflowError, never a nan)."""
+    names = [f.name for f in dataclasses.fields(cls)]
+    fields = ["1"] * (len(cls.PREFIX) + len(names))
+    fields[index % len(fields)] = text
+    body = cls.TALKERS[0] + cls.SID + "," + ",".join(fields)
+    try:
+        parsed = nmea.parse(f"${body}*{nmea.checksum(body)}")
+    except nmea.NmeaError:
+        return
+    for value in dataclasses.astuple(parsed) if dataclasses.is_dataclass(parsed) else ():
+        if isinstance(value, float):
+            assert math.isfinite(value)
+        elif isinstance(value, int):
+            assert abs(value) < 2**63  # fits a database integer column

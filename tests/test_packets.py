@@ -56,13 +56,16 @@ checkpoints = st.builds(
     depth=fixed(0, 655.35, 0.01),
     heading=fixed(0, 359.99, 0.01),
     battery=fixed(0, 25.5, 0.1),
-    last_command=st.integers(0, 2**32 - 1),
+    last_command=st.integers(0, 2**16 - 1),
     command_status=st.sampled_from(CommandStatus),
     reason=st.sampled_from(Reason),
     temperature=fixed(-327.68, 327.67, 0.01),
     oxygen=fixed(0, 655.35, 0.01),
-    priority_count=st.integers(0, 65535),
+    settled=st.integers(0, 255),
+    covered=st.integers(0, 65535),
     flags=st.integers(0, 7),
+    key_parity=st.integers(0, 1),
+    mac=st.binary(min_size=4, max_size=4),
 )
 priorities = st.builds(
     PriorityPacket,
@@ -156,9 +159,11 @@ def test_values_are_rounded_to_resolution_not_wrapped() -> None:
     [
         (b"\x40" * 31, "32 bytes"),
         (bytes([0x00]) + bytes(31), "version"),
-        (bytes([0x70]) + bytes(31), "type"),
-        (bytes([0x40, 0xEE]) + bytes(30), "command"),
-        (bytes([0x50, 0]) + bytes(4) + bytes([0xEE]) + bytes(25), "state"),
+        (bytes([0xB0]) + bytes(31), "type"),
+        (bytes([0x70]) + bytes(31), "version 1"),
+        (bytes([0x80, 0xEE]) + bytes(30), "command"),
+        (bytes([0x90, 0]) + bytes(4) + bytes([0xEE]) + bytes(25), "state"),
+        (bytes([0x90, 0]) + bytes(18) + bytes([0xF0]) + bytes(11), "outcome"),
     ],
 )
 def test_bad_frames_raise_typed_errors(frame: bytes, message: str) -> None:
@@ -168,7 +173,7 @@ def test_bad_frames_raise_typed_errors(frame: bytes, message: str) -> None:
 
 def test_reserved_bytes_must_be_zero() -> None:
     frame = bytearray(ControlPacket(Command.HOLD, seq=1, time=1).signed_part() + bytes(8))
-    frame[22] = 1
+    frame[23] = 1
     with pytest.raises(PacketError, match="reserved"):
         packets.decode(bytes(frame))
 
@@ -184,15 +189,17 @@ def test_layout_offsets_match_the_documented_table() -> None:
     assert struct.unpack(">h", frame[14:16])[0] == 250
     assert frame[16] == 50 and frame[17] == 7
     assert struct.unpack(">f", frame[18:22])[0] == 1.5
-    cp = CheckpointPacket(
-        seq=9, time=5, state=MissionState.PREPROGRAMMED, temperature=21.5, priority_count=300
-    )
+    assert ControlPacket(Command.HOLD, seq=1, time=1, key_epoch=7).signed_part()[22] == 7
+    cp = CheckpointPacket(seq=9, time=5, state=MissionState.PREPROGRAMMED, temperature=21.5, covered=300,
+                          last_command=0x1234, command_status=CommandStatus.REFUSED, reason=Reason.GEOFENCE,
+                          settled=0xB1, flags=5, key_parity=1, mac=b"WXYZ")  # fmt: skip
     encoded = cp.encode()
-    assert encoded[0] >> 4 == 0x5 and encoded[1] == 9
-    assert struct.unpack(">h", encoded[24:26])[0] == 2150
-    assert struct.unpack(">H", encoded[28:30])[0] == 300
+    assert encoded[0] == (2 << 6) | (1 << 4) | 8 | 5 and encoded[1] == 9
+    assert struct.unpack(">H", encoded[18:20])[0] == 0x1234 and encoded[20] == 0x32 and encoded[21] == 0xB1
+    assert struct.unpack(">h", encoded[22:24])[0] == 2150
+    assert struct.unpack(">H", encoded[26:28])[0] == 300 and encoded[28:] == b"WXYZ"
     pp = PriorityPacket(seq=4, priority=Priority.TIME_SENSITIVE, stream=Stream.KINEMATIC, payload=b"")
-    assert pp.encode()[0] == (1 << 6) | (2 << 4) | (3 << 2) | 1
+    assert pp.encode()[0] == (2 << 6) | (2 << 4) | (3 << 2) | 1
 
 
 def test_as_dict_is_json_friendly() -> None:

@@ -4,6 +4,15 @@ Every tick (10 Hz of vehicle time) it steers towards the mission state machine's
 the vehicle measured to the compressor, answers the shore's polls with what is queued, applies the
 shore's authenticated control packets, and persists its state. It never stops on a bad packet, a lost
 link or a restart: the MAVLink and modem links reconnect with backoff while the vehicle holds.
+
+Trust: only authentic control packets (commands, or the shore's SYNC heartbeat) reset the link-lost
+timer; a SYNC's time corrects the clock (up to ``max_clock_correction``) and can ask the compressor to
+restart its chains. Check-points are signed with the vehicle's key and cover the priority packets
+delivered since the last delivered check-point (at most 16 packet seqs back: a check-point is due
+before the oldest would fall out of reach). Key rotation is staged: the agent holds ``key`` (version
+``key_version``) and optionally ``next_key`` (version + 1), accepts both, and signs with the newest the
+shore has used, which tells the shore the vehicle has it. Each check-point names the final statuses of
+the four commands before its last one. What waits to be sent is persisted with the state.
 """
 
 from __future__ import annotations
@@ -17,7 +26,7 @@ import sys
 import time
 import tomllib
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from tacit import auth, modem
@@ -25,12 +34,18 @@ from tacit.config import check_keys
 from tacit.limits import Limits
 from tacit.navigation import Pose, Target
 from tacit.packets import (
+    COVER_BITS,
     OXYGEN_NONE,
+    SYNC_RESTART_CHAINS,
     CheckpointPacket,
+    Command,
+    CommandStatus,
     ControlPacket,
     MissionState,
     Priority,
     Stream,
+    cover_bitmap,
+    pack_settled,
     with_seq,
 )
 from tacit.streams import default_streams
@@ -49,6 +64,9 @@ class AgentConfig:
     address: int = 2
     shore_address: int = 1
     key: str = ""
+    key_version: int = 1
+    next_key: str = ""  # the key of version key_version + 1, installed before a rotation at sea
+    max_clock_correction: float = 86400.0  # s the shore's SYNC time may move the clock
     modem_url: str = "/dev/ttyUSB0"
     mavlink_url: str = "tcp:127.0.0.1:5777"
     state_file: str = "/var/lib/tacit/agent-state.json"
@@ -74,7 +92,15 @@ class AgentConfig:
         nav = NavConfig(**data.pop("nav", {}))
         config = cls(**data, limits=limits, nav=nav)
         auth.parse_key(config.key)  # a clear error now rather than at the first control packet
+        if config.next_key:
+            auth.parse_key(config.next_key)
         return config
+
+    def keys(self) -> dict[int, bytes]:
+        keys = {self.key_version: auth.parse_key(self.key)}
+        if self.next_key:
+            keys[self.key_version + 1] = auth.parse_key(self.next_key)
+        return keys
 
     def plans(self, base: Path) -> dict[int, MissionPlan]:
         plans = {}
@@ -94,6 +120,9 @@ class Agent:
         self.config = config
         self.state_path = Path(config.state_file)
         self.state = AgentState.load(self.state_path)
+        self.keys = config.keys()
+        if self.state.key_epoch not in self.keys:
+            self.state.key_epoch = config.key_version
         tlog = Path(config.tlog_dir) / time.strftime("agent-%Y%m%d-%H%M%S.tlog") if config.tlog_dir else None
         if tlog:
             tlog.parent.mkdir(parents=True, exist_ok=True)
@@ -103,18 +132,28 @@ class Agent:
             self.position.resume(self.state.north, self.state.east, self.state.speed, self.state.thrust,
                                  self.state.time, self.state.yaw)  # fmt: skip
         self.navigator = Navigator(self.mav, config.nav, self.position)
-        status = MissionStatus.from_dict(self.state.mission) if self.state.mission else None
+        try:
+            status = MissionStatus.from_dict(self.state.mission) if self.state.mission else None
+        except (KeyError, TypeError, ValueError) as exc:
+            log.error("saved mission status unreadable (%s): starting safe, waiting", exc)
+            status = None
         self.fsm = MissionFSM(plans, config.limits, status, config.link_lost_timeout, config.lost_action,
                               config.checkpoint_interval)  # fmt: skip
         self.compressor = Compressor(default_streams(), config.max_latency, config.max_silence)
         self.plume = PlumeDetector(self.fsm.status.params.get("plume_threshold", config.plume_threshold))
-        key = auth.parse_key(config.key)
         window = auth.ReplayWindow.from_dict(self.state.replay)
+        sync = auth.SyncWindow(config.max_clock_correction, tuple(self.state.heartbeat))  # type: ignore[arg-type]
         self.driver = modem.ModemDriver(modem.DriverSettings(url=config.modem_url, address=config.address,
                                                              log_path=config.modem_log or None))  # fmt: skip
         self.link = VehicleLink(
-            self.driver, auth.ControlReceiver(key, config.address, window), config.shore_address
+            self.driver, auth.ControlReceiver(self.keys, config.address, window, sync), config.shore_address
         )
+        self.link.offset = self.state.clock_offset
+        for urgent, data in self.state.outbox:  # what a SIGKILL interrupted goes out again, byte for byte
+            packet = bytes.fromhex(data)
+            self.link.send(packet, urgent, self._on_delivered(packet))
+        if self.state.outbox:
+            log.info("%d packet(s) restored to the send queue", len(self.state.outbox))
         self.link.on_control = self._on_control
         self.link.on_repeat = self._on_repeat
         self._repeat_answered = -1e9
@@ -122,7 +161,6 @@ class Agent:
         self.samples: deque[tuple[str, float, tuple]] = deque(maxlen=10_000)
         self.mav.listeners.append(self._on_mavlink)
         self.shore_heard_at: float | None = None
-        self._polls_seen = 0
         self._dirty = True
         self._persisted_at = -1e9
 
@@ -131,9 +169,9 @@ class Agent:
     def _on_mavlink(self, kind: str, msg: object) -> None:
         """MAVLink thread: hand samples to the loop (a deque is safe between threads)."""
         if kind == "RAW_IMU":
-            self.samples.append(("imu", time.time(), self.mav.telemetry.imu))
+            self.samples.append(("imu", self.now(), self.mav.telemetry.imu))
         elif kind == "SCALED_PRESSURE2":
-            self.samples.append(("env", time.time(), (self.mav.telemetry.temperature, self.mav.telemetry.depth,
+            self.samples.append(("env", self.now(), (self.mav.telemetry.temperature, self.mav.telemetry.depth,
                                                       self.mav.telemetry.oxygen)))  # fmt: skip
 
     def pose(self) -> Pose:
@@ -142,12 +180,53 @@ class Agent:
 
     def _on_control(self, packet: ControlPacket) -> None:
         now = self.mav.telemetry.time
+        self.shore_heard_at = now  # only authentic packets get here
+        if packet.key_epoch > self.state.key_epoch % 256 and packet.key_epoch in {v % 256 for v in self.keys}:
+            self.state.key_epoch = next(v for v in self.keys if v % 256 == packet.key_epoch)
+            log.warning("shore uses key version %d: check-points signed with it from now on (confirms it)",
+                        self.state.key_epoch)  # fmt: skip
+            self.fsm.checkpoint_due = True
+        if packet.command is Command.SYNC:
+            self._on_sync(packet)
+            return
+        previous = (self.fsm.status.last_command, self.fsm.status.command_status)
         status, reason = self.fsm.on_control(packet, self.pose(), now)
-        self.shore_heard_at = now
+        if previous[0] and previous[0] != packet.seq:
+            final = previous[1] if previous[1] in (CommandStatus.EXECUTED, CommandStatus.REFUSED) else (
+                CommandStatus.SUPERSEDED)  # fmt: skip
+            self.state.settled = [*self.state.settled, [previous[0], final.name]][-16:]
         self.plume.threshold = self.fsm.status.params.get("plume_threshold", self.plume.threshold)
         log.info("control seq %d %s: %s %s", packet.seq, packet.command.name, status.name, reason.name)
         self.state.replay = self.link.receiver.window.to_dict()
         self._persist()  # the replay window is on disk before anything acts on the command
+
+    def _on_sync(self, packet: ControlPacket) -> None:
+        """The shore's authenticated heartbeat: its clock, and maybe a request to restart the chains."""
+        local = time.time()
+        error = packet.time - (local + self.link.offset)
+        if abs(error) > 30.0:  # travel and airtime are seconds: only correct what matters
+            self.link.offset = self.state.clock_offset = packet.time - local
+            log.warning("clock corrected by %+.0f s from the shore's SYNC (offset now %+.0f s)", error,
+                        self.link.offset)  # fmt: skip
+        if packet.param_id & SYNC_RESTART_CHAINS:
+            log.warning("shore asked to restart the sample chains (it lost their state)")
+            self.compressor.restart_chains()
+        self.state.heartbeat = list(self.link.receiver.sync.last)
+        self._persist()
+
+    def _on_delivered(self, packet: bytes):  # noqa: ANN202
+        """What to do when a priority packet is delivered: remember it for the next check-point's MAC."""
+
+        def done(delivered: bool) -> None:
+            if delivered:
+                self.state.uncovered = [*self.state.uncovered, [packet[1], auth.packet_hash(packet).hex()]]
+                self._dirty = True
+
+        return done
+
+    def now(self) -> float:
+        """The local clock corrected by the shore's SYNC time."""
+        return time.time() + self.link.offset
 
     def _on_repeat(self, seq: int) -> None:
         """The shore sent again a command we have: it did not hear our check-point. Say it again
@@ -182,16 +261,29 @@ class Agent:
     # --- outputs --------------------------------------------------------------------------------
 
     def _send_packets(self) -> None:
-        for stream, encoded in self.compressor.ready(time.time()):
+        for stream, encoded in self.compressor.ready(self.now()):
             urgent = encoded.packet.priority is Priority.TIME_SENSITIVE
             packet = with_seq(encoded.packet, self.state.packet_seq)
             self.state.packet_seq += 1
-            self.link.send(packet.encode(), urgent, lambda ok, s=stream: self.compressor.resolve(s, ok))
+            frame = packet.encode()
+            covered = self._on_delivered(frame)
+
+            def resolved(ok: bool, s: Stream = stream, covered=covered) -> None:  # noqa: ANN001
+                self.compressor.resolve(s, ok)
+                covered(ok)
+
+            self.link.send(frame, urgent, resolved)
             self.state.priority_count += 1
+            self._dirty = True
             log.info("priority packet seq %d (%s, %d ticks, %d surprises) queued", packet.seq,
                      stream.name.lower(), encoded.ticks, encoded.nonzero)  # fmt: skip
             if stream is Stream.ENVIRONMENTAL and encoded.nonzero and not urgent:
                 self.fsm.on_unpredictable(False, None)
+
+    def settled(self, last: int) -> int:
+        """The check-point's ``settled`` byte: final statuses of the four commands before ``last``."""
+        finals = {seq: CommandStatus[name] for seq, name in self.state.settled}
+        return pack_settled([finals.get(last - k) for k in range(1, 5)])
 
     def checkpoint(self) -> CheckpointPacket:
         tel, s, pose = self.mav.telemetry, self.fsm.status, self.pose()
@@ -199,22 +291,43 @@ class Agent:
         flags = (1 if self.position.source != "dead_reckoning" else 0) | (2 if tel.armed else 0) | (
             4 if s.state is MissionState.LINK_LOST else 0)  # fmt: skip
         return CheckpointPacket(
-            seq=self.state.packet_seq % 256, time=int(time.time()), state=s.state, mission_id=s.mission or 0,
+            seq=self.state.packet_seq % 256, time=int(self.now()), state=s.state, mission_id=s.mission or 0,
             waypoint=min(s.waypoint, 255), north=clip(pose.north, -3276.8, 3276.7),
             east=clip(pose.east, -3276.8, 3276.7), depth=clip(pose.depth, 0, 655.35),
             heading=round(pose.heading, 2) % 360.0,
-            battery=clip(tel.battery, 0, 25.5), last_command=s.last_command, command_status=s.command_status,
-            reason=s.reason, temperature=clip(tel.temperature or 0.0, -327.68, 327.67),
-            oxygen=clip(tel.oxygen, 0, 655.34) if tel.oxygen is not None else OXYGEN_NONE,
-            priority_count=self.state.priority_count % 65536, flags=flags)  # fmt: skip
+            battery=clip(tel.battery, 0, 25.5), last_command=s.last_command & 0xFFFF,
+            command_status=s.command_status, reason=s.reason, settled=self.settled(s.last_command),
+            temperature=clip(tel.temperature or 0.0, -327.68, 327.67),
+            oxygen=clip(tel.oxygen, 0, 655.34) if tel.oxygen is not None else OXYGEN_NONE, flags=flags)  # fmt: skip
+
+    def _reachable(self, seq: int) -> list[list]:
+        """The uncovered packets a check-point with ``seq`` can still cover (the others are dropped)."""
+        keep = [u for u in self.state.uncovered if (seq - 1 - u[0]) % 256 < COVER_BITS]
+        if len(keep) < len(self.state.uncovered):
+            log.warning("%d delivered packet(s) fell out of reach of any check-point: they stay unverified",
+                        len(self.state.uncovered) - len(keep))  # fmt: skip
+            self.state.uncovered = keep
+        return keep
 
     def _send_checkpoint(self) -> None:
         packet, report, self._report = self.checkpoint(), self._report, None
         same = report is not None and report.last_command == packet.last_command
         if same and report.command_status is packet.command_status:  # type: ignore[union-attr]
             packet = with_seq(report, packet.seq)  # the pose and time of the tick the status changed
+        covered = self._reachable(packet.seq)
+        packet = replace(packet, covered=cover_bitmap(packet.seq, [u[0] for u in covered]))
+        hashes = [bytes.fromhex(h) for _, h in sorted(covered, key=lambda u: (packet.seq - 1 - u[0]) % 256,
+                                                      reverse=True)]  # fmt: skip
+        frame = auth.sign_checkpoint(packet, self.keys[self.state.key_epoch], self.state.key_epoch,
+                                     self.config.address, hashes)  # fmt: skip
+
+        def delivered(ok: bool, done: list[list] = covered) -> None:
+            if ok:  # the shore holds the MAC for these now: no later check-point needs to cover them
+                self.state.uncovered = [u for u in self.state.uncovered if u not in done]
+                self._dirty = True
+
         self.state.packet_seq += 1
-        self.link.send(packet.encode(), urgent=True)
+        self.link.send(frame, urgent=True, on_result=delivered)
         self.fsm.checkpoint_sent(self.mav.telemetry.time)
         self._dirty = True
         log.info("check-point seq %d queued: %s, command %d %s", packet.seq, packet.state.name,
@@ -226,6 +339,7 @@ class Agent:
         self.state.speed, self.state.thrust = self.position.speed, self.navigator.thrust
         self.state.yaw = self.mav.telemetry.yaw
         self.state.time = self.mav.telemetry.time if self.mav.telemetry.time else self.state.time
+        self.state.outbox = [[urgent, data.hex()] for urgent, data in self.link.pending()]
         self.state.save(self.state_path)
         self._dirty = False
 
@@ -237,9 +351,6 @@ class Agent:
             return  # never steer, dead-reckon or report on default heading and depth
         self.navigator.step()
         pose = self.pose()
-        if self.link.counters["polls"] != self._polls_seen:
-            self._polls_seen = self.link.counters["polls"]
-            self.shore_heard_at = tel.time
         if self.shore_heard_at is None or self.shore_heard_at > tel.time:
             self.shore_heard_at = tel.time  # counting starts now (or the autopilot rebooted)
         self._drain_samples(pose)
@@ -251,6 +362,9 @@ class Agent:
         if reported != (before["last_command"], before["command_status"]):
             self._report = self.checkpoint()  # where and when it happened (e.g. arrival), even if sent later
         self._send_packets()
+        oldest = min(((self.state.packet_seq - u[0]) % 256 for u in self.state.uncovered), default=0)
+        if oldest >= COVER_BITS - 4:  # a check-point now, while the oldest delivered packet is in reach
+            self.fsm.checkpoint_due = True
         if self.fsm.checkpoint_due and self.link.backlog < 4:
             self._send_checkpoint()
         if self._dirty or self.fsm.status.to_dict() != before or tel.time - self._persisted_at >= 1.0:

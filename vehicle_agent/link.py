@@ -7,7 +7,12 @@ at the next poll goes out again, byte for byte, and the shore drops the copy (ex
 ``attempts`` tries it is reported lost, so the compressor can re-base its chain.
 
 Incoming control frames pass the MAC and replay window of ``tacit.auth`` before anyone sees them;
-forged, bit-flipped, replayed and stale packets are logged and dropped.
+forged, bit-flipped, replayed and stale packets are logged and dropped. Time stamps are checked
+against the local clock plus ``offset`` (the correction the shore's authenticated SYNC time gave).
+
+A poll ($CADRQ) is answered whoever sent it (the Micro-Modem's poll carries no data to authenticate),
+but it is only counted, never taken as a sign of the shore: only authentic control packets are.
+``pending()`` lists what is queued or unacknowledged, for the agent to persist across a SIGKILL.
 """
 
 from __future__ import annotations
@@ -20,7 +25,15 @@ from dataclasses import dataclass, field
 
 from tacit import auth, modem, nmea
 from tacit.link import from_frame
-from tacit.packets import PACKET_SIZE, ControlPacket, PacketError, PacketType, decode_control, packet_type
+from tacit.packets import (
+    PACKET_SIZE,
+    Command,
+    ControlPacket,
+    PacketError,
+    PacketType,
+    decode_control,
+    packet_type,
+)
 
 log = logging.getLogger("tacit.agent.link")
 
@@ -42,6 +55,7 @@ class VehicleLink:
         self.shore_address = shore_address
         self.attempts = attempts
         self.clock = clock
+        self.offset = 0.0
         self.queue: list[Outgoing] = []
         self.in_flight: dict[int, list[Outgoing]] = {}  # by frame number of the last poll answer
         self.on_control: Callable[[ControlPacket], None] = lambda packet: None
@@ -67,6 +81,11 @@ class VehicleLink:
             raise ValueError(f"a packet is {PACKET_SIZE} bytes")
         self.queue.append(Outgoing(0 if urgent else 1, next(self._order), bytes(packet), on_result))
         self.queue.sort()
+
+    def pending(self) -> list[tuple[bool, bytes]]:
+        """(urgent, packet) for everything not yet delivered, in sending order."""
+        items = sorted([*self.queue, *(i for v in self.in_flight.values() for i in v)])
+        return [(item.urgency == 0, item.data) for item in items]
 
     @property
     def backlog(self) -> int:
@@ -116,16 +135,21 @@ class VehicleLink:
         try:
             if packet_type(frame) is not PacketType.CONTROL:
                 raise PacketError("not a control packet")
-            packet = self.receiver.accept(frame, self.clock())
+            packet = self.receiver.accept(frame, self.clock(), self.offset)
         except auth.Replayed as exc:  # genuine (the MAC held) but seen before: never executed twice
             self.counters["rejected"] += 1
             log.warning("control frame rejected: %s (%s)", exc, type(exc).__name__)
-            self.on_repeat(decode_control(frame).seq)
+            repeated = decode_control(frame)
+            if repeated.command is not Command.SYNC:
+                self.on_repeat(repeated.seq)
             return
         except PacketError as exc:
             self.counters["rejected"] += 1
             log.warning("control frame rejected: %s (%s)", exc, type(exc).__name__)
             return
         self.counters["controls"] += 1
-        log.info("control seq %d accepted: %s", packet.seq, packet.command.name)
+        if packet.command is Command.SYNC:  # a heartbeat, not a command: its counter is not a command seq
+            log.info("SYNC %d accepted (shore time %d)", packet.seq, packet.time)
+        else:
+            log.info("control seq %d accepted: %s", packet.seq, packet.command.name)
         self.on_control(packet)

@@ -1,20 +1,15 @@
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends
-from pydantic import BaseModel, Field
 from sqlmodel import select
 
 from server.api.deps import Id, LinkDep, ReadSession, WriteDep
 from server.auth import require_read, require_write
 from server.models import Vehicle
-from server.schemas import Limits, VehicleCreated, VehicleIn, VehicleOut
+from server.schemas import KeyIn, Limits, VehicleCreated, VehicleIn, VehicleOut
 from server.services import vehicles
 
 router = APIRouter(prefix="/api/v1/vehicles", tags=["vehicles"])
-
-
-class KeyIn(BaseModel):
-    key: str | None = Field(None, description="hex; generated when absent")
 
 
 def _out(vehicle: Vehicle) -> VehicleOut:

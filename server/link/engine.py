@@ -2,7 +2,8 @@
 
 The MAC schedule: the shore polls, as goby's polled MAC does, so transmissions never collide even with
 several vehicles on one channel. Slots go round the vehicles; in a vehicle's slot the shore sends its
-next command (``server.link.delivery``: attempts, ACKs, retries) or, with nothing to send, pings it
+next command (``server.link.delivery``: attempts, ACKs, retries), or its authenticated heartbeat when
+one is due (``server.link.heartbeat``: SYNC), or, with nothing to send, pings it
 when a range is due (``server.link.ranging``) and polls it for data at the rate ``tacit.link.choose_rate``
 picks from the recent SNR. Slot lengths come from ``server.link.timing``. Received frames go to one
 ingest worker (``server.link.ingest``) in arrival order; every database access runs off this event loop
@@ -20,6 +21,7 @@ from sqlalchemy import Engine
 
 from server.events import EventBus
 from server.link.delivery import Delivery
+from server.link.heartbeat import Heartbeat
 from server.link.ingest import IncomingFrame, Ingest, VehicleState
 from server.link.ranging import Ranging
 from server.link.store import LinkStore
@@ -41,6 +43,7 @@ class LinkEngine:
         self.timing = Timing(settings)
         self.delivery = Delivery(settings, self.store, bus, self.timing)
         self.ranging = Ranging(settings, self.store, bus, self.timing)
+        self.heartbeat = Heartbeat(settings, self.store, self.timing)
         self.driver: mm.ModemDriver | None = None
         self._wake = asyncio.Event()
         self._heard: dict[int, asyncio.Event] = {}
@@ -157,6 +160,9 @@ class LinkEngine:
         if command is not None:
             await self.delivery.attempt(driver, vehicle, command)
             return True
+        if self.heartbeat.due(vehicle):
+            await self.heartbeat.sync(driver, vehicle)
+            return True
         if self.ranging.due(vehicle):
             await self.ranging.ping(driver, vehicle)
         return await self._poll(driver, vehicle)
@@ -193,6 +199,7 @@ class LinkEngine:
                 "packets_per_hour": round(v.packets / hours, 1), "bytes_saved": v.bytes_saved,
                 "checkpoint": v.checkpoint,
             }  # fmt: skip
-        counters = {**self.counters, **self.delivery.counters, "pings": self.ranging.pings}
+        counters = {**self.counters, **self.delivery.counters, "pings": self.ranging.pings,
+                    "syncs": self.heartbeat.syncs}  # fmt: skip
         return {"modem": modem, "address": self.settings.modem_address, "counters": counters,
                 "ingest": dict(self.ingest.stats), "vehicles": vehicles}  # fmt: skip

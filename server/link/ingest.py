@@ -4,30 +4,50 @@ A frame is committed before anything about it is acknowledged to anyone or shown
 command status). Frames that arrive together are stored in one transaction (group commit) and their
 events published after it. Decoding problems are stored and published as such; nothing here raises on
 bad input from the water.
+
+Authentication (``tacit.auth``). A priority packet is decoded and shown at once, but its packet row
+says ``auth = "pending"`` and its telemetry rows ``verified = false`` until a check-point whose MAC
+covers it arrives; then they become verified. A check-point is applied (vehicle state, command
+statuses) only if its MAC holds under one of the vehicle's keys and it is not older than the last one;
+otherwise it is stored as ``forged`` (or ``replayed``) with a link event, and nothing else changes. A
+packet whose seq a verified check-point vouched for with other bytes is marked ``forged``.
+
+Restarts. What the shore knows of each vehicle's link (the duplicate window, the hashes of recent
+priority packets, the last check-point, whether the sample chains must restart) is saved in
+``linkstate`` with every batch; the stream decoders are rebuilt at start by decoding the stored
+priority packets again (the codec is deterministic). If a packet still cannot be decoded because its
+base state was never stored (the shore was down while the vehicle's modem was ACKed), the vehicle is
+asked, in one SYNC control packet (``needs_restart``, sent by the link engine), to restart its chains.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import threading
 from dataclasses import dataclass, field
+from typing import Any
 
-from sqlalchemy import Engine, insert
-from sqlmodel import Session, select
+from sqlalchemy import Engine, insert, update
+from sqlmodel import Session, col, select
 
 from server.db import writing
 from server.events import EventBus
-from server.models import Command, Frame, LinkEvent, Packet, Telemetry, Vehicle, now
+from server.link import keys
+from server.models import Command, Frame, LinkEvent, LinkState, Packet, Telemetry, Vehicle, now
 from server.services import commands
-from tacit import packets
+from tacit import auth, packets
 from tacit.codec import CodecError, PacketDecoder, StreamSpec
 from tacit.link import SeenWindow, from_frame
 from tacit.navigation import Pose
-from tacit.packets import CheckpointPacket, CommandStatus, PacketError, PriorityPacket, Stream
+from tacit.packets import CheckpointPacket, CommandStatus, PacketError, PriorityPacket, Stream, unpack_settled
 
 log = logging.getLogger("tacit.server.ingest")
 
 Events = list[tuple[str, dict]]
+RECENT_SEQS = 64  # priority packet hashes kept per vehicle for the check-points to come
+SAVED_SEEN = 64  # duplicate-window entries saved across a restart (retransmissions come within polls)
+REPLAY_PACKETS = 2000  # stored priority packets decoded again at start to rebuild the decoders
 
 
 @dataclass
@@ -48,6 +68,24 @@ class VehicleState:
     duplicates: int = 0
     bytes_saved: int = 0
     checkpoint: dict | None = None
+    checkpoint_time: int = 0  # the last verified check-point's time stamp (older ones are replays)
+    recent: dict[int, list[tuple[bytes, int]]] = field(default_factory=dict)  # seq -> [(hash, packet id)]
+    needs_restart: bool = False  # the engine should send a SYNC asking the vehicle to restart its chains
+    forged: int = 0
+    verified: int = 0
+
+    def saved(self) -> dict[str, Any]:
+        return {"seen": [p.hex() for p in self.seen.recent[-SAVED_SEEN:]], "checkpoint": self.checkpoint,
+                "checkpoint_time": self.checkpoint_time, "needs_restart": self.needs_restart,
+                "recent": {str(seq): [[h.hex(), pid] for h, pid in items] for seq, items in self.recent.items()}}  # fmt: skip
+
+    def restore(self, data: dict[str, Any]) -> None:
+        self.seen.recent = [bytes.fromhex(p) for p in data.get("seen", [])]
+        self.checkpoint = data.get("checkpoint")
+        self.checkpoint_time = int(data.get("checkpoint_time", 0))
+        self.needs_restart = bool(data.get("needs_restart", False))
+        self.recent = {int(seq): [(bytes.fromhex(h), int(pid)) for h, pid in items]
+                       for seq, items in data.get("recent", {}).items()}  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -74,6 +112,7 @@ class _Batch:
         for table, rows in ((Packet, self.packets), (Telemetry, self.telemetry), (LinkEvent, self.events)):
             if rows:
                 s.execute(insert(table), rows)
+                rows.clear()
 
 
 class Ingest:
@@ -83,18 +122,45 @@ class Ingest:
         self.streams = streams
         self.vehicles: dict[int, VehicleState] = {}  # by modem address
         self._lock = threading.Lock()
-        self.stats = {"frames": 0, "packets": 0, "duplicates": 0, "rejected": 0, "unknown_vehicle": 0}
+        self.stats = {"frames": 0, "packets": 0, "duplicates": 0, "rejected": 0, "unknown_vehicle": 0,
+                      "verified": 0, "forged": 0, "replayed": 0}  # fmt: skip
 
     def load_vehicles(self) -> None:
+        """The vehicles from the database; one new here gets its saved link state and decoders back."""
         with Session(self.db) as s:
             rows = s.exec(select(Vehicle)).all()
-        with self._lock:
-            for v in rows:
-                if v.address not in self.vehicles or self.vehicles[v.address].id != v.id:
-                    decoder = PacketDecoder(list(self.streams.values()))
-                    self.vehicles[v.address] = VehicleState(v.id, v.name, v.address, decoder)  # type: ignore[arg-type]
-            for address in set(self.vehicles) - {v.address for v in rows}:
-                del self.vehicles[address]
+            with self._lock:
+                for v in rows:
+                    if v.address not in self.vehicles or self.vehicles[v.address].id != v.id:
+                        self.vehicles[v.address] = self._resume(s, v)
+                for address in set(self.vehicles) - {v.address for v in rows}:
+                    del self.vehicles[address]
+
+    def _resume(self, s: Session, v: Vehicle) -> VehicleState:
+        """A vehicle's state as the last run left it: saved link state, decoders rebuilt by decoding the
+        last stored priority packets again, in the order they arrived."""
+        decoder = PacketDecoder(list(self.streams.values()))
+        state = VehicleState(v.id, v.name, v.address, decoder)
+        saved = s.get(LinkState, v.id)
+        if saved is not None:
+            try:
+                state.restore(saved.state)
+            except (KeyError, TypeError, ValueError) as exc:
+                log.error("vehicle %s: saved link state unreadable (%s): starting afresh", v.name, exc)
+        query = (select(Packet.body, Packet.at).where(Packet.vehicle_id == v.id, Packet.type == "priority")
+                 .order_by(col(Packet.id).desc()).limit(REPLAY_PACKETS))  # fmt: skip
+        rows = list(reversed(s.exec(query).all()))
+        decoded = 0
+        for body, at in rows:
+            try:
+                decoder.decode(bytes.fromhex(body["payload"]), at)
+                decoded += 1
+            except (CodecError, KeyError, ValueError):
+                pass
+        if rows:
+            log.info("vehicle %s: decoders rebuilt from %d stored priority packet(s) (%d decoded)", v.name,
+                     len(rows), decoded)  # fmt: skip
+        return state
 
     def pose(self, address: int) -> Pose | None:
         """The pose the vehicle at ``address`` last reported (None before its first check-point)."""
@@ -111,19 +177,38 @@ class Ingest:
             pending: Events = []
             with writing(self.db) as s:
                 batch = _Batch()
+                touched: dict[int, VehicleState] = {}
                 for frame in frames:
                     pending.extend(self._frame(s, batch, frame))
+                    if frame.src in self.vehicles:
+                        touched[frame.src] = self.vehicles[frame.src]
                 batch.flush(s)
+                for v in touched.values():  # in the same transaction as the packets it describes
+                    self._save(s, v)
                 s.commit()
         for kind, data in pending:
             self.bus.publish(kind, **data)
         return [{"kind": kind, **data} for kind, data in pending]
 
+    def _save(self, s: Session, v: VehicleState) -> None:
+        row = s.get(LinkState, v.id)
+        if row is None:
+            s.add(LinkState(vehicle_id=v.id, state=v.saved()))
+        else:
+            row.state, row.updated_at = v.saved(), now()
+            s.add(row)
+        s.flush()
+
     def _frame(self, s: Session, batch: _Batch, frame: IncomingFrame) -> Events:
         vehicle = self.vehicles.get(frame.src)
         self.stats["frames"] += 1
+        if not (0 <= frame.src <= 255 and 0 <= frame.dest <= 255 and 0 <= frame.rate <= 255):
+            self.stats["rejected"] += 1  # the modem driver's parser bounds these; never trust it blindly
+            log.warning("frame with impossible addresses or rate dropped")
+            return []
         row = {"direction": "in", "src": frame.src, "dest": frame.dest, "rate": frame.rate, "data": frame.data,
-               "snr_in": frame.snr_in, "snr_out": frame.snr_out, "stats": frame.stats, "at": frame.at}  # fmt: skip
+               "snr_in": _finite(frame.snr_in), "snr_out": _finite(frame.snr_out), "stats": frame.stats,
+               "at": frame.at}  # fmt: skip
         frame_id = s.execute(insert(Frame).returning(Frame.id), [row]).scalar_one()
         if vehicle is None:
             self.stats["unknown_vehicle"] += 1
@@ -133,7 +218,7 @@ class Ingest:
             return [("link", {"event": "unknown_vehicle", "address": frame.src})]
         vehicle.frames += 1
         vehicle.last_heard = frame.at
-        vehicle.snr_in, vehicle.snr_out = frame.snr_in, frame.snr_out
+        vehicle.snr_in, vehicle.snr_out = _finite(frame.snr_in), _finite(frame.snr_out)
         out: Events = []
         for chunk in from_frame(frame.data):
             out.extend(self._packet(s, batch, vehicle, frame_id, chunk, frame.at))
@@ -162,70 +247,167 @@ class Ingest:
         self.stats["packets"] += 1
         v.packets += 1
         body = packets.as_dict(packet)
-        if isinstance(packet, CheckpointPacket):
-            events = self._checkpoint(s, v, packet, body)
-        else:
-            events = self._priority(batch, v, packet, body, at)
         priority = int(getattr(packet, "priority", 0))
-        batch.packets.append({"frame_id": frame_id, "vehicle_id": v.id, "type": body["type"], "seq": packet.seq,
-                              "priority": priority, "body": body, "at": at})  # fmt: skip
+        row = {"frame_id": frame_id, "vehicle_id": v.id, "type": body["type"], "seq": packet.seq,
+               "priority": priority, "body": body, "at": at, "auth": "pending"}  # fmt: skip
+        if isinstance(packet, CheckpointPacket):
+            events, row["auth"] = self._checkpoint(s, batch, v, packet, body)
+            s.execute(insert(Packet), [row])
+        else:
+            packet_id = s.execute(insert(Packet).returning(Packet.id), [row]).scalar_one()
+            recent = v.recent.setdefault(packet.seq, [])
+            recent[:] = [*recent[-3:], (auth.packet_hash(chunk), packet_id)]
+            while len(v.recent) > RECENT_SEQS:  # drop the seq furthest behind this one
+                del v.recent[max(v.recent, key=lambda q: (packet.seq - q) % 256)]
+            events = self._priority(batch, v, packet, body, at, packet_id)
+            if body.get("stream_name"):
+                s.execute(update(Packet).where(Packet.id == packet_id).values(body=body))
         log.info("vehicle %s: %s packet seq %d stored", v.name, body["type"], packet.seq)
         summary = {"vehicle": v.name, "address": v.address, "type": body["type"], "seq": packet.seq,
-                   "priority": priority, "size": len(chunk), "snr": v.snr_in, "body": body}  # fmt: skip
+                   "priority": priority, "size": len(chunk), "snr": v.snr_in, "body": body, "auth": row["auth"]}  # fmt: skip
         return [("packet", summary), *events]
 
-    def _checkpoint(self, s: Session, v: VehicleState, cp: CheckpointPacket, body: dict) -> Events:
-        v.checkpoint = body
+    # --- check-points -----------------------------------------------------------------------------
+
+    def _checkpoint(self, s: Session, batch: _Batch, v: VehicleState, cp: CheckpointPacket,
+                    body: dict) -> tuple[Events, str]:  # fmt: skip
+        """Verify, then apply; returns the events and the packet's ``auth``."""
+        vehicle = s.get(Vehicle, v.id)
+        seqs = cp.covered_seqs()
+        candidates = [[h for h, _ in v.recent.get(seq, [])] for seq in seqs]
+        try:
+            version, chosen = auth.verify_checkpoint(cp, keys.accepted(vehicle), v.address, candidates)  # type: ignore[arg-type]
+        except auth.BadMac as exc:
+            return self._refused(batch, v, "forged", f"check-point seq {cp.seq}: {exc}", cp), "forged"
+        if cp.time < v.checkpoint_time:
+            return self._refused(batch, v, "replayed", f"check-point seq {cp.seq} is older than the last", cp), (
+                "replayed")  # fmt: skip
+        v.checkpoint, v.checkpoint_time = body, cp.time
+        v.verified += 1
+        self.stats["verified"] += 1
         events: Events = [("vehicle", {"vehicle": v.name, "checkpoint": body})]
-        status = commands.FROM_CHECKPOINT.get(cp.command_status)
-        if not status or not cp.last_command:
-            return events
-        query = select(Command).where(Command.vehicle_id == v.id, Command.seq == cp.last_command)
-        command = s.exec(query).first()
-        reason = cp.reason.name.lower() if cp.command_status is CommandStatus.REFUSED else ""
-        report = commands.report_of(body)
-        if command and commands.advance(s, command, status, reason, reason=reason, report=report):
+        events += self._vouch(s, batch, v, seqs, chosen)
+        if vehicle is not None and vehicle.previous_key_hex and version == vehicle.key_version:
+            s.execute(update(Vehicle).where(Vehicle.id == v.id).values(previous_key_hex=None))
+            batch.events.append({"vehicle_id": v.id, "kind": "key_confirmed", "at": now(),
+                                 "detail": {"key_version": version}})  # fmt: skip
+            events.append(("link", {"event": "key_confirmed", "vehicle": v.name, "key_version": version}))
+            log.warning(
+                "vehicle %s: key version %d confirmed; commands are signed with it now", v.name, version
+            )
+        return events + self._statuses(s, v, cp, vehicle), "verified"
+
+    def _refused(
+        self, batch: _Batch, v: VehicleState, kind: str, detail: str, cp: CheckpointPacket
+    ) -> Events:
+        v.forged += 1
+        self.stats[kind] += 1
+        batch.events.append({"vehicle_id": v.id, "kind": f"{kind}_checkpoint", "at": now(),
+                             "detail": {"error": detail, "hex": cp.encode().hex()}})  # fmt: skip
+        log.warning("vehicle %s: %s check-point ignored: %s", v.name, kind, detail)
+        return [("link", {"event": f"{kind}_checkpoint", "vehicle": v.name, "error": detail})]
+
+    def _vouch(
+        self, s: Session, batch: _Batch, v: VehicleState, seqs: list[int], chosen: tuple[bytes, ...]
+    ) -> Events:
+        """The covered packets are verified; another packet received with one of their seqs is forged."""
+        good, bad = [], []
+        for seq, digest in zip(seqs, chosen, strict=True):
+            for h, packet_id in v.recent.get(seq, []):
+                (good if h == digest else bad).append(packet_id)
+            v.recent[seq] = [(h, pid) for h, pid in v.recent.get(seq, []) if h == digest]
+        batch.flush(s)  # telemetry of packets in this batch is in the table before it is marked
+        if good:
+            s.execute(update(Packet).where(col(Packet.id).in_(good)).values(auth="verified"))
+            s.execute(update(Telemetry).where(col(Telemetry.packet_id).in_(good)).values(verified=True))
+        if bad:
+            s.execute(update(Packet).where(col(Packet.id).in_(bad)).values(auth="forged"))
+            self.stats["forged"] += len(bad)
+            log.warning("vehicle %s: %d priority packet(s) not the ones the check-point vouched for: forged",
+                        v.name, len(bad))  # fmt: skip
+        return [("link", {"event": "verified", "vehicle": v.name, "packets": len(good), "forged": len(bad)})]
+
+    def _statuses(self, s: Session, v: VehicleState, cp: CheckpointPacket, vehicle: Vehicle | None) -> Events:
+        """Command statuses through the one lifecycle (``server.services.commands``): last_command's,
+        with where and when, and the final statuses of the four before it."""
+        if not cp.last_command or vehicle is None:
+            return []
+        latest = vehicle.next_seq - 1  # the check-point names the latest seq with these low 16 bits
+        last = latest - ((latest - cp.last_command) % 65536)
+        report = commands.report_of(v.checkpoint or {})
+        updates = [(last, cp.command_status, report)]
+        updates += [(last - k, status, None) for k, status in enumerate(unpack_settled(cp.settled), start=1)]
+        events: Events = []
+        for seq, reported, where in updates:
+            status = commands.FROM_CHECKPOINT.get(reported) if reported else None
+            if status is None or seq <= 0:
+                continue
+            command = s.exec(select(Command).where(Command.vehicle_id == v.id, Command.seq == seq)).first()
+            reason = cp.reason.name.lower() if where is not None and reported is CommandStatus.REFUSED else ""
+            if command is None or not commands.advance(
+                s, command, status, reason, reason=reason, report=where
+            ):
+                continue
             events.append(("command", {"id": command.id, "vehicle": v.name, "seq": command.seq,
-                                       "status": status.value, "reason": reason, "report": report}))  # fmt: skip
-            if status in (commands.Status.EXECUTING, commands.Status.EXECUTED):
+                                       "status": status.value, "reason": reason, "report": where}))  # fmt: skip
+            if where is not None and status in (commands.Status.EXECUTING, commands.Status.EXECUTED):
                 for old in commands.supersede_older(s, command):
                     events.append(("command", {"id": old.id, "vehicle": v.name, "seq": old.seq,
                                                "status": commands.Status.SUPERSEDED.value, "reason": ""}))  # fmt: skip
         return events
 
-    def _priority(self, batch: _Batch, v: VehicleState, pp: PriorityPacket, body: dict, at: float) -> Events:
+    # --- priority packets ---------------------------------------------------------------------------
+
+    def _priority(self, batch: _Batch, v: VehicleState, pp: PriorityPacket, body: dict, at: float,
+                  packet_id: int) -> Events:  # fmt: skip
         try:
             spans = v.decoder.decode(pp.payload, at)
         except CodecError as exc:
-            body["error"] = str(exc)
-            batch.events.append({"vehicle_id": v.id, "kind": "undecodable", "at": at,
-                                 "detail": {"stream": pp.stream.name.lower(), "error": str(exc)}})  # fmt: skip
-            return [("link", {"event": "undecodable", "vehicle": v.name, "stream": pp.stream.name.lower(),
-                              "error": str(exc)})]  # fmt: skip
+            return self._undecodable(batch, v, pp, body, at, exc)
         events: Events = []
         carried = []
         for span in spans:
             spec = span.spec
             if span.lost:  # the shore cannot vouch for these ticks: stored as uncertain, without values
                 batch.telemetry.extend({"vehicle_id": v.id, "stream": spec.name, "tick": k, "time": k * spec.period,
-                                        "values": [], "certain": False} for k in range(*span.lost))  # fmt: skip
+                                        "values": [], "certain": False, "packet_id": packet_id, "verified": False}
+                                       for k in range(*span.lost))  # fmt: skip
             if not len(span.ticks) and not span.lost:
                 continue
             carried.append(spec.name)
             # an absent channel is stored as absent (None), never as a made-up value
             rows = [[None if x != x else round(float(x), 6) for x in values] for values in span.values]
             batch.telemetry.extend({"vehicle_id": v.id, "stream": spec.name, "tick": int(k),
-                                    "time": int(k) * spec.period, "certain": True, "values": row}
+                                    "time": int(k) * spec.period, "certain": True, "values": row,
+                                    "packet_id": packet_id, "verified": False}
                                    for k, row in zip(span.ticks, rows, strict=True))  # fmt: skip
             v.bytes_saved += max(0, int((span.values == span.values).sum()) * 2 - packets.PACKET_SIZE)
             events.append(("telemetry", {"vehicle": v.name, "stream": spec.name, "channels": list(spec.channels),
                                          "first_time": span.first_tick * spec.period, "period": spec.period,
                                          "ticks": [int(k) for k in span.ticks],
                                          "values": [[None if x is None else round(x, 4) for x in row] for row in rows],
-                                         "lost": list(span.lost) if span.lost else None}))  # fmt: skip
+                                         "lost": list(span.lost) if span.lost else None, "verified": False}))  # fmt: skip
         main = next((s for s in spans if s.spec.stream == pp.stream and len(s.ticks)), None)
         main = main or next((s for s in spans if len(s.ticks)), spans[0])
         body.update(stream_name=main.spec.name, streams=carried, first_tick=main.first_tick,
                     ticks=sum(len(s.ticks) for s in spans),
                     lost=list(main.lost) if main.lost else None)  # fmt: skip
         return events
+
+    def _undecodable(self, batch: _Batch, v: VehicleState, pp: PriorityPacket, body: dict, at: float,
+                     exc: CodecError) -> Events:  # fmt: skip
+        stream = pp.stream.name.lower()
+        body["error"] = str(exc)
+        batch.events.append({"vehicle_id": v.id, "kind": "undecodable", "at": at,
+                             "detail": {"stream": stream, "error": str(exc)}})  # fmt: skip
+        if "no state" in str(exc) and not v.needs_restart:
+            v.needs_restart = True  # the engine's next SYNC asks the vehicle to restart its chains
+            log.warning(
+                "vehicle %s: sample chain state lost: asking the vehicle to restart its chains", v.name
+            )
+        return [("link", {"event": "undecodable", "vehicle": v.name, "stream": stream, "error": str(exc)})]
+
+
+def _finite(value: float | None) -> float | None:
+    """An SNR as stored and used: None when unknown or not a number."""
+    return value if value is not None and math.isfinite(value) else None

@@ -32,6 +32,7 @@ from sqlmodel import Session, select
 from server.db import writing
 from server.errors import NotFound, Refused
 from server.events import EventBus
+from server.link import keys
 from server.models import Command, CommandEvent, Mission, Vehicle, now
 from server.schemas import CommandIn
 from tacit import auth
@@ -107,7 +108,8 @@ def packet_for(command: Command, stamp: int | None = None) -> ControlPacket:
 
 def sign(command: Command, vehicle: Vehicle) -> bytes:
     """The frame to transmit now: the command signed with the vehicle's current key and a fresh stamp."""
-    return auth.sign(packet_for(command), bytes.fromhex(vehicle.key_hex), vehicle.address)
+    version, key = keys.for_commands(vehicle)  # the last key the vehicle confirmed (staged rotation)
+    return auth.sign(packet_for(command), key, vehicle.address, epoch=version)
 
 
 def submit(s: Session, vehicle: Vehicle, body: CommandIn, pose: Pose | None = None,

@@ -36,7 +36,7 @@ def get(s: Session, vehicle_id: int) -> Vehicle:
 
 def set_limits(s: Session, vehicle_id: int, limits: Limits) -> Vehicle:
     vehicle = get(s, vehicle_id)
-    for name, value in limits.model_dump().items():
+    for name, value in limits.model_dump(exclude_unset=True).items():  # a partial update changes only those
         setattr(vehicle, name, value)
     s.add(vehicle)
     s.commit()
@@ -53,6 +53,7 @@ def rotate_key(s: Session, vehicle_id: int, key_hex: str | None = None) -> Vehic
         key = auth.parse_key(key_hex) if key_hex else auth.new_key()
     except ValueError as exc:
         raise Refused(str(exc), "key") from None
+    vehicle.previous_key_hex = vehicle.previous_key_hex or vehicle.key_hex  # staged: see server.link.keys
     vehicle.key_hex = key.hex()
     vehicle.key_version += 1
     s.add(vehicle)

@@ -1,0 +1,275 @@
+"""Trust at sea, shore side, in process: forged check-points and priority packets change nothing,
+genuine ones are verified when a check-point covers them, command statuses settle, and a restarted
+shore decodes again (decoded values compared with what the vehicle measured, not row counts)."""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from sqlmodel import Session, select
+
+from server.db import make_engine, migrate
+from server.events import EventBus
+from server.link.ingest import IncomingFrame, Ingest
+from server.models import Command, Packet, Telemetry, Vehicle
+from tacit import auth
+from tacit.packets import (
+    CheckpointPacket,
+    CommandStatus,
+    MissionState,
+    Stream,
+    cover_bitmap,
+    pack_settled,
+    with_seq,
+)
+from tacit.streams import default_streams
+from vehicle_agent.compressor import Compressor
+
+KEY = bytes(range(32))
+STRANGER = bytes(32)
+ADDRESS = 2
+ENV = default_streams()[Stream.ENVIRONMENTAL]
+
+
+class Vehicle_:
+    """The vehicle's half, as the agent builds it: compressor, shared seq counter, signed check-points."""
+
+    def __init__(self, key: bytes = KEY, warmer: float = 0.0) -> None:
+        self.key, self.warmer = key, warmer
+        self.compressor = Compressor(default_streams(), max_latency=5.0, max_silence=5.0)
+        self.seq = 0
+        self.t = math.floor(time.time()) - 300.0
+        self.truth: dict[int, list[float]] = {}
+        self.delivered: list[tuple[int, bytes]] = []
+
+    def measure(self, seconds: int) -> None:
+        for _ in range(seconds):
+            self.t += 1.0
+            values = [20.0 + self.warmer + 0.3 * math.sin(self.t / 7), 5.0 + self.t % 3, 8.0]
+            self.truth[ENV.tick(self.t)] = values
+            self.compressor.add(Stream.ENVIRONMENTAL, self.t, values)
+
+    def priority(self, delivered: bool = True) -> bytes:
+        ready = [p for p in self.compressor.ready(self.t + 100) if p[0] is Stream.ENVIRONMENTAL]
+        assert ready, "nothing ready"
+        packet = with_seq(ready[0][1].packet, self.seq).encode()
+        self.seq += 1
+        self.compressor.resolve(Stream.ENVIRONMENTAL, delivered)
+        if delivered:
+            self.delivered.append((packet[1], packet))
+        return packet
+
+    def checkpoint(self, key: bytes | None = None, **fields: object) -> bytes:
+        seq = self.seq
+        self.seq += 1
+        cp = CheckpointPacket(seq=seq % 256, time=int(time.time()), state=MissionState.PREPROGRAMMED,
+                              covered=cover_bitmap(seq % 256, [s for s, _ in self.delivered]), **fields)  # type: ignore[arg-type]  # fmt: skip
+        covered = [p for s, p in self.delivered if (seq - 1 - s) % 256 < 16]
+        frame = auth.sign_checkpoint(cp, key or self.key, 1, ADDRESS, [auth.packet_hash(p) for p in covered])
+        self.delivered = []
+        return frame
+
+
+@pytest.fixture
+def shore(tmp_path: Path):  # noqa: ANN201
+    url = f"sqlite:///{tmp_path}/tacit.db"
+    migrate(url)
+    db = make_engine(url)
+    with Session(db) as s:
+        s.add(Vehicle(name="rov1", address=ADDRESS, key_hex=KEY.hex(), next_seq=8))
+        s.commit()
+        for seq in range(1, 8):
+            s.add(Command(vehicle_id=1, seq=seq, command="hold", frame=b"", status="acknowledged"))
+        s.commit()
+
+    def start() -> Ingest:
+        ingest = Ingest(db, EventBus(), default_streams())
+        ingest.load_vehicles()
+        return ingest
+
+    yield db, start
+    db.dispose()
+
+
+def send(ingest: Ingest, *packets: bytes) -> list[dict]:
+    return ingest.handle(IncomingFrame(ADDRESS, 1, b"".join(packets)))
+
+
+def rows(db, model, **where):  # noqa: ANN001, ANN003, ANN201
+    with Session(db) as s:
+        query = select(model)
+        for name, value in where.items():
+            query = query.where(getattr(model, name) == value)
+        return s.exec(query).all()
+
+
+def decoded_matches_truth(db, vehicle: Vehicle_) -> int:  # noqa: ANN001
+    """How many stored, certain env rows are within eps of what the vehicle measured (all must be)."""
+    good = 0
+    for row in rows(db, Telemetry, stream="env", certain=True):
+        truth = vehicle.truth[row.tick]
+        assert np.all(np.abs(np.array(row.values) - truth) <= np.array(ENV.eps) + 1e-9), (
+            row.tick,
+            row.values,
+        )
+        good += 1
+    return good
+
+
+def test_priority_data_is_unverified_until_a_checkpoint_covers_it(shore) -> None:  # noqa: ANN001
+    db, start = shore
+    ingest, vehicle = start(), Vehicle_()
+    vehicle.measure(10)
+    send(ingest, vehicle.priority())
+    vehicle.measure(10)
+    send(ingest, vehicle.priority())
+    assert {r.verified for r in rows(db, Telemetry)} == {False}
+    assert {p.auth for p in rows(db, Packet, type="priority")} == {"pending"}
+    send(ingest, vehicle.checkpoint())
+    assert {r.verified for r in rows(db, Telemetry)} == {True}
+    assert {p.auth for p in rows(db, Packet)} == {"verified"}
+    assert decoded_matches_truth(db, vehicle) == 20
+
+
+def test_forged_checkpoints_change_nothing(shore) -> None:  # noqa: ANN001
+    db, start = shore
+    ingest, vehicle = start(), Vehicle_()
+    send(ingest, vehicle.checkpoint(north=10.0))
+    forged = [
+        vehicle.checkpoint(key=STRANGER, north=-3000.0, depth=300.0, battery=0.5, last_command=7,
+                           command_status=CommandStatus.REFUSED),  # a stranger's key
+        bytes([b ^ (1 if i == 10 else 0) for i, b in enumerate(vehicle.checkpoint(north=-3000.0))]),  # flipped
+    ]  # fmt: skip
+    for frame in forged:
+        send(ingest, frame)
+    assert ingest.vehicles[ADDRESS].checkpoint["north"] == 10.0
+    assert {c.status for c in rows(db, Command)} == {"acknowledged"}
+    assert [p.auth for p in rows(db, Packet)] == ["verified", "forged", "forged"]
+    assert ingest.stats["verified"] == 1 and ingest.stats["forged"] == 2
+    genuine = vehicle.checkpoint(north=20.0)
+    send(ingest, genuine)
+    send(ingest, vehicle.checkpoint(north=30.0))
+    ingest.vehicles[ADDRESS].seen.recent.clear()  # the duplicate window forgot it: the time stamp still holds
+    older = CheckpointPacket(seq=99, time=int(time.time()) - 60, state=MissionState.PREPROGRAMMED, north=-1.0)
+    send(ingest, auth.sign_checkpoint(older, KEY, 1, ADDRESS, []))
+    assert ingest.vehicles[ADDRESS].checkpoint["north"] == 30.0 and ingest.stats["replayed"] == 1
+
+
+def test_forged_priority_packet_with_a_genuine_seq_is_marked_forged(shore) -> None:  # noqa: ANN001
+    db, start = shore
+    ingest, vehicle, attacker = start(), Vehicle_(), Vehicle_(STRANGER, warmer=20.0)  # 40 C water
+    attacker.t = vehicle.t
+    vehicle.measure(10)
+    attacker.measure(10)
+    forged = attacker.priority()
+    send(ingest, forged)  # the stranger's packet arrives first, with the seq the vehicle will use
+    send(ingest, vehicle.priority())
+    send(ingest, vehicle.checkpoint())
+    by_bytes = {bytes.fromhex(p.body["payload"]): p.auth for p in rows(db, Packet, type="priority")}
+    assert by_bytes[forged[2:]] == "forged"
+    assert sorted(by_bytes.values()) == ["forged", "verified"]
+
+
+def test_a_checkpoint_settles_the_commands_before_its_last(shore) -> None:  # noqa: ANN001
+    db, start = shore
+    ingest, vehicle = start(), Vehicle_()
+    settled = pack_settled([CommandStatus.SUPERSEDED, CommandStatus.REFUSED, None, CommandStatus.EXECUTED])
+    send(ingest, vehicle.checkpoint(last_command=7, command_status=CommandStatus.EXECUTING, settled=settled))
+    statuses = {c.seq: c.status for c in rows(db, Command)}
+    assert statuses == {1: "acknowledged", 2: "acknowledged", 3: "executed", 4: "acknowledged", 5: "refused",
+                        6: "superseded", 7: "executing"}  # fmt: skip
+
+
+def test_a_restarted_shore_decodes_again(shore) -> None:  # noqa: ANN001
+    db, start = shore
+    ingest, vehicle = start(), Vehicle_()
+    for _ in range(3):
+        vehicle.measure(10)
+        send(ingest, vehicle.priority())
+    before = decoded_matches_truth(db, vehicle)
+    ingest = start()  # SIGKILL and start again: nothing in memory survives, the database does
+    vehicle.measure(10)
+    send(ingest, vehicle.priority())
+    assert decoded_matches_truth(db, vehicle) == before + 10
+    send(ingest, vehicle.checkpoint())  # the hashes of the packets before the restart were saved too
+    assert {r.verified for r in rows(db, Telemetry)} == {True}
+    assert ingest.vehicles[ADDRESS].seen.first_time(b"x" * 32)
+
+
+def test_packets_the_shore_never_stored_are_recovered_by_one_restart_request(shore) -> None:  # noqa: ANN001
+    db, start = shore
+    ingest, vehicle = start(), Vehicle_()
+    vehicle.measure(10)
+    send(ingest, vehicle.priority())
+    vehicle.measure(10)
+    vehicle.priority()  # ACKed by the shore's modem while the shore's software was down: never stored
+    vehicle.measure(10)
+    send(ingest, vehicle.priority())
+    assert ingest.vehicles[ADDRESS].needs_restart  # the engine's next SYNC carries the request
+    vehicle.compressor.restart_chains()  # what the agent does on that SYNC
+    vehicle.measure(10)
+    send(ingest, vehicle.priority())
+    assert decoded_matches_truth(db, vehicle) == 20
+
+
+# --- the agent's state file ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("content", [b'{"mission": {"state": "PREPRO', b"\x00\xff garbage", b"[1, 2]",
+                                     b'{"packet_seq": "x"}', b'{"north": NaN}', b""])  # fmt: skip
+def test_a_corrupt_state_file_is_set_aside_and_the_agent_starts_safe(tmp_path: Path, content: bytes,
+                                                                    caplog: pytest.LogCaptureFixture) -> None:  # fmt: skip
+    from vehicle_agent.state import AgentState
+
+    path = tmp_path / "agent-state.json"
+    path.write_bytes(content)
+    state = AgentState.load(path, now=1_800_000_000)
+    assert state.fresh and state.mission == {} and state.replay["floor"] == 1_800_000_000 - 5
+    assert not path.exists() and len(list(tmp_path.glob("agent-state.json.corrupt-*"))) == 1
+    assert "set aside" in caplog.text
+    state.save(path)
+    assert path.stat().st_mode & 0o777 == 0o600
+    again = AgentState.load(path)
+    assert not again.fresh and again.replay == state.replay
+
+
+def test_a_lost_state_file_still_refuses_a_captured_command(tmp_path: Path) -> None:
+    from tacit.packets import Command, ControlPacket
+    from vehicle_agent.state import AgentState
+
+    now = 1_800_000_000
+    captured = auth.sign(ControlPacket(Command.MOVE, seq=5, time=now - 120, distance=5), KEY, ADDRESS)
+    state = AgentState.load(tmp_path / "missing.json", now=now)  # the file is gone: a fresh window
+    receiver = auth.ControlReceiver(KEY, ADDRESS, auth.ReplayWindow.from_dict(state.replay))
+    with pytest.raises(auth.Replayed):
+        receiver.accept(captured, now)
+    resent = auth.sign(ControlPacket(Command.MOVE, seq=5, time=now, distance=5), KEY, ADDRESS)
+    assert receiver.accept(resent, now).seq == 5  # the shore's next attempt is signed afresh
+
+
+def test_the_api_shows_what_is_verified(tmp_path: Path) -> None:
+    from fastapi.testclient import TestClient
+
+    from server.app import create_app
+    from server.settings import Settings
+
+    app = create_app(Settings(database_url=f"sqlite:///{tmp_path}/tacit.db", map_enabled=False,
+                              read_tokens=["observer"], write_tokens=["operator"]))  # fmt: skip
+    with TestClient(app) as client:
+        key = client.post("/api/v1/vehicles", json={"name": "rov1", "address": ADDRESS},
+                          headers={"Authorization": "Bearer operator"}).json()["key"]  # fmt: skip
+        ingest, vehicle = app.state.shore.link.ingest, Vehicle_(bytes.fromhex(key))
+        vehicle.measure(10)
+        send(ingest, vehicle.priority())
+        obs = {"Authorization": "Bearer observer"}
+        assert {r["verified"] for r in client.get("/api/v1/telemetry", headers=obs).json()["items"]} == {
+            False
+        }
+        assert client.get("/api/v1/packets", headers=obs).json()["items"][0]["auth"] == "pending"
+        send(ingest, vehicle.checkpoint())
+        assert {r["verified"] for r in client.get("/api/v1/telemetry", headers=obs).json()["items"]} == {True}
+        assert {p["auth"] for p in client.get("/api/v1/packets", headers=obs).json()["items"]} == {"verified"}
