@@ -93,8 +93,18 @@ class Ingest:
                 if v.address not in self.vehicles or self.vehicles[v.address].id != v.id:
                     decoders = {k: StreamDecoder(spec) for k, spec in self.streams.items()}
                     self.vehicles[v.address] = VehicleState(v.id, v.name, v.address, decoders)  # type: ignore[arg-type]
+                    self._last_checkpoint(self.vehicles[v.address])
             for address in set(self.vehicles) - {v.address for v in rows}:
                 del self.vehicles[address]
+
+    def _last_checkpoint(self, v: VehicleState) -> None:
+        """After a restart: the last check-point stored (the pose the limits check against, and what the
+        screens show with its age) instead of none until the vehicle's next one."""
+        with Session(self.db) as s:
+            row = s.exec(select(Packet).where(Packet.vehicle_id == v.id, Packet.type == "checkpoint")
+                         .order_by(Packet.id.desc())).first()  # type: ignore[union-attr]  # fmt: skip
+        if row is not None:
+            v.checkpoint, v.last_heard = row.body, row.at
 
     def pose(self, address: int) -> Pose | None:
         """The pose the vehicle at ``address`` last reported (None before its first check-point)."""
