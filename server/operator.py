@@ -236,7 +236,7 @@ def vehicle_estimate(s: Session, vehicle: Vehicle, now: float) -> dict:
     guess = estimate(cp, last.at, now, target, speed)
     label, hint = STATES.get(cp.get("state", ""), (cp.get("state", "?"), ""))
     return {"reported": cp, "heard_at": last.at, "age_s": round(guess.age, 1), "state_label": label,
-            "state_hint": hint, "speed_mps": None if speed is None else round(speed, 2),
+            "state_hint": hint, "speed_mps": None if speed is None else round(speed, 2), "drift_mps": DRIFT,
             "predicted": guess.as_dict()}  # fmt: skip
 
 
