@@ -118,13 +118,13 @@ def test_an_operator_sends_with_the_same_rules_as_the_dashboard(shore_map: tuple
     assert panel.token_in.value == "" and not panel.send_btn.disabled  # the token does not stay on screen
     assert other.send_btn.disabled  # another browser's panel is not signed in by this one
     distance = panel.inputs["distance"]
-    assert (distance.label, distance.max) == ("Distance (m)", 50.0)  # the vehicle's limit, from the form
+    assert (distance.label, panel.ranges["distance"]) == ("Distance (m)", (0.0, 50.0))  # the vehicle's limit, from the form
     distance.value = 80.0  # what a client can set over the websocket whatever the page's maximum
     panel.send_btn.press()
     assert "Distance must be 0 .. 50 m" in panel.status_md.content and commands(shore) == []
     panel.inputs["angle_mode"].value = "bearing (true)"
     panel.inputs["angle_mode"].press()
-    assert panel.inputs["angle"].label == "Bearing (true) (deg)" and panel.inputs["angle"].max == 360
+    assert panel.inputs["angle"].label == "Bearing (true) (deg)" and panel.ranges["angle"] == (0.0, 360.0)
     distance.value, panel.inputs["angle"].value = 12.0, 270.0
     panel.send_btn.press()
     [sent] = commands(shore)

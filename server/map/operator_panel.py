@@ -64,6 +64,7 @@ class OperatorPanel:
         self.last_sent: int | None = None
         self.estimate_handle: Any = None
         self.form = operator.command_form()
+        self.ranges: dict[str, tuple[float, float]] = {}
         self._build()
         self._apply_form()
         self._show_role()
@@ -85,7 +86,8 @@ class OperatorPanel:
             self.estimate_cb = gui.add_checkbox("Temperature estimate", False,
                                                 hint="The shore's estimate of the water temperature at the "
                                                 "vehicle's depth, fitted to the reported samples (colour scale "
-                                                "below). Off by default: it covers the track.")  # fmt: skip
+                                                "below), and its front (black diamonds: where it crosses its "
+                                                "median). Off by default: it covers the track.")  # fmt: skip
             self.scale_html = gui.add_html(colour_scale(None, None))
             gui.add_markdown(LEGEND)
         with gui.add_folder("Vehicle"):
@@ -198,8 +200,7 @@ class OperatorPanel:
             unit = f" ({spec['unit']})" if spec["unit"] else ""
             handle.label = f"{spec['label']}{unit}"
             handle.hint = f"{spec['hint']} Range {spec['min']:g} .. {spec['max']:g}{unit}."
-            if spec["step"] != "any":
-                handle.min, handle.max, handle.step = spec["min"], spec["max"], spec["step"]
+            self.ranges[name] = (spec["min"], spec["max"])  # checked at send (check_form), shown in the hint
         self.inputs["angle_mode"].visible = "angle" in specs
 
     def values(self) -> dict[str, float | None]:
@@ -279,22 +280,32 @@ class OperatorPanel:
 
     def top_down(self) -> None:
         north, east = self.map.focus()
-        self.client.camera.look_at = (east, north, 0.0)
-        self.client.camera.position = (east, north - 0.01, 90.0)
+        self._look((east, north - 1.0, 70.0), (east, north, -2.0))
 
     def oblique(self) -> None:
         north, east = self.map.focus()
-        self.client.camera.look_at = (east, north, -2.0)
-        self.client.camera.position = (east - 35.0, north - 45.0, 35.0)
+        self._look((east - 25.0, north - 35.0, 30.0), (east, north, -2.0))
+
+    def _look(self, position: tuple[float, float, float], look_at: tuple[float, float, float]) -> None:
+        camera = self.client.camera
+        with self.client.atomic():
+            camera.up_direction = (0.0, 0.0, 1.0)
+            camera.position = position
+            camera.look_at = look_at
 
     def show_estimate(self) -> None:
         """The temperature estimate in this client's scene only while its box is ticked."""
         cloud = self.map.estimate_cloud
         if self.estimate_cb.value and cloud is not None:
-            points, colours = cloud
-            self.estimate_handle = self.client.scene.add_point_cloud(
-                "/temperature/estimate", points, colours, point_size=0.45, point_shape="circle"
-            )
+            points, colours, front = cloud
+            scene = self.client.scene
+            self.estimate_handle = [
+                scene.add_point_cloud("/temperature/estimate", points, colours, point_size=0.45,
+                                      point_shape="circle"),
+                scene.add_point_cloud("/temperature/estimate/front", front, (20, 20, 20), point_size=0.5,
+                                      point_shape="diamond"),
+            ]  # fmt: skip
         elif self.estimate_handle is not None:
-            self.estimate_handle.remove()
+            for handle in self.estimate_handle:
+                handle.remove()
             self.estimate_handle = None

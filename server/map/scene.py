@@ -57,13 +57,14 @@ class OperatorMap:
         self.port: int | None = None
         self.server: Any = None
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()
         self.track: dict[str, list[tuple[float, float, float]]] = {}
         self.temperatures: list[tuple[float, float, float, float]] = []  # north, east, depth, degC
         self.markers: list[tuple[float, float, float, int]] = []
         self.last_heard: dict[str, float] = {}
+        self._nodes: dict[str, dict[str, Any]] = {}
         self.panels: dict[int, OperatorPanel] = {}  # by viser client id: one panel per browser
-        self.estimate_cloud: tuple[np.ndarray, np.ndarray] | None = None
+        self.estimate_cloud: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # points, colours, front
         self.temperature_range: tuple[float, float] | None = None
         self.last_pose: tuple[float, float] = (10.0, 10.0)  # north, east: where the views look
         self._gp_at = 0.0
@@ -173,13 +174,11 @@ class OperatorMap:
                 self.temperatures.append((north, east, depth, cp["temperature"]))
         self.last_pose = (north, east)
         yaw = math.radians(90 - heading)  # heading from north, clockwise -> rotation about +z from +x
-        wxyz = (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
-        scene = self.server.scene
-        scene.add_frame(f"/vehicles/{name}", show_axes=False, position=(east, north, -depth), wxyz=wxyz)
-        scene.add_box(f"/vehicles/{name}/body", color=(30, 30, 30), dimensions=(1.4, 0.9, 0.6))
-        scene.add_arrows(f"/vehicles/{name}/heading", np.array([[[0.7, 0, 0], [3.2, 0, 0]]], dtype=np.float32),
-                         (250, 200, 0), shaft_radius=0.1, head_radius=0.35, head_length=0.8)  # fmt: skip
+        node = self._vehicle_node(name)
+        node["frame"].position = (east, north, -depth)
+        node["frame"].wxyz = (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
         self._label(name, cp, 0.0)
+        scene = self.server.scene
         if len(track) >= 2:
             segments = np.array(
                 [[a, b] for a, b in zip(track[:-1], track[1:], strict=True)], dtype=np.float32
@@ -187,10 +186,24 @@ class OperatorMap:
             scene.add_line_segments(f"/tracks/{name}/actual", segments, (20, 90, 200), thickness=0.15)
         self._planned(name, cp)
 
+    def _vehicle_node(self, name: str) -> dict[str, Any]:
+        """The vehicle's body, heading arrow and label, made once and moved after (both the event loop and
+        the tick thread update them: re-adding the nodes would race)."""
+        with self._lock:
+            node = self._nodes.get(name)
+            if node is None:
+                scene = self.server.scene
+                frame = scene.add_frame(f"/vehicles/{name}", show_axes=False)
+                scene.add_box(f"/vehicles/{name}/body", color=(30, 30, 30), dimensions=(1.4, 0.9, 0.6))
+                scene.add_arrows(f"/vehicles/{name}/heading", np.array([[[0.7, 0, 0], [3.2, 0, 0]]], dtype=np.float32),
+                                 (250, 200, 0), shaft_radius=0.1, head_radius=0.35, head_length=0.8)  # fmt: skip
+                label = scene.add_label(f"/vehicles/{name}/label", name, position=(0, 0, 1.2))
+                node = self._nodes[name] = {"frame": frame, "label": label}
+        return node
+
     def _label(self, name: str, cp: dict, age: float) -> None:
         label, _hint = operator.STATES.get(cp.get("state", ""), (cp.get("state", "?"), ""))
-        self.server.scene.add_label(f"/vehicles/{name}/label", f"{name}: {label}, reported {age:.0f} s ago",
-                                    position=(0, 0, 1.2))  # fmt: skip
+        self._vehicle_node(name)["label"].text = f"{name}: {label}, reported {age:.0f} s ago"
 
     def _planned(self, name: str, cp: dict) -> None:
         """The pre-programmed trajectory (the mission's waypoints)."""
@@ -287,7 +300,7 @@ class OperatorMap:
         self._label(name, cp, known["age_s"])
         scene = self.server.scene
         here, there = (cp["east"], cp["north"], -cp["depth"]), (p["east"], p["north"], -p["depth"])
-        scene.add_icosphere(f"/predicted/{name}", radius=0.45, color=(250, 150, 30), position=there)
+        scene.add_icosphere(f"/predicted/{name}/now", radius=0.45, color=(250, 150, 30), position=there)
         scene.add_line_segments(f"/predicted/{name}/path", np.array([[here, there]], dtype=np.float32),
                                 (250, 150, 30), thickness=0.1)  # fmt: skip
         angles = np.linspace(0, 2 * np.pi, 49)
@@ -327,15 +340,12 @@ class OperatorMap:
             np.float32
         )
         t_lo, t_hi = self.temperature_range or (float(mean.min()), float(mean.max()))
-        self.estimate_cloud = (points, colormap(mean, t_lo, t_hi))
         level = float(np.median(mean))
         field = mean.reshape(grid_n.shape) - level
         crossings = np.argwhere(np.sign(field[:-1, :]) != np.sign(field[1:, :]))
-        if len(crossings):
-            front = np.array([[grid_e[i, j], (grid_n[i, j] + grid_n[i + 1, j]) / 2, -depth + 0.05] for i, j in crossings],
-                             dtype=np.float32)  # fmt: skip
-            self.server.scene.add_point_cloud("/temperature/front", front, (20, 20, 20), point_size=0.5,
-                                              point_shape="diamond")  # fmt: skip
+        front = np.array([[grid_e[i, j], (grid_n[i, j] + grid_n[i + 1, j]) / 2, -depth + 0.05] for i, j in crossings],
+                         dtype=np.float32).reshape(-1, 3)  # fmt: skip
+        self.estimate_cloud = (points, colormap(mean, t_lo, t_hi), front)
         best = int(np.argmax(std))
         self.suggestion = (float(grid[best, 0]), float(grid[best, 1]))
         self.server.scene.add_icosphere("/temperature/suggested", radius=0.6, color=(160, 40, 200),
