@@ -218,7 +218,7 @@ def speed_between(a: dict, a_at: float, b: dict, b_at: float) -> float | None:
     return math.hypot(b["north"] - a["north"], b["east"] - a["east"]) / (b_at - a_at)
 
 
-def vehicle_estimate(s: Session, vehicle: Vehicle, now: float) -> dict:
+def vehicle_estimate(s: Session, vehicle: Vehicle, now: float, time_scale: float = 1.0) -> dict:
     """The last reported check-point (from the database: it survives a shore restart), its age, and the
     shore's prediction since: ``{"reported": ..., "heard_at": ..., "age_s": ..., "predicted": ...}``."""
     rows = s.exec(select(Packet).where(Packet.vehicle_id == vehicle.id, Packet.type == "checkpoint")
@@ -229,7 +229,9 @@ def vehicle_estimate(s: Session, vehicle: Vehicle, now: float) -> dict:
     cp = last.body
     speed = speed_between(rows[1].body, rows[1].at, cp, last.at) if len(rows) == 2 else None
     if speed is not None:
-        speed = min(max(speed, 0.1), vehicle.max_speed)
+        speed = min(
+            max(speed, 0.1 * time_scale), vehicle.max_speed * time_scale
+        )  # shore clock: simulations run faster
     mission = s.exec(select(Mission).where(Mission.vehicle_id == vehicle.id, Mission.number == cp.get("mission_id"))
                      .order_by(Mission.id.desc())).first()  # type: ignore[union-attr]  # fmt: skip
     target = target_of(cp, mission.plan.get("waypoints") if mission else None, _commanded(s, vehicle, cp))

@@ -118,7 +118,8 @@ def test_an_operator_sends_with_the_same_rules_as_the_dashboard(shore_map: tuple
     assert panel.token_in.value == "" and not panel.send_btn.disabled  # the token does not stay on screen
     assert other.send_btn.disabled  # another browser's panel is not signed in by this one
     distance = panel.inputs["distance"]
-    assert (distance.label, panel.ranges["distance"]) == ("Distance (m)", (0.0, 50.0))  # the vehicle's limit, from the form
+    # the vehicle's limit, from the form
+    assert (distance.label, panel.ranges["distance"]) == ("Distance (m)", (0.0, 50.0))
     distance.value = 80.0  # what a client can set over the websocket whatever the page's maximum
     panel.send_btn.press()
     assert "Distance must be 0 .. 50 m" in panel.status_md.content and commands(shore) == []

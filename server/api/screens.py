@@ -25,10 +25,10 @@ def command_form(vehicle_id: Id, s: ReadSession) -> dict:
 
 
 @router.get("/vehicles/{vehicle_id}/estimate")
-def estimate(vehicle_id: Id, s: ReadSession) -> dict:
+def estimate(vehicle_id: Id, s: ReadSession, shore: ShoreDep) -> dict:
     """The last reported check-point with its age, and the shore's predicted pose since (dead reckoning
     toward the current target) with an uncertainty radius that grows with silence."""
-    return operator.vehicle_estimate(s, vehicles.get(s, vehicle_id), time.time())
+    return operator.vehicle_estimate(s, vehicles.get(s, vehicle_id), time.time(), shore.settings.time_scale)
 
 
 @router.get("/link/shares")

@@ -280,7 +280,7 @@ class OperatorPanel:
 
     def top_down(self) -> None:
         north, east = self.map.focus()
-        self._look((east, north - 1.0, 70.0), (east, north, -2.0))
+        self._look((east, north - 1.0, 45.0), (east, north, -2.0))
 
     def oblique(self) -> None:
         north, east = self.map.focus()

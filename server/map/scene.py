@@ -293,7 +293,11 @@ class OperatorMap:
         """Draw where the shore thinks the vehicle is now and how sure; return the panel's text."""
         with Session(self.shore.db) as s:
             vehicle = s.exec(select(Vehicle).where(Vehicle.name == name)).first()
-            known = operator.vehicle_estimate(s, vehicle, time.time()) if vehicle else None
+            known = (
+                operator.vehicle_estimate(s, vehicle, time.time(), self.shore.settings.time_scale)
+                if vehicle
+                else None
+            )
         if not known or not known["reported"]:
             return ""
         cp, p = known["reported"], known["predicted"]
