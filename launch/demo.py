@@ -20,6 +20,7 @@ import sys
 import webbrowser
 from pathlib import Path
 from typing import Any
+from urllib.parse import quote
 
 from launch.stack import Stack, StackConfig, StackError, write_private
 
@@ -27,8 +28,10 @@ PLUME_RIVER = {"surface_temp": 21.0, "thermocline_depth": 8.0, "thermocline_drop
                "front_offset": 60.0, "front_width": 8.0, "front_step": 1.0, "plume_north": 24.0, "plume_east": 14.0,
                "plume_depth": 2.0, "plume_sigma": 6.0, "plume_sigma_z": 3.0, "plume_excess": 3.0,
                "patches": [[0.05, 0.05, -0.03, 0.4]]}  # fmt: skip
+LAPS = 5  # one lap of the 20 m square takes about 90 s: five give a newcomer time to look around
 SQUARE = {"name": "square", "number": 1, "duration_s": 1800,
-          "waypoints": [{"north": n, "east": e, "depth": 2.0} for n, e in ((0, 0), (20, 0), (20, 20), (0, 20), (0, 0))]}  # fmt: skip
+          "waypoints": [{"north": 0, "east": 0, "depth": 2.0}]
+          + [{"north": n, "east": e, "depth": 2.0} for _ in range(LAPS) for n, e in ((20, 0), (20, 20), (0, 20), (0, 0))]}  # fmt: skip
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -39,7 +42,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", type=int, default=8000, help="API and dashboard port")
     parser.add_argument("--map-port", type=int, default=8080, help="3D map port")
     parser.add_argument("--data-dir", default="data/demo", help="where the demo keeps its files")
-    parser.add_argument("--mission", help="a mission JSON file (default: the paper's 20 m square at 2 m)")
+    parser.add_argument(
+        "--mission", help="a mission JSON file (default: the paper's 20 m square at 2 m, 5 laps)"
+    )
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--headless", action="store_true", help="do not open a browser")
     parser.add_argument(
@@ -48,11 +53,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _secrets(data: Path) -> dict[str, str]:
+    """The operator's token, an observer's (read-only) token and the vehicle's key, kept between runs."""
     path = data / "secrets.json"
-    if path.exists():
-        return json.loads(path.read_text())
-    values = {"token": secrets.token_urlsafe(24), "key": secrets.token_hex(32)}
-    write_private(path, json.dumps(values))
+    values = json.loads(path.read_text()) if path.exists() else {}
+    wanted = {"token": lambda: secrets.token_urlsafe(24), "read_token": lambda: secrets.token_urlsafe(24),
+              "key": lambda: secrets.token_hex(32)}  # fmt: skip
+    if not all(name in values for name in wanted):
+        values = {name: values.get(name) or make() for name, make in wanted.items()}
+        write_private(path, json.dumps(values))
     return values
 
 
@@ -102,7 +110,7 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
     (data / "missions" / "mission.json").write_text(json.dumps(mission))
     stack = Stack(StackConfig(data, range_m=args.range, time_scale=args.time_scale, extra_loss=args.extra_loss,
                               seed=args.seed, environment=PLUME_RIVER, key=secret["key"],
-                              write_tokens=[secret["token"]]))  # fmt: skip
+                              write_tokens=[secret["token"]], read_tokens=[secret["read_token"]]))  # fmt: skip
     sim_info = await asyncio.to_thread(stack.start_sim)
     settings = Settings(**stack.server_settings(host=args.host, port=args.port, map_port=args.map_port,
                                                 poll_interval=2.0))  # fmt: skip
@@ -125,7 +133,10 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
             stack.write_agent_config(checkpoint_interval=20, missions=[{"file": "missions/mission.json"}])
             stack.start_agent()
             info = {"api_url": api + "/api/v1", "dashboard_url": api + "/", "map_url": f"http://{args.host}:{app.state.shore.map.port}",
-                    "token": secret["token"], "modems": sim_info["modems"], "vehicle": sim_info["vehicle"],
+                    "token": secret["token"], "read_token": secret["read_token"],
+                    "sign_in_url": f"{api}/#token={quote(secret['token'])}",
+                    "observer_url": f"{api}/#token={quote(secret['read_token'])}",
+                    "time_scale": args.time_scale, "modems": sim_info["modems"], "vehicle": sim_info["vehicle"],
                     "data_dir": str(data)}  # fmt: skip
             _announce(info, args)
             await http.post(f"/api/v1/missions/{mission_id}/start")
@@ -176,10 +187,18 @@ def _announce(info: dict[str, Any], args: argparse.Namespace) -> None:
     if args.json:
         print(json.dumps(info), flush=True)
     else:
+        scale = (
+            f"Simulated time runs {args.time_scale:g}x faster than the clock (--time-scale).\n"
+            if args.time_scale != 1
+            else "Real time (--time-scale 4 to watch it faster).\n"
+        )
         print(f"\nTacit demo is running (data in {info['data_dir']}).\n"
-              f"  Dashboard: {info['dashboard_url']}\n  3D map:    {info['map_url']}\n"
+              f"  Dashboard, signed in as operator: {info['sign_in_url']}\n"
+              f"  Dashboard for an observer (read only): {info['observer_url']}\n"
+              f"  3D map:    {info['map_url']}  (its panel asks for a token: paste the operator token)\n"
               f"  API:       {info['api_url']}  (docs: {info['dashboard_url']}docs)\n"
-              f"  Operator token: {info['token']}\n"
-              f"The vehicle is starting the square mission. Ctrl-C stops everything.\n", flush=True)  # fmt: skip
+              f"  Operator token: {info['token']}\n  Observer token: {info['read_token']}\n"
+              f"  (tokens also in {Path(info['data_dir']) / 'secrets.json'}; the part after # never reaches the server)\n"
+              f"{scale}The vehicle is starting the square mission. Ctrl-C stops everything.\n", flush=True)  # fmt: skip
     if not args.headless:
-        webbrowser.open(info["dashboard_url"])
+        webbrowser.open(info["sign_in_url"])

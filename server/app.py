@@ -22,7 +22,8 @@ from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 from sqlalchemy.exc import OperationalError
 
-from server.api import commands, data, missions, vehicles
+from server import operator
+from server.api import commands, data, missions, screens, vehicles
 from server.auth import require_read
 from server.db import make_engine, migrate
 from server.errors import ApiError
@@ -70,7 +71,7 @@ def create_app(settings: Settings) -> FastAPI:
     if settings.cors_origins:
         app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins, allow_methods=["*"],
                            allow_headers=["Authorization", "Content-Type"])  # fmt: skip
-    for module in (vehicles, commands, missions, data):
+    for module in (vehicles, commands, missions, data, screens):
         app.include_router(module.router)
 
     @app.get("/api/v1/health", tags=["data"])
@@ -84,11 +85,21 @@ def create_app(settings: Settings) -> FastAPI:
 
     @app.get("/api/v1/config", tags=["data"])
     def config() -> dict:
-        """What the browser needs: the map's port and the streams' channels (no secrets)."""
-        streams = {s.name: {"channels": list(s.channels), "eps": list(s.eps), "period": s.period}
+        """What the browser needs (no secrets): the map's port, the streams' channels with units, what
+        the mission states mean, the commands' fields (packet ranges; per vehicle with its limits at
+        ``/vehicles/{id}/form``) and the simulated time scale (1 on a real deployment)."""
+        streams = {s.name: {"channels": list(s.channels), "eps": list(s.eps), "period": s.period,
+                            "units": [operator.UNITS.get(c, "") for c in s.channels]}
                    for s in shore.ingest.streams.values()}  # fmt: skip
         port = shore.map.port if shore.map else None
-        return {"map_port": port, "streams": streams}
+        states = {k: {"label": label, "hint": hint} for k, (label, hint) in operator.STATES.items()}
+        return {
+            "map_port": port,
+            "streams": streams,
+            "states": states,
+            "form": operator.command_form(),
+            "time_scale": settings.time_scale,
+        }
 
     @app.exception_handler(RequestValidationError)
     async def invalid(_: Request, exc: RequestValidationError) -> JSONResponse:

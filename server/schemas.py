@@ -10,8 +10,9 @@ from __future__ import annotations
 import math
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from tacit.navigation import wrap180
 from tacit.packets import Command as CommandKind
 
 COMMANDS = tuple(c.name.lower() for c in CommandKind)
@@ -66,7 +67,11 @@ class CommandIn(BaseModel):
     command: CommandName
     distance: float = Field(0.0, ge=0, le=6553.5, description="m")
     angle: float = Field(
-        0.0, ge=-180, le=180, description="deg; heading change, or bearing if absolute_angle"
+        0.0,
+        ge=-180,
+        le=360,
+        description="deg; heading change (-180 .. 180, + clockwise), or true bearing "
+        "(0 .. 360) if absolute_angle; stored and sent as the same direction in -180 .. 180",
     )
     depth: float = Field(
         0.0, ge=-327.68, le=327.67, description="m; depth change (move) or target (goto_depth)"
@@ -76,6 +81,12 @@ class CommandIn(BaseModel):
     param_value: float = Field(0.0, ge=-FLOAT32_MAX, le=FLOAT32_MAX, description="a float32")
     absolute_angle: bool = False
     delay_sensitive: bool = False
+
+    @field_validator("angle")
+    @classmethod
+    def _one_turn(cls, angle: float) -> float:
+        """A bearing of 270 is the direction -90: the packet's angle field holds -180 .. 180."""
+        return wrap180(angle) if angle > 180 else angle
 
 
 class CommandOut(BaseModel):
@@ -89,6 +100,7 @@ class CommandOut(BaseModel):
     speed: float
     param_id: int
     param_value: float
+    absolute_angle: bool
     status: str
     reason: str
     attempts: int

@@ -1,7 +1,9 @@
-"""The operator's screens in real headless Chromium (Debian's) against the running demo:
-the dashboard loads without console errors, a command sent from the 3D map's panel moves the simulated
-vehicle and reaches "acknowledged" on the page, priority packets show in the live log and timeline.
-Screenshots are saved in test-artifacts/."""
+"""The operator's screens in real headless Chromium (Debian's) against the running demo: the demo's
+link signs in at once (and the token leaves the address bar), a wrong token says so, observers cannot
+write (dashboard or map), the map's panel sends only once signed in as an operator and its command
+moves the simulated vehicle, the dashboard refuses a blank field before sending and takes a 270 deg
+bearing, its result line follows the command's status, and after a reload the control row and command
+histories come back from the API. Screenshots are saved in test-artifacts/ (the README's come from here)."""
 
 from __future__ import annotations
 
@@ -35,6 +37,9 @@ def checkpoint(info: dict) -> dict | None:
     return link["vehicles"]["rov1"]["checkpoint"]
 
 
+MAP_TOKEN = "div.mantine-Flex-root:has(label:text-is('Token')) input"
+
+
 def test_dashboard_and_map_in_a_real_browser(demo: dict) -> None:
     ARTIFACTS.mkdir(exist_ok=True)
     deadline = time.monotonic() + 60
@@ -46,20 +51,27 @@ def test_dashboard_and_map_in_a_real_browser(demo: dict) -> None:
         dashboard = browser.new_page(viewport={"width": 1400, "height": 1600})
         dashboard.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
         dashboard.on("pageerror", lambda e: errors.append(str(e)))
-        dashboard.goto(demo["dashboard_url"])
-        dashboard.fill("#token", demo["token"])
-        dashboard.click("#login button")
+        dashboard.goto(demo["sign_in_url"])  # the demo's link: the token in the fragment signs in at once
         dashboard.wait_for_function("document.querySelector('#role').textContent === 'operator'")
+        assert "token" not in dashboard.url and dashboard.url.endswith("/")  # cleared from the address bar
 
         map_page = browser.new_page(viewport={"width": 1400, "height": 900})
         map_page.goto(demo["map_url"])
-        map_page.get_by_text("Modem").first.wait_for(timeout=30_000)
+        map_page.get_by_text("Watching only").first.wait_for(timeout=30_000)
+        assert map_page.get_by_role("button", name="Send").is_disabled()  # not signed in: watch only
+        map_page.locator(MAP_TOKEN).first.fill(demo["token"])
+        map_page.keyboard.press("Tab")
+        map_page.get_by_role("button", name="Sign in").click()
+        map_page.get_by_text("commands enabled").first.wait_for(timeout=10_000)
+        assert map_page.locator(MAP_TOKEN).first.input_value() == ""  # the token does not stay on screen
         before = checkpoint(demo)
         map_page.get_by_role("button", name="Send").click()
         # reaching "acknowledged" means that state or a later one (the panel may skip past it between repaints)
         map_page.get_by_text(
-            re.compile(r"Command seq \d+: (acknowledged|executing|executed)")
+            re.compile(r"Command #\d+ seq \d+: (acknowledged|executing|executed)")
         ).first.wait_for(timeout=90_000)
+        map_page.get_by_role("button", name="Top-down view").click()
+        time.sleep(2)
         map_page.screenshot(path=str(ARTIFACTS / "map.png"))
 
         deadline = time.monotonic() + 60
@@ -70,22 +82,76 @@ def test_dashboard_and_map_in_a_real_browser(demo: dict) -> None:
             time.sleep(1.0)
         assert moved >= 3.0, "the vehicle did not move after the map's command"
 
+        # the dashboard: a blank field is refused in the page; a bearing of 270 goes through
+        sent_before = len(httpx.get(demo["api_url"] + "/vehicles/1/commands", headers=auth(demo)).json())
+        dashboard.fill("#f-distance", "")
+        dashboard.click("#send")
+        dashboard.wait_for_function(
+            "document.querySelector('#command-result').textContent.includes('Distance is required')"
+        )
+        assert (
+            len(httpx.get(demo["api_url"] + "/vehicles/1/commands", headers=auth(demo)).json()) == sent_before
+        )
+        dashboard.fill("#f-distance", "6")
+        dashboard.select_option("#angle-mode", "bearing")
+        dashboard.fill("#f-angle", "270")
+        dashboard.click("#send")
+        dashboard.wait_for_function(
+            "/bearing 270°.*: (queued|sent|acknowledged|executing|executed)/.test(document.querySelector('#command-result').textContent)"
+        )
+        dashboard.wait_for_function(
+            "/: (acknowledged|executing|executed)/.test(document.querySelector('#command-result').textContent)",
+            timeout=90_000,
+        )  # fmt: skip  (the line follows the command's status)
         dashboard.wait_for_function("[...document.querySelectorAll('#packets td')].some(td => td.textContent === 'priority')",
                                     timeout=60_000)  # fmt: skip
         dashboard.wait_for_function("state.timeline.some(e => e.kind.startsWith('p'))")
-        dashboard.wait_for_function("[...document.querySelectorAll('#commands td')].some(td => td.textContent === 'acknowledged' || td.textContent === 'executed')")  # fmt: skip
+        dashboard.wait_for_function(
+            "document.querySelector('#vehicle-state').textContent.includes('Predicted now')"
+        )
+        assert "UTC" in dashboard.text_content("#vehicle-state")
+        assert "airtime: polls" in dashboard.text_content("#link-stats")
         dashboard.screenshot(path=str(ARTIFACTS / "dashboard.png"), full_page=True)
+
+        dashboard.reload()  # after a reload the control row and the commands' history come from the API
+        dashboard.wait_for_function("state.timeline.some(e => e.kind === 'ctl')")
+        dashboard.wait_for_function(
+            "document.querySelector('#commands td.history')?.textContent.includes('queued')"
+        )
         browser.close()
     assert errors == []
 
 
-def test_observer_sees_everything_and_cannot_write(demo: dict) -> None:
+def auth(demo: dict) -> dict:
+    return {"Authorization": f"Bearer {demo['token']}"}
+
+
+def test_sign_in_says_what_to_do_and_observers_cannot_write(demo: dict) -> None:
+    ARTIFACTS.mkdir(exist_ok=True)
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS)
-        page = browser.new_page()
+        page = browser.new_page(viewport={"width": 1400, "height": 900})
         page.goto(demo["dashboard_url"])
+        assert page.locator("#welcome").is_visible() and not page.locator("#main").is_visible()
+        assert "tacit demo" in page.text_content("#welcome")
+        page.screenshot(path=str(ARTIFACTS / "sign-in.png"))
         page.fill("#token", "not-a-token")
         page.click("#login button")
-        page.wait_for_function("document.querySelector('#role').textContent === 'not signed in'")
-        assert page.locator("#send").is_disabled()
+        page.wait_for_function("!document.querySelector('#login-error').hidden")
+        assert "not accepted" in page.text_content("#login-error")
+        assert page.text_content("#role") == "not signed in"
+
+        observer = browser.new_page()
+        observer.goto(demo["observer_url"])
+        observer.wait_for_function("document.querySelector('#role').textContent === 'observer (read only)'")
+        assert observer.locator("#send").is_disabled() and observer.locator("#observer-note").is_visible()
+
+        map_page = browser.new_page(viewport={"width": 1400, "height": 900})
+        map_page.goto(demo["map_url"])
+        map_page.get_by_text("Watching only").first.wait_for(timeout=30_000)
+        map_page.locator(MAP_TOKEN).first.fill(demo["read_token"])
+        map_page.keyboard.press("Tab")
+        map_page.get_by_role("button", name="Sign in").click()
+        map_page.get_by_text("watching only (an observer").first.wait_for(timeout=10_000)
+        assert map_page.get_by_role("button", name="Send").is_disabled()
         browser.close()

@@ -147,6 +147,7 @@ class Ingest:
                 state.restore(saved.state)
             except (KeyError, TypeError, ValueError) as exc:
                 log.error("vehicle %s: saved link state unreadable (%s): starting afresh", v.name, exc)
+        self._last_checkpoint(s, state)
         query = (select(Packet.body, Packet.at).where(Packet.vehicle_id == v.id, Packet.type == "priority")
                  .order_by(col(Packet.id).desc()).limit(REPLAY_PACKETS))  # fmt: skip
         rows = list(reversed(s.exec(query).all()))
@@ -161,6 +162,15 @@ class Ingest:
             log.info("vehicle %s: decoders rebuilt from %d stored priority packet(s) (%d decoded)", v.name,
                      len(rows), decoded)  # fmt: skip
         return state
+
+    def _last_checkpoint(self, s: Session, v: VehicleState) -> None:
+        """After a restart: the last verified check-point stored (the pose the limits check against, and
+        what the screens show with its age) instead of none until the vehicle's next one."""
+        row = s.exec(select(Packet).where(Packet.vehicle_id == v.id, Packet.type == "checkpoint",
+                                          Packet.auth == "verified").order_by(col(Packet.id).desc())).first()  # fmt: skip
+        if row is not None:
+            v.last_heard = row.at
+            v.checkpoint = v.checkpoint or row.body
 
     def pose(self, address: int) -> Pose | None:
         """The pose the vehicle at ``address`` last reported (None before its first check-point)."""

@@ -1,0 +1,311 @@
+"""One browser's panel on the 3D map: built per client (viser has no authentication of its own), so
+what one browser types or presses reaches only its own panel.
+
+The panel acts for a signed-in operator only: its token is checked with ``server.auth.role`` (the same
+tokens as the API) when signing in and again at every send. Without a token, or with an observer's
+(read) token, the map can be watched but nothing can be sent; a websocket client that skips the page
+and sets the panel's values or presses its buttons directly meets the same check.
+
+The command fields, their labels, units, ranges and hints come from ``server.operator.command_form``
+(the control packet's field table narrowed by the vehicle's limits), the same spec the dashboard reads
+from the API, and are checked by ``server.operator.check_form`` before anything is sent.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import TYPE_CHECKING, Any
+
+from server import auth, operator
+from server.errors import ApiError
+from server.map.panel import move_to, ray_to_depth_plane
+from server.schemas import CommandIn
+from server.services.commands import limits_of
+from tacit.navigation import Pose
+
+if TYPE_CHECKING:
+    from server.map.scene import OperatorMap
+
+log = logging.getLogger("tacit.server.map")
+
+NOT_SIGNED_IN = ("**Watching only.** Paste the **operator token** above and press **Sign in** to send "
+                 "commands (`tacit demo` prints it; it is also in the demo's `secrets.json`).")  # fmt: skip
+ANGLE_MODES = {"turn from heading": "relative", "bearing (true)": "bearing"}
+INPUTS = ("distance", "angle", "depth", "speed", "param_id", "param_value")
+
+LEGEND = """\
+**In the scene** (x east, y north, z up; metres from home)
+- **vehicle**: yellow arrow = heading; label = state and age of the last report
+- **blue line**: track it reported (check-points)
+- **grey line**: the mission's planned waypoints
+- **orange**: where the shore predicts it is now, circle = how unsure (grows with silence)
+- **dots**: packets by priority (blue routine .. red time-sensitive)
+- **purple sphere**: where the temperature estimate is most uncertain (a good place to sample next)
+"""
+
+
+def colour_scale(lo: float | None, hi: float | None) -> str:
+    """The temperature colour scale (blue cold, red warm) as HTML."""
+    labels = ("-", "-") if lo is None or hi is None else (f"{lo:.2f} °C", f"{hi:.2f} °C")
+    return ('<div style="font-size:0.8em">water temperature</div>'
+            '<div style="height:10px;background:linear-gradient(to right, rgb(40,90,220), rgb(230,50,40))"></div>'
+            f'<div style="display:flex;justify-content:space-between;font-size:0.8em"><span>{labels[0]}</span>'
+            f"<span>{labels[1]}</span></div>")  # fmt: skip
+
+
+class OperatorPanel:
+    def __init__(self, owner: OperatorMap, client: Any) -> None:
+        self.map = owner
+        self.client = client
+        self.gui = client.gui
+        self.token: str | None = None
+        self.role: str | None = None
+        self.pending_confirm: str | None = None
+        self.last_sent: int | None = None
+        self.estimate_handle: Any = None
+        self.form = operator.command_form()
+        self.ranges: dict[str, tuple[float, float]] = {}
+        self._build()
+        self._apply_form()
+        self._show_role()
+
+    # --- building ------------------------------------------------------------------------------
+
+    def _build(self) -> None:
+        gui = self.gui
+        with gui.add_folder("Sign in"):
+            self.token_in = gui.add_text("Token", "", hint="The operator's token sends commands; an observer's "
+                                         "token (or none) only watches. Cleared from the box after signing in.")  # fmt: skip
+            self.sign_in_btn = gui.add_button("Sign in", hint="Check the token with the shore server")
+            self.role_md = gui.add_markdown(NOT_SIGNED_IN)
+        with gui.add_folder("View"):
+            top = gui.add_button("Top-down view", hint="Look straight down on the vehicle, north up")
+            side = gui.add_button(
+                "Oblique view", hint="Back to the view from the south-west, above the water"
+            )
+            self.estimate_cb = gui.add_checkbox("Temperature estimate", False,
+                                                hint="The shore's estimate of the water temperature at the "
+                                                "vehicle's depth, fitted to the reported samples (colour scale "
+                                                "below), and its front (black diamonds: where it crosses its "
+                                                "median). Off by default: it covers the track.")  # fmt: skip
+            self.scale_html = gui.add_html(colour_scale(None, None))
+            gui.add_markdown(LEGEND)
+        with gui.add_folder("Vehicle"):
+            self.vehicle_md = gui.add_markdown("no check-point yet")
+        with gui.add_folder("Link"):
+            self.link_md = gui.add_markdown("waiting for the link engine")
+        with gui.add_folder("Command"):
+            names = self.map.vehicle_names() or ["(none)"]
+            self.vehicle_dd = gui.add_dropdown("Vehicle", names, hint="The vehicle the command goes to")
+            self.command_dd = gui.add_dropdown("Command", list(self.form["commands"]), initial_value="move",
+                                               hint="What to ask of the vehicle")  # fmt: skip
+            d = self.form["defaults"]
+            self.inputs = {
+                "distance": gui.add_number("Distance (m)", d["distance"]),
+                "angle_mode": gui.add_dropdown("Angle is", list(ANGLE_MODES), hint="A turn relative to the "
+                                               "vehicle's heading, or a true bearing from north"),
+                "angle": gui.add_number("Angle (deg)", d["angle"]),
+                "depth": gui.add_number("Depth (m)", d["depth"]),
+                "speed": gui.add_number("Speed (m/s)", d["speed"]),
+                "param_id": gui.add_number("Number", d["param_id"], step=1),
+                "param_value": gui.add_number("Value", d["param_value"]),
+            }  # fmt: skip
+            self.plane_dd = gui.add_dropdown("Click plane", ["vehicle depth", "surface"],
+                                             hint="Clicking the scene fills distance and angle toward the point "
+                                             "where the click meets this plane")  # fmt: skip
+            self.send_btn = gui.add_button(
+                "Send", color="blue", hint="Check the fields and queue the command"
+            )
+            self.status_md = gui.add_markdown("")
+        with gui.add_folder("Mission"):
+            self.start_btn = gui.add_button("Start mission", hint="Start the mission numbered in Number")
+            self.abort_btn = gui.add_button("Abort mission", color="red", hint="Abort and hold where it is")
+            self.home_btn = gui.add_button("Return home", color="orange", hint="Head home now")
+            self.confirm_btn = gui.add_button("Confirm", color="red", visible=False)
+            self.cancel_btn = gui.add_button("Cancel", visible=False)
+            self.suggest_btn = gui.add_button("Go to suggested target", visible=False,
+                                              hint="Fill a move toward the purple sphere: where the temperature "
+                                              "estimate is most uncertain")  # fmt: skip
+        with gui.add_folder("Commands"):
+            self.commands_md = gui.add_markdown("none yet")
+        self.sign_in_btn.on_click(lambda _e: self.sign_in(self.token_in.value))
+        top.on_click(lambda _e: self.top_down())
+        side.on_click(lambda _e: self.oblique())
+        self.estimate_cb.on_update(lambda _e: self.show_estimate())
+        self.command_dd.on_update(lambda _e: self._apply_form())
+        self.inputs["angle_mode"].on_update(lambda _e: self._apply_form())
+        self.vehicle_dd.on_update(lambda _e: self._apply_form())
+        self.send_btn.on_click(lambda _e: self.send_form())
+        self.start_btn.on_click(lambda _e: self.ask("start_mission"))
+        self.abort_btn.on_click(lambda _e: self.ask("abort_mission"))
+        self.home_btn.on_click(lambda _e: self.ask("return_home"))
+        self.confirm_btn.on_click(lambda _e: self.confirm())
+        self.cancel_btn.on_click(lambda _e: self.ask(None))
+        self.suggest_btn.on_click(
+            lambda _e: self.fill_from_point(*self.map.suggestion) if self.map.suggestion else None
+        )
+        scene = getattr(self.client, "scene", None)
+        if scene is not None and hasattr(scene, "on_click"):
+            scene.on_click()(self.on_scene_click)
+
+    # --- sign-in -------------------------------------------------------------------------------
+
+    def sign_in(self, token: str) -> str | None:
+        """Check ``token`` (the same operator and observer tokens as the API); the box is cleared."""
+        token = (token or "").strip()
+        self.token_in.value = ""
+        found = auth.role(self.map.shore.settings, token) if token else None
+        self.token, self.role = (token, found) if found else (None, None)
+        self._show_role(rejected=bool(token) and found is None)
+        log.info("map client %s signed in as %s", getattr(self.client, "client_id", "?"), found or "nobody")
+        return found
+
+    def may_act(self) -> bool:
+        """An operator's token, checked again now (not just at sign-in)."""
+        return self.token is not None and auth.role(self.map.shore.settings, self.token) == "write"
+
+    def _show_role(self, rejected: bool = False) -> None:
+        if self.role == "write":
+            self.role_md.content = "Signed in as **operator**: commands enabled."
+        elif self.role == "read":
+            self.role_md.content = (
+                "Signed in as **observer**: watching only (an observer's token cannot send)."
+            )
+        else:
+            self.role_md.content = ("**Token not accepted.** " if rejected else "") + NOT_SIGNED_IN
+        write = self.role == "write"
+        for button in (self.send_btn, self.start_btn, self.abort_btn, self.home_btn, self.confirm_btn,
+                       self.suggest_btn):  # fmt: skip
+            button.disabled = not write
+
+    # --- the form ------------------------------------------------------------------------------
+
+    def vehicle(self) -> Any:
+        return self.map.vehicle(self.vehicle_dd.value)
+
+    def angle_mode(self) -> str:
+        return ANGLE_MODES.get(self.inputs["angle_mode"].value, "relative")
+
+    def _apply_form(self) -> None:
+        """Show the command's fields with their labels, ranges and hints from the form spec."""
+        vehicle = self.vehicle()
+        self.form = operator.command_form(limits_of(vehicle) if vehicle else None)
+        command = self.command_dd.value
+        specs = {s["name"]: s for s in operator.field_specs(self.form, command, self.angle_mode())}
+        for name in INPUTS:
+            handle, spec = self.inputs[name], specs.get(name)
+            handle.visible = spec is not None
+            if spec is None:
+                continue
+            unit = f" ({spec['unit']})" if spec["unit"] else ""
+            handle.label = f"{spec['label']}{unit}"
+            handle.hint = f"{spec['hint']} Range {spec['min']:g} .. {spec['max']:g}{unit}."
+            self.ranges[name] = (spec["min"], spec["max"])  # checked at send (check_form), shown in the hint
+        self.inputs["angle_mode"].visible = "angle" in specs
+
+    def values(self) -> dict[str, float | None]:
+        return {name: self.inputs[name].value for name in INPUTS}
+
+    def send_form(self) -> str:
+        """Check the visible fields against the spec, then send; returns what the status line says."""
+        try:
+            body = operator.check_form(self.form, self.command_dd.value, self.values(), self.angle_mode())
+            command = CommandIn(**body)
+        except ValueError as exc:
+            return self._status(f"**Not sent**: {exc}")
+        return self.send(command)
+
+    def send(self, command: CommandIn) -> str:
+        if not self.may_act():
+            return self._status("**Not sent**: sign in with an operator's token to send commands.")
+        vehicle = self.vehicle()
+        if vehicle is None:
+            return self._status("**Not sent**: no vehicle registered")
+        try:
+            queued = self.map.shore.commands.submit(vehicle.id, command)  # type: ignore[arg-type]
+        except ApiError as exc:
+            return self._status(f"**Refused**: {exc.field}: {exc.detail}")
+        self.last_sent = queued.id
+        return self._status(f"Command #{queued.id} **{queued.command}** seq {queued.seq}: **queued**")
+
+    def _status(self, text: str) -> str:
+        self.status_md.content = text
+        return text
+
+    def command_status(self, event: dict, lines: str) -> None:
+        self.commands_md.content = lines
+        if self.last_sent is not None and self.last_sent == event.get("id"):
+            reason = f": {event['reason']}" if event.get("reason") else ""
+            self._status(f"Command #{event['id']} seq {event.get('seq')}: **{event['status']}**{reason}")
+
+    # --- missions, confirmations ---------------------------------------------------------------
+
+    def ask(self, action: str | None) -> None:
+        self.pending_confirm = action
+        self.confirm_btn.visible = self.cancel_btn.visible = action is not None
+        if action:
+            self.confirm_btn.label = f"Confirm: {action.replace('_', ' ')}"
+
+    def confirm(self) -> None:
+        action, self.pending_confirm = self.pending_confirm, None
+        self.ask(None)
+        if action:
+            param = int(self.inputs["param_id"].value) if action == "start_mission" else 0
+            self.send(CommandIn(command=action, param_id=param))
+
+    # --- the scene -----------------------------------------------------------------------------
+
+    def on_scene_click(self, event: Any) -> None:
+        vehicle = self.vehicle()
+        pose = self.map.pose(vehicle) if vehicle else None
+        depth = 0.0 if self.plane_dd.value == "surface" or pose is None else pose.depth
+        point = ray_to_depth_plane(event.ray_origin, event.ray_direction, depth)
+        if point is not None:
+            self.fill_from_point(point[0], point[1], depth)
+
+    def fill_from_point(self, north: float, east: float, depth: float | None = None) -> None:
+        vehicle = self.vehicle()
+        pose = (self.map.pose(vehicle) if vehicle else None) or Pose(0.0, 0.0, 0.0, 0.0)
+        command = move_to(
+            pose, north, east, pose.depth if depth is None else depth, self.angle_mode() == "bearing"
+        )
+        self.command_dd.value = "move"
+        self._apply_form()
+        angle = command.angle % 360.0 if self.angle_mode() == "bearing" else command.angle
+        self.inputs["distance"].value, self.inputs["angle"].value, self.inputs["depth"].value = (
+            command.distance, round(angle, 2), command.depth)  # fmt: skip
+        self.client.scene.add_icosphere("/click_target", radius=0.4, color=(250, 200, 0),
+                                        position=(east, north, -(pose.depth if depth is None else depth)))  # fmt: skip
+        self._status(f"Target set: {command.distance:.1f} m, angle {angle:.1f} deg. Press **Send**.")
+
+    def top_down(self) -> None:
+        north, east = self.map.focus()
+        self._look((east, north - 1.0, 45.0), (east, north, -2.0))
+
+    def oblique(self) -> None:
+        north, east = self.map.focus()
+        self._look((east - 25.0, north - 35.0, 30.0), (east, north, -2.0))
+
+    def _look(self, position: tuple[float, float, float], look_at: tuple[float, float, float]) -> None:
+        camera = self.client.camera
+        with self.client.atomic():
+            camera.up_direction = (0.0, 0.0, 1.0)
+            camera.position = position
+            camera.look_at = look_at
+
+    def show_estimate(self) -> None:
+        """The temperature estimate in this client's scene only while its box is ticked."""
+        cloud = self.map.estimate_cloud
+        if self.estimate_cb.value and cloud is not None:
+            points, colours, front = cloud
+            scene = self.client.scene
+            self.estimate_handle = [
+                scene.add_point_cloud("/temperature/estimate", points, colours, point_size=0.45,
+                                      point_shape="circle"),
+                scene.add_point_cloud("/temperature/estimate/front", front, (20, 20, 20), point_size=0.5,
+                                      point_shape="diamond"),
+            ]  # fmt: skip
+        elif self.estimate_handle is not None:
+            for handle in self.estimate_handle:
+                handle.remove()
+            self.estimate_handle = None
