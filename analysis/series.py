@@ -12,6 +12,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from tqdm import tqdm
 
+from analysis import tlog
+
 if TYPE_CHECKING:
     from tacit.codec import StreamSpec
 
@@ -170,26 +172,18 @@ def load_csv(path: Path, columns: list[str] | None, time_column: str | None, per
 
 def load_tlog(path: Path, columns: list[str]) -> Series:
     """One sample per message of the columns' message type (all columns from one type)."""
-    from pymavlink import mavutil
-
     kinds = {c.split(".", 1)[0] for c in columns}
     if len(kinds) != 1 or any("." not in c for c in columns):
         raise ValueError("tlog columns are MESSAGE.field, all of one message type, e.g. RAW_IMU.xacc")
     kind = kinds.pop()
     fields = [c.split(".", 1)[1] for c in columns]
-    if not Path(path).is_file():  # else pymavlink takes the name for a serial port: "could not open port"
-        raise FileNotFoundError(f"{path}: no such file")
-    conn = mavutil.mavlink_connection(str(path), robust_parsing=True)
     times, values = [], []
-    try:
-        while (msg := conn.recv_match(type=kind, blocking=False)) is not None:
-            try:
-                values.append([float(getattr(msg, f)) for f in fields])
-            except AttributeError as exc:
-                raise ValueError(f"{kind} has no field {exc.name!r}") from None
-            times.append(msg._timestamp)
-    finally:
-        conn.close()
+    for msg in tlog.messages(path, kind):
+        try:
+            values.append([float(getattr(msg, f)) for f in fields])
+        except AttributeError as exc:
+            raise ValueError(f"{kind} has no field {exc.name!r}") from None
+        times.append(msg._timestamp)
     if not values:
         raise ValueError(f"{path.name}: no {kind} messages")
     times_array = np.array(times)
@@ -200,35 +194,18 @@ def load_tlog(path: Path, columns: list[str]) -> Series:
 def measured_per_tick(folder: Path, kind: str, fields: Sequence[str], spec: StreamSpec,
                       scale: float = 1.0) -> dict[int, list[float]]:  # fmt: skip
     """What a vehicle measured, from the agent's tlogs in ``folder``: per codec tick, the first sample
-    of ``kind`` (the one the encoder kept; later duplicates of a tick are dropped), fields times ``scale``."""
-    from pymavlink import mavutil
-
-    measured: dict[int, list[float]] = {}
-    for tlog in sorted(folder.glob("*.tlog")):
-        conn = mavutil.mavlink_connection(str(tlog))
-        try:
-            while (msg := conn.recv_match(type=kind, blocking=False)) is not None:
-                measured.setdefault(
-                    spec.tick(msg._timestamp), [float(getattr(msg, f)) * scale for f in fields]
-                )
-        finally:
-            conn.close()
-    return measured
+    of ``kind``, fields times ``scale``."""
+    return {
+        k: samples[0] for k, samples in measured_samples_per_tick(folder, kind, fields, spec, scale).items()
+    }
 
 
 def measured_samples_per_tick(folder: Path, kind: str, fields: Sequence[str], spec: StreamSpec,
                               scale: float = 1.0) -> dict[int, list[list[float]]]:  # fmt: skip
-    """Like ``measured_per_tick`` but every sample of each tick, in order (the codec keeps them all)."""
-    from pymavlink import mavutil
-
+    """Every sample of ``kind`` per codec tick, in order (the codec keeps them all), fields times ``scale``."""
     measured: dict[int, list[list[float]]] = {}
-    for tlog in sorted(folder.glob("*.tlog")):
-        conn = mavutil.mavlink_connection(str(tlog))
-        try:
-            while (msg := conn.recv_match(type=kind, blocking=False)) is not None:
-                measured.setdefault(spec.tick(msg._timestamp), []).append(
-                    [float(getattr(msg, f)) * scale for f in fields]
-                )
-        finally:
-            conn.close()
+    for msg in tlog.folder_messages(folder, kind):
+        measured.setdefault(spec.tick(msg._timestamp), []).append(
+            [float(getattr(msg, f)) * scale for f in fields]
+        )
     return measured

@@ -10,8 +10,7 @@ import asyncio
 import logging
 from pathlib import Path
 
-from pymavlink import mavutil
-
+from analysis import tlog
 from simulators.mavlink_vehicle import Links
 
 log = logging.getLogger("simulators.replay")
@@ -19,16 +18,7 @@ log = logging.getLogger("simulators.replay")
 
 def read_tlog(path: str | Path) -> list[tuple[float, bytes]]:
     """(timestamp, raw MAVLink frame) for every message of a tlog, in order."""
-    if not Path(path).is_file():  # else pymavlink takes the name for a serial port: "could not open port"
-        raise FileNotFoundError(f"{path}: no such file")
-    conn = mavutil.mavlink_connection(str(path), robust_parsing=True)
-    out: list[tuple[float, bytes]] = []
-    try:
-        while (msg := conn.recv_match(blocking=False)) is not None:
-            if msg.get_type() != "BAD_DATA":
-                out.append((msg._timestamp, bytes(msg.get_msgbuf())))
-    finally:
-        conn.close()
+    out = [(msg._timestamp, bytes(msg.get_msgbuf())) for msg in tlog.messages(path)]
     if not out:
         raise ValueError(f"{path}: no MAVLink messages")
     return out

@@ -308,6 +308,13 @@ class _Packet:
     def body_size(cls) -> int:
         return 1 + struct.calcsize(">" + "".join(f.fmt for f in cls.FIELDS))
 
+    @classmethod
+    def clamped(cls, **values: float) -> dict[str, float]:
+        """Measured values brought inside their fields' ranges (a sensor reading past what the packet
+        can say is sent as the nearest value it can say, instead of refusing the whole packet)."""
+        ranges = {f.name: (f.lo, f.hi) for f in cls.FIELDS}
+        return {name: min(max(value, ranges[name][0]), ranges[name][1]) for name, value in values.items()}
+
 
 @dataclass(frozen=True)
 class ControlPacket(_Packet):

@@ -23,7 +23,7 @@ ALLOWED = {
     "tacit": {"tacit"},
     "server": {"tacit", "server"},
     "vehicle_agent": {"tacit", "vehicle_agent"},
-    "simulators": {"tacit", "simulators"},
+    "simulators": {"tacit", "simulators", "analysis"},  # the tlog reader, to stream a real dive
     "analysis": {"tacit", "analysis"},
     "launch": {"tacit", "server", "vehicle_agent", "simulators", "analysis", "launch"},
     "bench": {"tacit", "server", "vehicle_agent", "simulators", "analysis", "launch", "bench"},

@@ -287,18 +287,17 @@ class Agent:
 
     def checkpoint(self) -> CheckpointPacket:
         tel, s, pose = self.mav.telemetry, self.fsm.status, self.pose()
-        clip = lambda v, lo, hi: max(lo, min(hi, v))  # noqa: E731
         flags = (1 if self.position.source != "dead_reckoning" else 0) | (2 if tel.armed else 0) | (
             4 if s.state is MissionState.LINK_LOST else 0)  # fmt: skip
+        measured = CheckpointPacket.clamped(north=pose.north, east=pose.east, depth=pose.depth, battery=tel.battery,
+                                            temperature=tel.temperature or 0.0,
+                                            oxygen=min(tel.oxygen, OXYGEN_NONE - 0.01) if tel.oxygen is not None
+                                            else OXYGEN_NONE)  # fmt: skip
         return CheckpointPacket(
             seq=self.state.packet_seq % 256, time=int(self.now()), state=s.state, mission_id=s.mission or 0,
-            waypoint=min(s.waypoint, 255), north=clip(pose.north, -3276.8, 3276.7),
-            east=clip(pose.east, -3276.8, 3276.7), depth=clip(pose.depth, 0, 655.35),
-            heading=round(pose.heading, 2) % 360.0,
-            battery=clip(tel.battery, 0, 25.5), last_command=s.last_command & 0xFFFF,
-            command_status=s.command_status, reason=s.reason, settled=self.settled(s.last_command),
-            temperature=clip(tel.temperature or 0.0, -327.68, 327.67),
-            oxygen=clip(tel.oxygen, 0, 655.34) if tel.oxygen is not None else OXYGEN_NONE, flags=flags)  # fmt: skip
+            waypoint=min(s.waypoint, 255), heading=round(pose.heading, 2) % 360.0,
+            last_command=s.last_command & 0xFFFF, command_status=s.command_status, reason=s.reason,
+            settled=self.settled(s.last_command), flags=flags, **measured)  # fmt: skip
 
     def _reachable(self, seq: int) -> list[list]:
         """The uncovered packets a check-point with ``seq`` can still cover (the others are dropped)."""
