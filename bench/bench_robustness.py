@@ -155,58 +155,26 @@ def driver_garbage(lines: int) -> tuple[str, str]:
     return f"{lines:,} lines", "0" if alive else "1 (driver stopped answering)"
 
 
-def attacks(cases: int) -> None:
+def attacks(cases: int, command: Command = Command.HOLD, prefix: str = "", stale: bool = True,
+            test: str = "test_auth; test_agent_system: forged_and_replayed") -> None:  # fmt: skip
+    """Forged, bit-flipped, replayed (and stale) control packets of ``command`` against the vehicle's gate."""
     key, address, now = bytes(range(32)), 2, time.time()
     gate = auth.ControlReceiver(key, address)
     genuine = [
-        auth.sign(ControlPacket(Command.HOLD, seq=i + 1, time=int(now)), key, address) for i in range(cases)
+        auth.sign(ControlPacket(command, seq=i + 1, time=int(now)), key, address) for i in range(cases)
     ]
     for frame in genuine:
         gate.accept(frame, now)
-    rng = random.Random(3)
+    rng = random.Random(3 + int(command))
     kinds = {
         "forged (a stranger's key)": lambda i: auth.sign(
-            ControlPacket(Command.MOVE, seq=10**6 + i, time=int(now), distance=50), rng.randbytes(32), address
-        ),  # fmt: skip
+            ControlPacket(command, seq=10**6 + i, time=int(now) + 1), rng.randbytes(32), address),
         "bit-flipped": lambda i: mutate(rng, genuine[i % len(genuine)])[:32],
         "replayed": lambda i: genuine[i % len(genuine)],
-        "out of window (stale)": lambda i: auth.sign(
-            ControlPacket(Command.HOLD, seq=2 * 10**6 + i, time=int(now) - 3600), key, address
-        ),  # fmt: skip
-    }
-    for name, make in kinds.items():
-        accepted = 0
-        for i in range(cases):
-            try:
-                gate.accept(make(i), now)
-                accepted += 1
-            except packets.PacketError:
-                pass
-        row(
-            "attacks",
-            name,
-            f"{cases:,}",
-            f"{accepted} accepted",
-            "test_auth; test_agent_system: forged_and_replayed",
-        )
-
-
-def sync_attacks(cases: int) -> None:
-    """Forged SYNC heartbeats: each one accepted would reset the vehicle's link-lost timer."""
-    key, address, now = bytes(range(32)), 2, time.time()
-    gate = auth.ControlReceiver(key, address)
-    genuine = [
-        auth.sign(ControlPacket(Command.SYNC, seq=i + 1, time=int(now)), key, address) for i in range(cases)
-    ]
-    for frame in genuine:
-        gate.accept(frame, now)
-    rng = random.Random(4)
-    kinds = {
-        "SYNC forged (a stranger's key)": lambda i: auth.sign(
-            ControlPacket(Command.SYNC, seq=10**6 + i, time=int(now) + 1), rng.randbytes(32), address),
-        "SYNC bit-flipped": lambda i: mutate(rng, genuine[i % len(genuine)])[:32],
-        "SYNC replayed": lambda i: genuine[i % len(genuine)],
     }  # fmt: skip
+    if stale:
+        kinds["out of window (stale)"] = lambda i: auth.sign(
+            ControlPacket(command, seq=2 * 10**6 + i, time=int(now) - 3600), key, address)  # fmt: skip
     for name, make in kinds.items():
         accepted = 0
         for i in range(cases):
@@ -215,7 +183,7 @@ def sync_attacks(cases: int) -> None:
                 accepted += 1
             except packets.PacketError:
                 pass
-        row("attacks", name, f"{cases:,}", f"{accepted} accepted", "test_auth: sync_corrects_the_clock")
+        row("attacks", prefix + name, f"{cases:,}", f"{accepted} accepted", test)
 
 
 def flip(rng: random.Random, frame: bytes) -> bytes:
@@ -383,7 +351,7 @@ def main() -> None:
     options = parser.parse_args()
     fuzzing(options.cases)
     attacks(max(100, options.cases // 20))
-    sync_attacks(max(100, options.cases // 20))
+    attacks(max(100, options.cases // 20), Command.SYNC, "SYNC ", False, "test_auth: sync_corrects_the_clock")
     shore_attacks(max(100, options.cases // 100))
     api(options.api_examples)
     if not options.no_faults:
