@@ -13,12 +13,13 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from tacit.navigation import wrap180
+from tacit.packets import FLOAT32_MAX, CheckpointPacket
 from tacit.packets import Command as CommandKind
+from tacit.packets import ControlPacket as WIRE
 
 COMMANDS = tuple(c.name.lower() for c in CommandKind)
 # Request bodies: unknown fields and non-finite numbers are errors.
 STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
-FLOAT32_MAX = 3.4028234663852886e38
 MAX_KEY_HEX = 128  # 64 bytes: twice what HMAC-SHA256 needs
 
 CommandName = Literal["move", "goto_depth", "hold", "resume", "start_mission", "abort_mission", "return_home",
@@ -30,10 +31,14 @@ class Limits(BaseModel):
     ``exclude_unset``), so ``{}`` changes nothing."""
 
     model_config = STRICT
-    max_depth: float = Field(100.0, gt=0, le=327, description="m")
-    max_distance: float = Field(500.0, gt=0, le=6553.5, description="m, per move")
-    max_speed: float = Field(1.0, gt=0, le=2.55, description="m/s")
-    geofence_radius: float = Field(1000.0, gt=0, le=3276, description="m from home")
+    # each limit within what the packets can say: a depth a check-point reports, a move a control
+    # packet carries, a distance from home a check-point's north/east can hold
+    max_depth: float = Field(100.0, gt=0, le=WIRE.field("depth").hi, description="m")
+    max_distance: float = Field(500.0, gt=0, le=WIRE.field("distance").hi, description="m, per move")
+    max_speed: float = Field(1.0, gt=0, le=WIRE.field("speed").hi, description="m/s")
+    geofence_radius: float = Field(
+        1000.0, gt=0, le=CheckpointPacket.field("north").hi, description="m from home"
+    )
 
 
 class VehicleIn(Limits):
@@ -65,7 +70,7 @@ class VehicleCreated(VehicleOut):
 class CommandIn(BaseModel):
     model_config = STRICT
     command: CommandName
-    distance: float = Field(0.0, ge=0, le=6553.5, description="m")
+    distance: float = Field(0.0, ge=0, le=WIRE.field("distance").hi, description="m")
     angle: float = Field(
         0.0,
         ge=-180,
@@ -73,11 +78,10 @@ class CommandIn(BaseModel):
         description="deg; heading change (-180 .. 180, + clockwise), or true bearing "
         "(0 .. 360) if absolute_angle; stored and sent as the same direction in -180 .. 180",
     )
-    depth: float = Field(
-        0.0, ge=-327.68, le=327.67, description="m; depth change (move) or target (goto_depth)"
-    )
-    speed: float = Field(0.0, ge=0, le=2.55, description="m/s; 0 = vehicle default")
-    param_id: int = Field(0, ge=0, le=255)
+    depth: float = Field(0.0, ge=WIRE.field("depth").lo, le=WIRE.field("depth").hi,
+                         description="m; depth change (move) or target (goto_depth)")  # fmt: skip
+    speed: float = Field(0.0, ge=0, le=WIRE.field("speed").hi, description="m/s; 0 = vehicle default")
+    param_id: int = Field(0, ge=0, le=int(WIRE.field("param_id").hi))
     param_value: float = Field(0.0, ge=-FLOAT32_MAX, le=FLOAT32_MAX, description="a float32")
     absolute_angle: bool = False
     delay_sensitive: bool = False

@@ -309,6 +309,12 @@ class _Packet:
         return 1 + struct.calcsize(">" + "".join(f.fmt for f in cls.FIELDS))
 
     @classmethod
+    def field(cls, name: str) -> Field:
+        """The field table's entry for ``name``: its range, resolution and unit (one source for the API's
+        bounds, the screens' inputs and the agent's clamps)."""
+        return next(f for f in cls.FIELDS if f.name == name)
+
+    @classmethod
     def clamped(cls, **values: float) -> dict[str, float]:
         """Measured values brought inside their fields' ranges (a sensor reading past what the packet
         can say is sent as the nearest value it can say, instead of refusing the whole packet)."""
