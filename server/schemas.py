@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
 
 from tacit.navigation import wrap180
 from tacit.packets import FLOAT32_MAX, CheckpointPacket
@@ -70,6 +70,7 @@ class VehicleCreated(VehicleOut):
 class CommandIn(BaseModel):
     model_config = STRICT
     command: CommandName
+    absolute_angle: bool = Field(False, description="angle is a true bearing (0 .. 360), not a turn")
     distance: float = Field(0.0, ge=0, le=WIRE.field("distance").hi, description="m")
     angle: float = Field(
         0.0,
@@ -83,13 +84,15 @@ class CommandIn(BaseModel):
     speed: float = Field(0.0, ge=0, le=WIRE.field("speed").hi, description="m/s; 0 = vehicle default")
     param_id: int = Field(0, ge=0, le=int(WIRE.field("param_id").hi))
     param_value: float = Field(0.0, ge=-FLOAT32_MAX, le=FLOAT32_MAX, description="a float32")
-    absolute_angle: bool = False
     delay_sensitive: bool = False
 
     @field_validator("angle")
     @classmethod
-    def _one_turn(cls, angle: float) -> float:
-        """A bearing of 270 is the direction -90: the packet's angle field holds -180 .. 180."""
+    def _one_turn(cls, angle: float, info: ValidationInfo) -> float:
+        """A turn is -180 .. 180; a bearing 0 .. 360, and a bearing of 270 is the direction -90 (the
+        packet's angle field holds -180 .. 180)."""
+        if not info.data.get("absolute_angle") and angle > 180:
+            raise ValueError("a turn from the heading is -180 .. 180 deg; for a bearing set absolute_angle")
         return wrap180(angle) if angle > 180 else angle
 
 
