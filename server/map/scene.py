@@ -239,8 +239,11 @@ class OperatorMap:
         if not cp:
             return
         with self._lock:
-            for row in event["values"]:
-                self.temperatures.append((cp["north"], cp["east"], row[1], row[0]))
+            for temperature, depth, *_ in event["values"]:
+                if temperature is not None and depth is not None:  # an absent sample is not drawn
+                    self.temperatures.append((cp["north"], cp["east"], depth, temperature))
+            if not self.temperatures:
+                return
             data = np.array(self.temperatures[-2000:])
         points = np.column_stack([data[:, 1], data[:, 0], -data[:, 2]]).astype(np.float32)
         lo, hi = float(data[:, 3].min()), float(data[:, 3].max())
