@@ -191,15 +191,6 @@ def load_tlog(path: Path, columns: list[str]) -> Series:
     return Series(tuple(columns), times_array[order], np.array(values)[order])
 
 
-def measured_per_tick(folder: Path, kind: str, fields: Sequence[str], spec: StreamSpec,
-                      scale: float = 1.0) -> dict[int, list[float]]:  # fmt: skip
-    """What a vehicle measured, from the agent's tlogs in ``folder``: per codec tick, the first sample
-    of ``kind``, fields times ``scale``."""
-    return {
-        k: samples[0] for k, samples in measured_samples_per_tick(folder, kind, fields, spec, scale).items()
-    }
-
-
 def measured_samples_per_tick(folder: Path, kind: str, fields: Sequence[str], spec: StreamSpec,
                               scale: float = 1.0) -> dict[int, list[list[float]]]:  # fmt: skip
     """Every sample of ``kind`` per codec tick, in order (the codec keeps them all), fields times ``scale``."""
@@ -209,3 +200,15 @@ def measured_samples_per_tick(folder: Path, kind: str, fields: Sequence[str], sp
             [float(getattr(msg, f)) * scale for f in fields]
         )
     return measured
+
+
+def error_ratios(values: Sequence[float | None], samples: Sequence[Sequence[float]],
+                 eps: Sequence[float]) -> list[float]:  # fmt: skip
+    """|reconstruction - measured| / eps per channel, against the sample of its tick that the
+    reconstruction is of (a tick may hold several samples: the one that fits best); absent channels
+    are skipped."""
+
+    def ratios(sample: Sequence[float]) -> list[float]:
+        return [abs(v - m) / e for v, m, e in zip(values, sample, eps, strict=True) if v is not None]
+
+    return min((ratios(sample) for sample in samples), key=lambda r: max(r, default=0.0))

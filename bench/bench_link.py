@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from analysis.series import measured_per_tick
+from analysis.series import error_ratios, measured_samples_per_tick
 from launch.rig import Rig  # the same process rig the end-to-end test uses
 from simulators.acoustics import ChannelParameters, cycle_with_ack_s
 from tacit.packets import Stream
@@ -112,11 +112,13 @@ def square_mission(minutes: float) -> None:
 
 
 def env_error(folder: Path, rows: list[dict]) -> float:
-    """Compare the shore's reconstruction with the vehicle's own tlog (the first sample of each tick)."""
+    """Compare the shore's reconstruction with the vehicle's own tlog, sample by sample."""
     spec = default_streams()[Stream.ENVIRONMENTAL]
-    measured = measured_per_tick(folder / "tlogs", "SCALED_PRESSURE2", ["temperature"], spec, scale=0.01)
-    errors = [abs(r["values"][0] - measured[r["tick"]][0]) / spec.eps[0]
-              for r in rows if r["certain"] and r["tick"] in measured]  # fmt: skip
+    measured = measured_samples_per_tick(
+        folder / "tlogs", "SCALED_PRESSURE2", ["temperature"], spec, scale=0.01
+    )
+    errors = [ratio for r in rows if r["certain"] and r["tick"] in measured
+              for ratio in error_ratios(r["values"][:1], measured[r["tick"]], spec.eps[:1])]  # fmt: skip
     return max(errors) if errors else float("nan")
 
 

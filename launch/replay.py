@@ -20,7 +20,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TextIO
 
-from analysis.series import measured_per_tick
+from analysis.series import error_ratios, measured_samples_per_tick
 from launch.demo import DemoError, _log_to, _register, _secrets, free_port, shutdown
 from launch.stack import Stack, StackConfig
 from tacit.packets import Stream
@@ -138,17 +138,21 @@ def _summary(db, data: Path, started: float) -> dict:  # noqa: ANN001
     from server.models import Packet, Telemetry
 
     spec = default_streams()[Stream.KINEMATIC]
-    measured = measured_per_tick(data / "tlogs", "RAW_IMU", IMU_CHANNELS, spec)
+    measured = measured_samples_per_tick(data / "tlogs", "RAW_IMU", IMU_CHANNELS, spec)
     with Session(db) as s:
         packets = s.exec(select(Packet).where(Packet.at >= started)).all()
         rows = s.exec(select(Telemetry).where(Telemetry.stream == "imu", Telemetry.certain)).all()
-    ratios = [abs(v - m) / e for r in rows if r.tick in measured
-              for v, m, e in zip(r.values, measured[r.tick], spec.eps, strict=True)]  # fmt: skip
+    ratios = [
+        ratio
+        for r in rows
+        if r.tick in measured
+        for ratio in error_ratios(r.values, measured[r.tick], spec.eps)
+    ]
     imu = [
         p for p in packets if p.type == "priority" and "imu" in p.body.get("streams", [])
     ]  # shared packets
     latencies = [p.at - p.body["first_tick"] * spec.period for p in imu if "first_tick" in p.body]
-    samples = len(measured) * len(IMU_CHANNELS)
+    samples = sum(len(tick) for tick in measured.values()) * len(IMU_CHANNELS)
     return {
         "samples": samples, "packets": len(imu), "link_bits": len(imu) * 256,
         "bits_per_sample": round(len(imu) * 256 / samples, 3) if samples else None,
