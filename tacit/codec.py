@@ -114,9 +114,11 @@ def _feed(values: np.ndarray) -> np.ndarray:
 
 
 CROSS_FORGET = 1 - 1 / 256  # the regression's memory: about 256 samples
-CROSS_REFIT = 16  # samples between refits of the coefficients
-CROSS_CLIP = 8.0  # residuals (in steps) enter the regression clipped to +-this (a jump must not dominate)
+CROSS_REFIT = 4  # samples between refits of the coefficients
+CROSS_CLIP = 3.0  # residuals (in steps) enter the regression clipped to +-this (a jump must not dominate)
 CROSS_RIDGE = 0.05  # ridge, as a fraction of the mean residual power
+CROSS_USE = 0.9  # a channel uses the correction while it has cut its squared error by 10 % lately
+CROSS_MIN_R2 = 0.1  # a channel whose fit explains less of its residual power is predicted without it
 
 
 class _Dual:
@@ -131,8 +133,10 @@ class _Dual:
     def __init__(self, spec: StreamSpec) -> None:
         n = len(spec.channels)
         self.base, self.step, self.cross = spec.predictor(), spec.step, spec.cross and n > 1
-        self.sums, self.beta, self.count = np.zeros((n, n)), np.zeros((n, n)), 0
+        self.sums, self.beta, self.count = np.zeros((2 * n, 2 * n)), np.zeros((n, 2 * n)), 0
         self.raw_before = np.zeros(n, dtype=bool)
+        self.previous = np.zeros(n)  # the previous sample's z (0 after a gap)
+        self.errors = np.zeros((2, n))  # per channel, forgotten squared error: without, with the correction
 
     def predict(self) -> np.ndarray:
         return self.base.predict()
@@ -142,10 +146,17 @@ class _Dual:
 
     def skip(self, ticks: int = 1) -> None:
         self.base.skip(ticks)
+        if ticks > 0:
+            self.previous = np.zeros_like(self.previous)
 
     def correction(self, c: int, z: np.ndarray) -> float:
         """Channel c's predicted residual, in steps, from the earlier channels' ``z``."""
-        return float(self.beta[c, :c] @ z[:c]) if self.cross and c else 0.0
+        if not self.cross:
+            return 0.0
+        if not self.errors[1, c] < CROSS_USE * self.errors[0, c]:
+            return 0.0
+        n = len(z)
+        return float(self.beta[c, :c] @ z[:c] + self.beta[c, n:] @ self.previous)
 
     def update(self, values: np.ndarray, z: np.ndarray, raw: np.ndarray) -> None:
         """The sample's reconstruction (NaN: absent), residuals in steps (0: absent or raw), raw channels."""
@@ -155,7 +166,12 @@ class _Dual:
         self.base.update(_feed(fed))
         if not self.cross:
             return
-        zz = np.clip(z, -CROSS_CLIP, CROSS_CLIP)
+        zz = np.concatenate([np.clip(z, -CROSS_CLIP, CROSS_CLIP), self.previous])
+        candidate = (
+            np.tril(self.beta[:, : len(z)], -1) @ zz[: len(z)] + self.beta[:, len(z) :] @ self.previous
+        )
+        self.errors = self.errors * CROSS_FORGET + np.where(present, np.array([z, z - candidate]) ** 2, 0.0)
+        self.previous = zz[: len(z)]
         self.sums = self.sums * CROSS_FORGET + np.outer(zz, zz)
         self.count += 1
         if self.count % CROSS_REFIT == 0:
@@ -163,16 +179,23 @@ class _Dual:
 
     def _refit(self) -> None:
         n = len(self.step)
-        ridge = CROSS_RIDGE * float(np.trace(self.sums)) / n + 1e-9
-        for c in range(1, n):
-            a = self.sums[:c, :c] + ridge * np.eye(c)
-            self.beta[c, :c] = np.linalg.solve(a, self.sums[:c, c])
+        ridge = CROSS_RIDGE * float(np.trace(self.sums)) / (2 * n) + 1e-9
+        for c in range(n):
+            used = np.r_[0:c, n : 2 * n]
+            a = self.sums[np.ix_(used, used)] + ridge * np.eye(len(used))
+            b = self.sums[used, c]
+            beta = np.linalg.solve(a, b)
+            explained = float(beta @ b) / (self.sums[c, c] + 1e-12)  # R^2 of the fit
+            self.beta[c, used] = beta if explained >= CROSS_MIN_R2 else 0.0
+        self.beta[:, :n] = np.tril(self.beta[:, :n], -1)
 
     def state(self) -> object:
-        return (self.base.state(), self.sums.copy(), self.beta.copy(), self.count, self.raw_before.copy())
+        return (self.base.state(), self.sums.copy(), self.beta.copy(), self.count, self.raw_before.copy(),
+                self.previous.copy(), self.errors.copy())  # fmt: skip
 
     def restore(self, state: object) -> None:
-        base, sums, beta, count, raw_before = state  # type: ignore[misc]
+        base, sums, beta, count, raw_before, previous, errors = state  # type: ignore[misc]
+        self.previous, self.errors = np.array(previous, dtype=float), np.array(errors, dtype=float)
         self.base.restore(base)
         self.sums, self.beta = np.array(sums, dtype=float), np.array(beta, dtype=float)
         self.count = int(count)
