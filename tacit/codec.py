@@ -1,10 +1,16 @@
 """The sample codec: what goes in a priority packet's 30 bytes, and how the shore gets it back.
 
 Quantisation. For channel c with error bound eps_c, the vehicle sends q = round((x - p) / s) with
-p the dual prediction (``tacit.predict``) and s = 2 eps_c (1 - 1e-9); the shore reconstructs
-p + q s, so |reconstruction - x| <= eps_c for every present sample (the 1e-9 margin absorbs
-floating-point rounding). q = 0 is the paper's "predictable" verdict. Both ends feed the
-reconstruction, not the raw value, back into the predictor.
+p the dual prediction and s = 2 eps_c (1 - 1e-9); the shore reconstructs p + q s, so
+|reconstruction - x| <= eps_c for every present sample (the 1e-9 margin absorbs floating-point
+rounding). q = 0 is the paper's "predictable" verdict. Both ends feed the reconstruction, not the raw
+value, back into the predictor. p is the channel's predictor (``tacit.predict``) plus a cross-channel
+term (``_Dual``): channels are coded in order, and channel c's residual is predicted by a ridge
+regression on the residuals of the channels already coded in the same sample and on the previous
+sample's residuals, fitted on reconstructions (so both ends hold the same coefficients), used by a
+channel only while it has lately cut its squared error by 10 %. A residual of 2^40 steps or more (or a
+value beyond what a step count can reach) is sent as the value itself (RAW: an IEEE double, exact);
+a single raw value (a glitch) is not given to the predictor, a second one in a row is (a real jump).
 
 Time. Each stream has a tick period T; a sample taken at time t belongs to tick k = round(t / T), and
 the shore dates it k T: **every sample's time is known to within T / 2** (``time_precision``), whatever
@@ -30,8 +36,8 @@ START  the stream's first sample (no cursor yet): its tick's low 24 bits        
 The token is coded with a model per stream and previous token. A sample is then: one "all channels
 present" symbol (model per stream and previous answer); if not all, a presence symbol per channel
 (model per channel and previous presence); then q for each present channel (model per channel and
-context min(|previous q|, 2)): symbols -6..6 and two escapes, an escaped magnitude as an Exp-Golomb
-code. n is an Elias-gamma code whose unary part has an adaptive model per position. On a clean grid a
+context min(|previous q|, 2)): symbols -6..6, two escapes (an escaped magnitude as an Exp-Golomb
+code) and RAW (64 bits follow). n is an Elias-gamma code whose unary part has an adaptive model per position. On a clean grid a
 tick costs hundredths of a bit beyond its q's; a 5 % dropout costs about 0.3 bit per missing tick.
 
 Payload (30 bytes after the priority packet's 2-byte header; version ``FORMAT``)::
@@ -51,7 +57,14 @@ thousands). Several streams share a packet, so a quiet one rides along instead o
 Packets chain: each continues from a predictor and model state both ends hold. The vehicle learns from
 the modem's ACK which packets arrived and bases the next on the last delivered one, so one lost packet
 costs its own samples (declared with LOST, stored as uncertain on the shore), never the ones after.
-Decoding raises nothing but ``CodecError``.
+Decoding raises nothing but ``CodecError``; a packet whose base the shore does not hold raises its
+subclass ``UnknownBase``, and the vehicle's ``PacketEncoder.restart()`` makes its next packet start from
+the initial state (base 0; the shore then forgets every older state). The shore persists its states
+with ``PacketDecoder.to_bytes()`` / ``load()`` / ``from_bytes()``.
+
+A sample too large for an empty packet (many channels far off, raw values) is sent as several samples
+of the same tick, each with some of its channels (the others absent): the stream never stalls, and the
+shore gets every channel, in parts (a part in a lost packet is declared lost like any sample).
 """
 
 from __future__ import annotations
@@ -135,7 +148,7 @@ class _Dual:
         self.base, self.step, self.cross = spec.predictor(), spec.step, spec.cross and n > 1
         self.sums, self.beta, self.count = np.zeros((2 * n, 2 * n)), np.zeros((n, 2 * n)), 0
         self.raw_before = np.zeros(n, dtype=bool)
-        self.previous = np.zeros(n)  # the previous sample's z (0 after a gap)
+        self.previous = np.zeros(n)  # the previous sample's z (across a gap too)
         self.errors = np.zeros((2, n))  # per channel, forgotten squared error: without, with the correction
 
     def predict(self) -> np.ndarray:
@@ -145,9 +158,7 @@ class _Dual:
         return self.base.current()
 
     def skip(self, ticks: int = 1) -> None:
-        self.base.skip(ticks)
-        if ticks > 0:
-            self.previous = np.zeros_like(self.previous)
+        self.base.skip(ticks)  # the previous sample's residuals still predict (zeroing them cost 6 % on gaps)
 
     def correction(self, c: int, z: np.ndarray) -> float:
         """Channel c's predicted residual, in steps, from the earlier channels' ``z``."""
