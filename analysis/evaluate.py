@@ -97,7 +97,8 @@ def run_codec(series: Series, spec: StreamSpec, max_latency: float, loss: float 
         latencies.extend(now - t for t in encoded.surprise_times)
         confirmations.extend(now - t for t in encoded.sample_times)
         for serial, tick, row in zip(encoded.serials[0], span.ticks, span.values, strict=True):
-            shore[row_of[serial]] = row
+            held = shore[row_of[serial]]  # a sample too large for one packet arrives in parts (channels)
+            shore[row_of[serial]] = np.where(np.isnan(row), held, row)
             shore_time[row_of[serial]] = tick * spec.period
 
     bar = tqdm(

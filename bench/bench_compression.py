@@ -45,6 +45,8 @@ PUBLIC = Path(__file__).resolve().parent / "data"
 PUBLIC_CASES = [
     # file, eps, max latency (s), label: slow sensors get a latency that lets a packet fill
     ("glider_amadeus_ctd_temperature.csv", 0.05, 600.0, "glider CTD temp 0.05 degC"),
+    ("glider_sea035_oxygen.csv", 1.0, 600.0, "glider O2 30 s 1 umol/L"),
+    ("glider_sea035_oxygen.csv", 1.0, 3600.0, "glider O2 30 s 1 umol/L"),
 ]
 
 

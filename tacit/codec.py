@@ -1,10 +1,16 @@
 """The sample codec: what goes in a priority packet's 30 bytes, and how the shore gets it back.
 
 Quantisation. For channel c with error bound eps_c, the vehicle sends q = round((x - p) / s) with
-p the dual prediction (``tacit.predict``) and s = 2 eps_c (1 - 1e-9); the shore reconstructs
-p + q s, so |reconstruction - x| <= eps_c for every present sample (the 1e-9 margin absorbs
-floating-point rounding). q = 0 is the paper's "predictable" verdict. Both ends feed the
-reconstruction, not the raw value, back into the predictor.
+p the dual prediction and s = 2 eps_c (1 - 1e-9); the shore reconstructs p + q s, so
+|reconstruction - x| <= eps_c for every present sample (the 1e-9 margin absorbs floating-point
+rounding). q = 0 is the paper's "predictable" verdict. Both ends feed the reconstruction, not the raw
+value, back into the predictor. p is the channel's predictor (``tacit.predict``) plus a cross-channel
+term (``_Dual``): channels are coded in order, and channel c's residual is predicted by a ridge
+regression on the residuals of the channels already coded in the same sample and on the previous
+sample's residuals, fitted on reconstructions (so both ends hold the same coefficients), used by a
+channel only while it has lately cut its squared error by 10 %. A residual of 2^40 steps or more (or a
+value beyond what a step count can reach) is sent as the value itself (RAW: an IEEE double, exact);
+a single raw value (a glitch) is not given to the predictor, a second one in a row is (a real jump).
 
 Time. Each stream has a tick period T; a sample taken at time t belongs to tick k = round(t / T), and
 the shore dates it k T: **every sample's time is known to within T / 2** (``time_precision``), whatever
@@ -30,8 +36,8 @@ START  the stream's first sample (no cursor yet): its tick's low 24 bits        
 The token is coded with a model per stream and previous token. A sample is then: one "all channels
 present" symbol (model per stream and previous answer); if not all, a presence symbol per channel
 (model per channel and previous presence); then q for each present channel (model per channel and
-context min(|previous q|, 2)): symbols -6..6 and two escapes, an escaped magnitude as an Exp-Golomb
-code. n is an Elias-gamma code whose unary part has an adaptive model per position. On a clean grid a
+context min(|previous q|, 2)): symbols -6..6, two escapes (an escaped magnitude as an Exp-Golomb
+code) and RAW (64 bits follow). n is an Elias-gamma code whose unary part has an adaptive model per position. On a clean grid a
 tick costs hundredths of a bit beyond its q's; a 5 % dropout costs about 0.3 bit per missing tick.
 
 Payload (30 bytes after the priority packet's 2-byte header; version ``FORMAT``)::
@@ -51,11 +57,21 @@ thousands). Several streams share a packet, so a quiet one rides along instead o
 Packets chain: each continues from a predictor and model state both ends hold. The vehicle learns from
 the modem's ACK which packets arrived and bases the next on the last delivered one, so one lost packet
 costs its own samples (declared with LOST, stored as uncertain on the shore), never the ones after.
-Decoding raises nothing but ``CodecError``.
+Decoding raises nothing but ``CodecError``; a packet whose base the shore does not hold raises its
+subclass ``UnknownBase``, and the vehicle's ``PacketEncoder.restart()`` makes its next packet start from
+the initial state (base 0; the shore then forgets every older state). The shore persists its states
+with ``PacketDecoder.to_bytes()`` / ``load()`` / ``from_bytes()``.
+
+A sample too large for an empty packet (many channels far off, raw values) is sent as several samples
+of the same tick, each with some of its channels (the others absent): the stream never stalls, and the
+shore gets every channel, in parts (a part in a lost packet is declared lost like any sample).
 """
 
 from __future__ import annotations
 
+import json
+import struct
+import zlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -70,17 +86,131 @@ CODE_BYTES = PAYLOAD_SIZE - HEADER_BYTES
 CODE_BITS = CODE_BYTES * 8
 CHAIN_IDS = 63
 SMALL = 6
-ESC_NEG, ESC_POS = 2 * SMALL + 1, 2 * SMALL + 2
-PRIOR = [1, 1, 1, 2, 4, 8, 24, 8, 4, 2, 1, 1, 1, 1, 1]
+ESC_NEG, ESC_POS, RAW = 2 * SMALL + 1, 2 * SMALL + 2, 2 * SMALL + 3
+PRIOR = [1, 1, 1, 2, 4, 8, 24, 8, 4, 2, 1, 1, 1, 1, 1, 1]
 MARGIN = 1 - 1e-9
 END, STEP, SAME, JUMP, LOST, START = range(6)
 TOKEN_PRIOR = [2, 24, 1, 2, 1, 1]
 TICK_BITS = 24
-MAX_Q = 1 << 60
+RAW_Q = 1 << 40  # a residual of this many steps or more is sent as the value itself (RAW)
+FEED_LIMIT = 1e100  # the predictors see values clipped to +-this (both ends), so they stay finite
 
 
 class CodecError(ValueError):
     """A payload that cannot be decoded (another format, an unknown base state, or malformed)."""
+
+
+class UnknownBase(CodecError):
+    """The packet continues from a state this decoder does not hold (an earlier packet was not received,
+    or the shore restarted without its saved state): ask the vehicle to start over (``restart``)."""
+
+    def __init__(self, base: int) -> None:
+        super().__init__(f"no state for packet id {base}: an earlier packet was not received")
+        self.base = base
+
+
+class _Raw(int):
+    """A channel's value sent as itself (IEEE double), for a residual too large for a step count; as an
+    int it is huge, so it counts as a surprise everywhere a q does."""
+
+    value: float
+
+    def __new__(cls, value: float) -> _Raw:
+        raw = super().__new__(cls, RAW_Q if value >= 0 else -RAW_Q)
+        raw.value = float(value)
+        return raw
+
+
+def _feed(values: np.ndarray) -> np.ndarray:
+    """What the predictors are given (both ends): the reconstruction, clipped so they stay finite."""
+    return np.clip(values, -FEED_LIMIT, FEED_LIMIT)
+
+
+CROSS_FORGET = 1 - 1 / 256  # the regression's memory: about 256 samples
+CROSS_REFIT = 4  # samples between refits of the coefficients
+CROSS_CLIP = 3.0  # residuals (in steps) enter the regression clipped to +-this (a jump must not dominate)
+CROSS_RIDGE = 0.05  # ridge, as a fraction of the mean residual power
+CROSS_USE = 0.9  # a channel uses the correction while it has cut its squared error by 10 % lately
+CROSS_MIN_R2 = 0.1  # a channel whose fit explains less of its residual power is predicted without it
+
+
+class _Dual:
+    """A stream's predictor as both ends run it: the per-channel predictor (``tacit.predict``), and on top
+    a cross-channel prediction of the residual. Channels are coded in order; channel c's prediction is
+    the predictor's plus sum_j<c beta_cj z_j step_c, z_j = (reconstruction_j - prediction_j) / step_j of
+    the channels already coded in the same sample (0 if absent). beta is a ridge regression of each z_c
+    on the earlier z, over exponentially forgotten sums, refitted every ``CROSS_REFIT`` samples: from
+    reconstructions only, so both ends hold the same coefficients. A value sent raw (a glitch) is not
+    given to the predictor unless the channel's previous value was raw too (a real jump is learnt)."""
+
+    def __init__(self, spec: StreamSpec) -> None:
+        n = len(spec.channels)
+        self.base, self.step, self.cross = spec.predictor(), spec.step, spec.cross and n > 1
+        self.sums, self.beta, self.count = np.zeros((2 * n, 2 * n)), np.zeros((n, 2 * n)), 0
+        self.raw_before = np.zeros(n, dtype=bool)
+        self.previous = np.zeros(n)  # the previous sample's z (across a gap too)
+        self.errors = np.zeros((2, n))  # per channel, forgotten squared error: without, with the correction
+
+    def predict(self) -> np.ndarray:
+        return self.base.predict()
+
+    def current(self) -> np.ndarray:
+        return self.base.current()
+
+    def skip(self, ticks: int = 1) -> None:
+        self.base.skip(ticks)  # the previous sample's residuals still predict (zeroing them cost 6 % on gaps)
+
+    def correction(self, c: int, z: np.ndarray) -> float:
+        """Channel c's predicted residual, in steps, from the earlier channels' ``z``."""
+        if not self.cross:
+            return 0.0
+        if not self.errors[1, c] < CROSS_USE * self.errors[0, c]:
+            return 0.0
+        n = len(z)
+        return float(self.beta[c, :c] @ z[:c] + self.beta[c, n:] @ self.previous)
+
+    def update(self, values: np.ndarray, z: np.ndarray, raw: np.ndarray) -> None:
+        """The sample's reconstruction (NaN: absent), residuals in steps (0: absent or raw), raw channels."""
+        present = ~np.isnan(values)
+        fed = np.where(raw & ~self.raw_before, np.nan, values)
+        self.raw_before = np.where(present, raw, self.raw_before)
+        self.base.update(_feed(fed))
+        if not self.cross:
+            return
+        zz = np.concatenate([np.clip(z, -CROSS_CLIP, CROSS_CLIP), self.previous])
+        candidate = (
+            np.tril(self.beta[:, : len(z)], -1) @ zz[: len(z)] + self.beta[:, len(z) :] @ self.previous
+        )
+        self.errors = self.errors * CROSS_FORGET + np.where(present, np.array([z, z - candidate]) ** 2, 0.0)
+        self.previous = zz[: len(z)]
+        self.sums = self.sums * CROSS_FORGET + np.outer(zz, zz)
+        self.count += 1
+        if self.count % CROSS_REFIT == 0:
+            self._refit()
+
+    def _refit(self) -> None:
+        n = len(self.step)
+        ridge = CROSS_RIDGE * float(np.trace(self.sums)) / (2 * n) + 1e-9
+        for c in range(n):
+            used = np.r_[0:c, n : 2 * n]
+            a = self.sums[np.ix_(used, used)] + ridge * np.eye(len(used))
+            b = self.sums[used, c]
+            beta = np.linalg.solve(a, b)
+            explained = float(beta @ b) / (self.sums[c, c] + 1e-12)  # R^2 of the fit
+            self.beta[c, used] = beta if explained >= CROSS_MIN_R2 else 0.0
+        self.beta[:, :n] = np.tril(self.beta[:, :n], -1)
+
+    def state(self) -> object:
+        return (self.base.state(), self.sums.copy(), self.beta.copy(), self.count, self.raw_before.copy(),
+                self.previous.copy(), self.errors.copy())  # fmt: skip
+
+    def restore(self, state: object) -> None:
+        base, sums, beta, count, raw_before, previous, errors = state  # type: ignore[misc]
+        self.previous, self.errors = np.array(previous, dtype=float), np.array(errors, dtype=float)
+        self.base.restore(base)
+        self.sums, self.beta = np.array(sums, dtype=float), np.array(beta, dtype=float)
+        self.count = int(count)
+        self.raw_before = np.array(raw_before, dtype=bool)
 
 
 @dataclass(frozen=True)
@@ -94,6 +224,7 @@ class StreamSpec:
     period: float
     method: str = "kalman"
     initial: tuple[float, ...] | None = None
+    cross: bool = True  # predict each channel's residual from the channels coded before it (``_Dual``)
 
     def __post_init__(self) -> None:
         if len(self.eps) != len(self.channels):
@@ -148,6 +279,23 @@ class _Coder:
                    [AdaptiveModel(list(TOKEN_PRIOR)) for _ in range(6)], [_binary() for _ in range(2)],
                    [[_binary() for _ in range(2)] for _ in range(channels)],
                    [AdaptiveModel([1, 1]) for _ in range(24)], [0] * channels, [1] * channels)  # fmt: skip
+
+    def dump(self) -> list:
+        models = [[[m.freqs, m.increment, m.limit] for m in row] for row in (*self.q, self.tokens,
+                  self.all_present, *self.present, self.counts)]  # fmt: skip
+        return [models, self.previous_q, self.previous_present, self.previous_all, self.previous_token]
+
+    @classmethod
+    def load(cls, data: list) -> _Coder:
+        models, previous_q, previous_present, previous_all, previous_token = data
+        rows = [[AdaptiveModel(list(map(int, f)), int(i), int(lim)) for f, i, lim in row] for row in models]
+        channels = len(previous_q)
+        q, rest = rows[:channels], rows[channels:]
+        tokens, all_present, present, counts = rest[0], rest[1], rest[2 : 2 + channels], rest[2 + channels]
+        if len(rows) != 2 * channels + 3 or len(previous_present) != channels:
+            raise ValueError("coder shape")
+        return cls(q, tokens, all_present, present, counts, [int(v) for v in previous_q],
+                   [int(v) for v in previous_present], int(previous_all), int(previous_token))  # fmt: skip
 
     def copy(self) -> _Coder:
         return _Coder([[m.copy() for m in row] for row in self.q], [m.copy() for m in self.tokens],
@@ -204,7 +352,12 @@ class _Coder:
                 continue
             model = self.q[c][_q_context(self.previous_q[c], moved)]
             moved |= value != 0
-            if -SMALL <= value <= SMALL:
+            if isinstance(value, _Raw):
+                enc.encode_symbol(model, RAW)
+                word = int.from_bytes(struct.pack(">d", value.value), "big")
+                for i in range(63, -1, -1):
+                    enc.encode_bit((word >> i) & 1)
+            elif -SMALL <= value <= SMALL:
                 enc.encode_symbol(model, value + SMALL)
             else:
                 enc.encode_symbol(model, ESC_POS if value > 0 else ESC_NEG)
@@ -229,6 +382,14 @@ class _Coder:
             symbol = dec.decode_symbol(self.q[c][_q_context(self.previous_q[c], moved)])
             if symbol < ESC_NEG:
                 value = symbol - SMALL
+            elif symbol == RAW:
+                word = 0
+                for _ in range(64):
+                    word = (word << 1) | dec.decode_bit()
+                raw = struct.unpack(">d", word.to_bytes(8, "big"))[0]
+                if not np.isfinite(raw):
+                    raise CodecError("a raw value that is not a finite number")
+                value = _Raw(raw)
             else:
                 magnitude = _decode_exp_golomb(dec) + SMALL + 1
                 value = magnitude if symbol == ESC_POS else -magnitude
@@ -366,7 +527,7 @@ class PacketEncoder:
         self.max_latency = max_latency
         self.max_silence = max(max_silence, max_latency)
         self.urgent_threshold = urgent_threshold
-        self.predictors = [s.predictor() for s in self.specs]
+        self.predictors = [_Dual(s) for s in self.specs]
         self.initial = _Chain(0, [_Position(p.state(), _Coder.new(len(s.channels)), None)
                                   for p, s in zip(self.predictors, self.specs, strict=True)])  # fmt: skip
         self.delivered = self.initial
@@ -377,6 +538,10 @@ class PacketEncoder:
         self._lost: list[int | None] = [None] * len(self.specs)
         self._serial = [0] * len(self.specs)
         self.last_q: list[int | None] = []  # the last pushed sample's quantised residuals (None: absent)
+        self.split = 0  # samples too large for an empty packet, sent as parts (channels) in one tick
+        self.refused = 0  # samples that fit no packet even alone from the initial state (never seen)
+        self._oversize: int | None = None  # a stream whose first pending sample fits no empty packet
+        self._restart_on_resolve = False
         self._start(self.initial)
 
     @property
@@ -404,6 +569,7 @@ class PacketEncoder:
         self._serial[stream] += 1
         self._process(stream, sample)
         self.last_q = sample.q
+        self._settle()
         if self.urgent_threshold is not None and any(
             v is not None and abs(v) >= self.urgent_threshold for v in sample.q
         ):
@@ -420,14 +586,27 @@ class PacketEncoder:
             prediction = predictor.predict()
         else:
             prediction = predictor.current()
-        residual = (sample.values - prediction) / spec.step
-        absent = np.isnan(residual)
-        if np.any(np.abs(residual[~absent]) >= MAX_Q):
-            raise ValueError(f"{spec.name}: a value is too far from its prediction to code at this eps")
-        q = np.round(np.where(absent, 0.0, residual))
-        sample.q = [None if a else int(v) for a, v in zip(absent, q, strict=True)]
-        reconstruction = np.where(absent, np.nan, prediction + q * spec.step)
-        predictor.update(reconstruction)
+        absent = np.isnan(sample.values)
+        with np.errstate(over="ignore", invalid="ignore"):
+            residual = (sample.values - prediction) / spec.step
+        n = len(spec.channels)
+        reconstruction, z, raw = np.full(n, np.nan), np.zeros(n), np.zeros(n, dtype=bool)
+        sample.q = []
+        for c in range(n):
+            if absent[c]:
+                sample.q.append(None)
+                continue
+            correction = predictor.correction(c, z)
+            r = residual[c] - correction
+            if not abs(r) < RAW_Q - 1:  # too far (or beyond floats) for a step count: the value itself
+                sample.q.append(_Raw(sample.values[c]))
+                reconstruction[c], raw[c] = sample.values[c], True
+            else:
+                q = int(np.round(r))
+                sample.q.append(q)
+                reconstruction[c] = prediction[c] + (correction + q) * spec.step[c]
+                z[c] = correction + q
+        predictor.update(reconstruction, z, raw)
         self._cursor[stream] = sample.index
         self._queues[stream].append(sample)
         if draft:
@@ -478,6 +657,8 @@ class PacketEncoder:
             for s, (e, c, k) in zip(self._sections[stream + 1 :], saved, strict=True):
                 s.open_encoder, s.open_coder, s.open_cursor = e, c, k
             section.closed = self._full = True
+            if not any(sec.count for sec in self._sections):
+                self._oversize = stream  # this sample alone overflows an empty packet
             return
         section.count += 1
         section.open_encoder, section.open_coder, section.open_cursor = trial_open
@@ -558,6 +739,7 @@ class PacketEncoder:
         self._lost = [None] * len(self.specs)
         self._start(chain)
         self._refill()
+        self._settle()
         return encoded
 
     def _main_stream(self, urgent: bool) -> int:
@@ -600,6 +782,10 @@ class PacketEncoder:
         if self.in_flight is None:
             return
         (chain, carried), self.in_flight = self.in_flight, None
+        if self._restart_on_resolve:
+            self._restart_on_resolve = False
+            self.restart()
+            return
         if delivered:
             self.delivered = chain
             return
@@ -612,6 +798,49 @@ class PacketEncoder:
             else:
                 self._lost[s] = None
         self._rebase(self.delivered)
+        self._settle()
+
+    def restart(self) -> None:
+        """Start over: the next packet continues from the initial state (base 0), whatever was delivered.
+        For a shore that lost its decoder state (``UnknownBase``): the samples still pending are re-coded
+        from the initial state (each stream starts again with START); a packet in flight is forgotten
+        when it resolves (delivered or not, the shore that asked cannot continue from it)."""
+        self.delivered = self.initial
+        self._lost = [None] * len(self.specs)
+        if self.in_flight is not None:
+            self._restart_on_resolve = True
+            return
+        self._rebase(self.initial)
+        self._settle()
+
+    def _settle(self) -> None:
+        """A sample too large for an empty packet (hundreds of steps off on many channels, raw values)
+        would leave the draft full with nothing to send: split it into two samples of the same tick, each
+        with half its channels (the others absent), until it fits; a single channel that still does not
+        fit (adaptive models very sure of something else) starts over from the initial state, where one
+        channel always fits. Nothing is dropped; the shore gets the parts as samples of one tick."""
+        while self._oversize is not None:
+            s, self._oversize = self._oversize, None
+            sample = self._queues[s][0]
+            present = np.flatnonzero(~np.isnan(sample.values))
+            if len(present) > 1:
+                parts = []
+                for channels in (present[: len(present) // 2], present[len(present) // 2 :]):
+                    values = np.full_like(sample.values, np.nan)
+                    values[channels] = sample.values[channels]
+                    parts.append(_Sample(sample.time, sample.index, values, sample.urgent, sample.serial,
+                                         sample.flagged))  # fmt: skip
+                self._queues[s][0:1] = parts
+                self.split += 1
+                self._rebase(self._base)
+            elif self._base is not self.initial:
+                self.delivered = self.initial
+                self._lost = [None] * len(self.specs)
+                self._rebase(self.initial)
+            else:  # cannot happen (one channel from the initial models takes < 200 bits): never stall
+                self._queues[s].pop(0)
+                self.refused += 1
+                self._rebase(self._base)
 
 
 class StreamEncoder(PacketEncoder):
@@ -652,7 +881,7 @@ class PacketDecoder:
 
     def __init__(self, specs: list[StreamSpec]) -> None:
         self.specs = list(specs)
-        self.predictors = [s.predictor() for s in self.specs]
+        self.predictors = [_Dual(s) for s in self.specs]
         self._initial = _Chain(0, [_Position(p.state(), _Coder.new(len(s.channels)), None)
                                    for p, s in zip(self.predictors, self.specs, strict=True)])  # fmt: skip
         self.snapshots: dict[int, _Chain] = {}
@@ -678,15 +907,70 @@ class PacketDecoder:
         elif base_id in self.snapshots:
             base = self.snapshots[base_id]
         else:
-            raise CodecError(f"no state for packet id {base_id}: an earlier packet was not received")
+            raise UnknownBase(base_id)
         decoder = Decoder(payload[HEADER_BYTES:])
         spans, positions = [], []
         for s, spec in enumerate(self.specs):
             span, position = self._section(decoder, s, spec, base.streams[s], received_at)
             spans.append(span)
             positions.append(position)
+        if base_id == 0:  # the vehicle started over: nothing before this packet will be a base again
+            self.snapshots.clear()
+        self.snapshots.pop(_next_id(base_id), None)  # the dict's order: least recently decoded first
         self.snapshots[_next_id(base_id)] = _Chain(_next_id(base_id), positions)
         return spans
+
+    # --- persistence: the shore keeps its chain across restarts -------------------------------------
+
+    def _fingerprint(self) -> list:
+        return [[s.name, int(s.stream), list(s.channels), list(s.eps), s.period, s.method,
+                 None if s.initial is None else list(s.initial), s.cross] for s in self.specs]  # fmt: skip
+
+    def to_bytes(self, keep: int | None = None) -> bytes:
+        """The decoder's state (the states packets may continue from), to store and give to
+        ``from_bytes`` after a restart. ``keep``: only the ``keep`` most recently decoded (the vehicle
+        continues from the last packet it knows was delivered, almost always the newest; a packet based
+        on one not kept raises ``UnknownBase``, and the vehicle is asked to ``restart``). zlib-compressed
+        JSON; floats round-trip exactly."""
+        chains = list(self.snapshots.values())
+        if keep is not None:
+            chains = chains[len(chains) - keep :] if keep > 0 else []
+        doc = {"format": FORMAT, "specs": self._fingerprint(),
+               "chains": [[c.id, [[_dump(p.predictor), p.coder.dump(), p.cursor] for p in c.streams]]
+                          for c in chains]}  # fmt: skip
+        return zlib.compress(json.dumps(doc, separators=(",", ":")).encode(), 6)
+
+    def load(self, data: bytes) -> None:
+        """Take the state ``to_bytes`` saved (replacing what this decoder holds); ``CodecError`` if
+        ``data`` is not such a state or was saved for other streams (the decoder is then unchanged: start
+        empty, and the vehicle will be asked to restart)."""
+        try:
+            doc = json.loads(zlib.decompress(data))
+            if doc["format"] != FORMAT or doc["specs"] != self._fingerprint():
+                raise CodecError("saved decoder state is for another format or other streams")
+            snapshots = {}
+            for chain_id, streams in doc["chains"]:
+                ok = (
+                    isinstance(chain_id, int)
+                    and 1 <= chain_id <= CHAIN_IDS
+                    and len(streams) == len(self.specs)
+                )
+                if not ok:
+                    raise CodecError("saved decoder state is malformed")
+                positions = [_Position(_load(p), _Coder.load(c), k) for p, c, k in streams]
+                snapshots[chain_id] = _Chain(chain_id, positions)
+        except CodecError:
+            raise
+        except (ValueError, KeyError, IndexError, TypeError, zlib.error) as exc:
+            raise CodecError(f"saved decoder state is malformed ({exc})") from None
+        self.snapshots = snapshots
+
+    @classmethod
+    def from_bytes(cls, specs: list[StreamSpec], data: bytes) -> PacketDecoder:
+        """``PacketDecoder(specs)`` holding the state ``to_bytes`` saved (see ``load``)."""
+        decoder = PacketDecoder(specs)
+        decoder.load(data)
+        return decoder
 
     def _section(self, decoder: Decoder, s: int, spec: StreamSpec, base: _Position,
                  received_at: float) -> tuple[DecodedSpan, _Position]:  # fmt: skip
@@ -728,8 +1012,18 @@ class PacketDecoder:
                 predictor.skip(index - cursor - 1)
                 prediction = predictor.predict()
             q = coder.decode_sample(decoder)
-            values = np.array([np.nan if v is None else prediction[c] + v * step[c] for c, v in enumerate(q)])
-            predictor.update(values)
+            n = len(q)
+            values, z, raw = np.full(n, np.nan), np.zeros(n), np.zeros(n, dtype=bool)
+            for c, v in enumerate(q):
+                if v is None:
+                    continue
+                if isinstance(v, _Raw):
+                    values[c], raw[c] = v.value, True
+                else:
+                    correction = predictor.correction(c, z)
+                    values[c] = prediction[c] + (correction + v) * step[c]
+                    z[c] = correction + v
+            predictor.update(values, z, raw)
             ticks.append(index)
             rows.append(values)
             cursor = index
@@ -749,3 +1043,26 @@ class StreamDecoder(PacketDecoder):
 
     def decode(self, payload: bytes, received_at: float) -> DecodedSpan:  # type: ignore[override]
         return super().decode(payload, received_at)[0]
+
+
+def _dump(state: object) -> object:
+    """A predictor snapshot (tuples, lists, arrays, numbers) as JSON-able data."""
+    if isinstance(state, np.ndarray):
+        return {"a": state.tolist(), "d": str(state.dtype)}
+    if isinstance(state, tuple):
+        return {"t": [_dump(x) for x in state]}
+    if isinstance(state, list):
+        return [_dump(x) for x in state]
+    if isinstance(state, np.generic):
+        return state.item()
+    return state
+
+
+def _load(data: object) -> object:
+    if isinstance(data, dict):
+        if "a" in data:
+            return np.array(data["a"], dtype=np.dtype(data["d"]))
+        return tuple(_load(x) for x in data["t"])
+    if isinstance(data, list):
+        return [_load(x) for x in data]
+    return data
