@@ -55,7 +55,7 @@ def fuzz(name: str, cases: int, make: Callable[[random.Random], object], call: C
             call(make(rng))
         except expected:
             pass
-        except Exception:  # noqa: BLE001 - counting crashes is the point
+        except Exception:
             crashes += 1
     row("fuzz", name, f"{cases:,}", str(crashes), test)
 
@@ -127,7 +127,7 @@ def driver_garbage(lines: int) -> tuple[str, str]:
     from simulators.scripted_modem import ScriptedModem
     from tacit.modem import DriverSettings, LinkState, ModemDriver
 
-    def rule(m, s):  # noqa: ANN001, ANN202
+    def rule(m, s):
         from simulators.scripted_modem import default_rule
 
         replies = default_rule(m, s)

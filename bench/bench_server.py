@@ -59,7 +59,7 @@ def frames(count: int, priority_share: float) -> list[bytes]:
     return out
 
 
-def serve(app, port: int) -> uvicorn.Server:  # noqa: ANN001
+def serve(app, port: int) -> uvicorn.Server:
     server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
     threading.Thread(target=server.run, daemon=True).start()
     while not server.started:
@@ -67,14 +67,14 @@ def serve(app, port: int) -> uvicorn.Server:  # noqa: ANN001
     return server
 
 
-def client_process(port: int, stop, results) -> None:  # noqa: ANN001
+def client_process(port: int, stop, results) -> None:
     """An API reader in its own process (as a browser would be), reporting its latencies at the end."""
     latencies: list[float] = []
     client_loop(port, stop, latencies)
     results.put(latencies)
 
 
-def sse_process(port: int, stop, results) -> None:  # noqa: ANN001
+def sse_process(port: int, stop, results) -> None:
     """A browser on the live event stream: counts the events it receives."""
     events = 0
     with httpx.Client(base_url=f"http://127.0.0.1:{port}", headers={"Authorization": f"Bearer {TOKEN}"},
@@ -86,7 +86,7 @@ def sse_process(port: int, stop, results) -> None:  # noqa: ANN001
     results.put(events)
 
 
-def client_loop(port: int, stop, latencies: list[float]) -> None:  # noqa: ANN001
+def client_loop(port: int, stop, latencies: list[float]) -> None:
     headers = {"Authorization": f"Bearer {TOKEN}"}
     paths = ["/api/v1/packets?limit=20", "/api/v1/link", "/api/v1/vehicles", "/api/v1/telemetry?limit=50"]
     with httpx.Client(base_url=f"http://127.0.0.1:{port}", headers=headers, timeout=10) as http:

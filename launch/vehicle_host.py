@@ -31,7 +31,7 @@ class VehicleSide:
         )
         self.call(self.driver.start())
 
-    def call(self, coro):  # noqa: ANN001, ANN201
+    def call(self, coro):
         future: Future = asyncio.run_coroutine_threadsafe(coro, self.loop)
         return future.result(timeout=30)
 

@@ -214,7 +214,7 @@ class Agent:
         self.state.heartbeat = list(self.link.receiver.sync.last)
         self._persist()
 
-    def _on_delivered(self, packet: bytes):  # noqa: ANN202
+    def _on_delivered(self, packet: bytes):
         """What to do when a priority packet is delivered: remember it for the next check-point's MAC."""
 
         def done(delivered: bool) -> None:
@@ -249,7 +249,7 @@ class Agent:
                 if event is not None:
                     self._plume(event, pose)
 
-    def _plume(self, event, pose: Pose) -> None:  # noqa: ANN001
+    def _plume(self, event, pose: Pose) -> None:
         bearing = event.bearing if event.bearing is not None else pose.heading
         d = self.config.explore_distance
         target = (pose.north + d * math.cos(math.radians(bearing)), pose.east + d * math.sin(math.radians(bearing)),
@@ -268,7 +268,7 @@ class Agent:
             frame = packet.encode()
             covered = self._on_delivered(frame)
 
-            def resolved(ok: bool, s: Stream = stream, covered=covered) -> None:  # noqa: ANN001
+            def resolved(ok: bool, s: Stream = stream, covered=covered) -> None:
                 self.compressor.resolve(s, ok)
                 covered(ok)
 
