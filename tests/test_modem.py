@@ -23,7 +23,7 @@ VEHICLE = 2
 SHORE = 1
 
 
-def cycle_rule(modem: ScriptedModem, sentence: nmea.Sentence) -> list[str]:
+def cycle_rule(modem: ScriptedModem, sentence: nmea.Sentence | nmea.Raw) -> list[str]:
     """A modem that runs a full data cycle with ACK from the vehicle, and answers pings at 0.0101 s."""
     replies = default_rule(modem, sentence)
     if isinstance(sentence, nmea.Cycle) and sentence.src == SHORE:
