@@ -10,7 +10,7 @@ from collections.abc import AsyncIterator, Iterator
 from fastapi import APIRouter, Depends, Query
 from fastapi.responses import Response, StreamingResponse
 from sqlalchemy import func
-from sqlmodel import Session, select
+from sqlmodel import Session, col, select
 
 from server.api.deps import BusDep, LinkDep, Offset, OptionalId, QueryId, ReadSession, ShoreDep
 from server.auth import require_read
@@ -37,7 +37,7 @@ def _page(s: Session, query, limit: int, offset: int, model) -> Page:
 def packets(s: ReadSession, vehicle_id: OptionalId = None,
             type: str | None = Query(None, pattern="^(checkpoint|priority)$"), since: float | None = None,
             until: float | None = None, limit: int = Query(100, ge=1, le=1000), offset: Offset = 0) -> Page:  # fmt: skip
-    query = _filtered(select(Packet).order_by(Packet.id.desc()), Packet.vehicle_id, Packet.at,  # type: ignore[union-attr]
+    query = _filtered(select(Packet).order_by(col(Packet.id).desc()), Packet.vehicle_id, Packet.at,
                       vehicle_id, since, until)  # fmt: skip
     if type is not None:
         query = query.where(Packet.type == type)
@@ -58,7 +58,7 @@ def _filtered(
 
 
 def _telemetry_query(vehicle_id: int | None, stream: str | None, since: float | None, until: float | None):
-    query = _filtered(select(Telemetry).order_by(Telemetry.time), Telemetry.vehicle_id, Telemetry.time,
+    query = _filtered(select(Telemetry).order_by(col(Telemetry.time)), Telemetry.vehicle_id, Telemetry.time,
                       vehicle_id, since, until)  # fmt: skip
     return query.where(Telemetry.stream == stream) if stream is not None else query
 
