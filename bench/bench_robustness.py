@@ -29,6 +29,7 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 from tqdm import tqdm
 
@@ -47,7 +48,10 @@ def row(area: str, target: str, cases: str, bad: str, test: str) -> None:
     rows.append((area, target, cases, bad, test))
 
 
-def fuzz(name: str, cases: int, make: Callable[[random.Random], object], call: Callable[[object], object],
+T = TypeVar("T")
+
+
+def fuzz(name: str, cases: int, make: Callable[[random.Random], T], call: Callable[[T], object],
          expected: type[Exception], test: str) -> None:  # fmt: skip
     rng, crashes = random.Random(1), 0
     for _ in tqdm(range(cases), desc=name, leave=False):

@@ -16,6 +16,7 @@ import statistics
 import tempfile
 import threading
 import time
+from multiprocessing.queues import Queue
 
 import httpx
 import numpy as np
@@ -121,10 +122,11 @@ def main() -> None:
         IncomingFrame(2, 1, f, 0, 30.0, 33.0, None) for f in frames(options.frames, options.priority_share)
     ]
 
-    stop, results = multiprocessing.Event(), multiprocessing.Queue()
+    stop = multiprocessing.Event()
+    results: Queue[list[float]] = multiprocessing.Queue()
     clients = [multiprocessing.Process(target=client_process, args=(options.port, stop, results))
                for _ in range(options.clients)]  # fmt: skip
-    sse_results = multiprocessing.Queue()
+    sse_results: Queue[int] = multiprocessing.Queue()
     browsers = [multiprocessing.Process(target=sse_process, args=(options.port, stop, sse_results))
                 for _ in range(options.sse_clients)]  # fmt: skip
     for c in clients + browsers:

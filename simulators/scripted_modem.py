@@ -68,7 +68,7 @@ class ScriptedModem:
         if self._thread:
             self._thread.join(timeout=2)
 
-    def send(self, line: str) -> None:
+    def send(self, line: str | bytes) -> None:
         with self._lock:
             if self._master is not None:
                 os.write(self._master, line.encode("ascii") if isinstance(line, str) else line)
