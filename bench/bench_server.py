@@ -16,6 +16,7 @@ import statistics
 import tempfile
 import threading
 import time
+from multiprocessing.queues import Queue
 
 import httpx
 import numpy as np
@@ -59,7 +60,7 @@ def frames(count: int, priority_share: float) -> list[bytes]:
     return out
 
 
-def serve(app, port: int) -> uvicorn.Server:  # noqa: ANN001
+def serve(app, port: int) -> uvicorn.Server:
     server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
     threading.Thread(target=server.run, daemon=True).start()
     while not server.started:
@@ -67,14 +68,14 @@ def serve(app, port: int) -> uvicorn.Server:  # noqa: ANN001
     return server
 
 
-def client_process(port: int, stop, results) -> None:  # noqa: ANN001
+def client_process(port: int, stop, results) -> None:
     """An API reader in its own process (as a browser would be), reporting its latencies at the end."""
     latencies: list[float] = []
     client_loop(port, stop, latencies)
     results.put(latencies)
 
 
-def sse_process(port: int, stop, results) -> None:  # noqa: ANN001
+def sse_process(port: int, stop, results) -> None:
     """A browser on the live event stream: counts the events it receives."""
     events = 0
     with httpx.Client(base_url=f"http://127.0.0.1:{port}", headers={"Authorization": f"Bearer {TOKEN}"},
@@ -86,7 +87,7 @@ def sse_process(port: int, stop, results) -> None:  # noqa: ANN001
     results.put(events)
 
 
-def client_loop(port: int, stop, latencies: list[float]) -> None:  # noqa: ANN001
+def client_loop(port: int, stop, latencies: list[float]) -> None:
     headers = {"Authorization": f"Bearer {TOKEN}"}
     paths = ["/api/v1/packets?limit=20", "/api/v1/link", "/api/v1/vehicles", "/api/v1/telemetry?limit=50"]
     with httpx.Client(base_url=f"http://127.0.0.1:{port}", headers=headers, timeout=10) as http:
@@ -121,10 +122,11 @@ def main() -> None:
         IncomingFrame(2, 1, f, 0, 30.0, 33.0, None) for f in frames(options.frames, options.priority_share)
     ]
 
-    stop, results = multiprocessing.Event(), multiprocessing.Queue()
+    stop = multiprocessing.Event()
+    results: Queue[list[float]] = multiprocessing.Queue()
     clients = [multiprocessing.Process(target=client_process, args=(options.port, stop, results))
                for _ in range(options.clients)]  # fmt: skip
-    sse_results = multiprocessing.Queue()
+    sse_results: Queue[int] = multiprocessing.Queue()
     browsers = [multiprocessing.Process(target=sse_process, args=(options.port, stop, sse_results))
                 for _ in range(options.sse_clients)]  # fmt: skip
     for c in clients + browsers:

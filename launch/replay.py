@@ -131,7 +131,7 @@ async def wait_with_progress(seconds: float, packets: Callable[[], int], file: T
         bar.refresh()
 
 
-def _summary(db, data: Path, started: float) -> dict:  # noqa: ANN001
+def _summary(db, data: Path, started: float) -> dict:
     """The shore's reconstruction against the vehicle's own log of what it measured."""
     from sqlmodel import Session, select
 

@@ -157,9 +157,9 @@ class Stack:
     def spawn(self, args: list[str], log: str, capture: bool = False,
               env: dict[str, str] | None = None) -> subprocess.Popen[str]:  # fmt: skip
         """``tacit ARGS`` as a child; stderr (and stdout unless captured) appended to ``log``."""
-        out: IO[str] | int = subprocess.PIPE if capture else open(self.dir / log, "a")  # noqa: SIM115
+        out: IO[str] | int = subprocess.PIPE if capture else open(self.dir / log, "a")
         proc = subprocess.Popen([sys.executable, "-m", "tacit.cli", "--log-level", "INFO", *args], stdout=out,
-                                stderr=open(self.dir / log, "a"), text=True,  # noqa: SIM115
+                                stderr=open(self.dir / log, "a"), text=True,
                                 env={**os.environ, **(env or {}), "PYTHONUNBUFFERED": "1"})  # fmt: skip
         self.procs.append(proc)
         return proc

@@ -5,11 +5,15 @@ from __future__ import annotations
 
 import asyncio
 import threading
+from collections.abc import Coroutine
 from concurrent.futures import Future
+from typing import Any, TypeVar
 
 from tacit import auth, modem
 from tacit.packets import CheckpointPacket, Command, ControlPacket
 from vehicle_agent.link import VehicleLink
+
+T = TypeVar("T")
 
 
 class VehicleSide:
@@ -31,8 +35,8 @@ class VehicleSide:
         )
         self.call(self.driver.start())
 
-    def call(self, coro):  # noqa: ANN001, ANN201
-        future: Future = asyncio.run_coroutine_threadsafe(coro, self.loop)
+    def call(self, coro: Coroutine[Any, Any, T]) -> T:
+        future: Future[T] = asyncio.run_coroutine_threadsafe(coro, self.loop)
         return future.result(timeout=30)
 
     def send(self, packet: bytes, urgent: bool = False) -> None:

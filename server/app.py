@@ -11,9 +11,10 @@ import asyncio
 import logging
 import socket
 import sys
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Sequence
 from contextlib import asynccontextmanager
 from pathlib import Path
+from typing import Any
 
 from fastapi import Depends, FastAPI, HTTPException, Request
 from fastapi.exceptions import RequestValidationError
@@ -166,7 +167,7 @@ def check_port(host: str, port: int, option: str = "--port") -> None:
             ) from None
 
 
-def jsonable(errors: list) -> list:
+def jsonable(errors: Sequence[Any]) -> list[Any]:
     return json_safe(errors)  # a NaN or Infinity in the input is echoed as text, never a JSON encoder error
 
 

@@ -18,7 +18,7 @@ import math
 from dataclasses import dataclass
 
 from sqlalchemy import func
-from sqlmodel import Session, select
+from sqlmodel import Session, col, select
 
 from server.models import Command, CommandEvent, Frame, Mission, Packet, Telemetry, Vehicle
 from tacit import rates
@@ -222,7 +222,7 @@ def vehicle_estimate(s: Session, vehicle: Vehicle, now: float, time_scale: float
     """The last reported check-point (from the database: it survives a shore restart), its age, and the
     shore's prediction since: ``{"reported": ..., "heard_at": ..., "age_s": ..., "predicted": ...}``."""
     rows = s.exec(select(Packet).where(Packet.vehicle_id == vehicle.id, Packet.type == "checkpoint", Packet.auth == "verified")
-                  .order_by(Packet.id.desc()).limit(2)).all()  # type: ignore[union-attr]  # fmt: skip
+                  .order_by(col(Packet.id).desc()).limit(2)).all()  # fmt: skip
     if not rows:
         return {"reported": None, "heard_at": None, "age_s": None, "predicted": None}
     last = rows[0]
@@ -233,7 +233,7 @@ def vehicle_estimate(s: Session, vehicle: Vehicle, now: float, time_scale: float
             max(speed, 0.1 * time_scale), vehicle.max_speed * time_scale
         )  # shore clock: simulations run faster
     mission = s.exec(select(Mission).where(Mission.vehicle_id == vehicle.id, Mission.number == cp.get("mission_id"))
-                     .order_by(Mission.id.desc())).first()  # type: ignore[union-attr]  # fmt: skip
+                     .order_by(col(Mission.id).desc())).first()  # fmt: skip
     target = target_of(cp, mission.plan.get("waypoints") if mission else None, _commanded(s, vehicle, cp))
     guess = estimate(cp, last.at, now, target, speed)
     label, hint = STATES.get(cp.get("state", ""), (cp.get("state", "?"), ""))
@@ -253,10 +253,10 @@ def _commanded(s: Session, vehicle: Vehicle, cp: dict) -> dict | None:
     if command is None:
         return None
     sent = s.exec(select(CommandEvent.at).where(CommandEvent.command_id == command.id, CommandEvent.status == "sent")
-                  .order_by(CommandEvent.id)).first()  # type: ignore[arg-type]  # fmt: skip
+                  .order_by(col(CommandEvent.id))).first()  # fmt: skip
     before = s.exec(select(Packet).where(Packet.vehicle_id == vehicle.id, Packet.type == "checkpoint", Packet.auth == "verified",
                                          Packet.at <= (sent or command.created_at))
-                    .order_by(Packet.id.desc())).first()  # type: ignore[union-attr]  # fmt: skip
+                    .order_by(col(Packet.id).desc())).first()  # fmt: skip
     return {"command": command.command, "distance": command.distance, "angle": command.angle,
             "depth": command.depth, "absolute_angle": command.absolute_angle,
             "from": before.body if before else None}  # fmt: skip

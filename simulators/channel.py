@@ -11,10 +11,12 @@ same seed gives the same outcome.
 from __future__ import annotations
 
 import enum
+import functools
 import math
 import random
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 from simulators.acoustics import ChannelParameters, frame_error_rate
 from simulators.clock import Scheduler
@@ -40,7 +42,8 @@ class Transmission:
     airtime: float
     frames: list[bytes] = field(default_factory=list)
     ack: bool = False
-    info: dict[str, object] = field(default_factory=dict)  # cycle-init fields, ping times
+    # The kind's own fields: a cycle-init's src/dest/rate/ack/nframes, an ack's frame numbers, a mini-packet's data.
+    info: Mapping[str, Any] = field(default_factory=dict)
     start: float = 0.0
     sender: str = ""
 
@@ -107,7 +110,7 @@ class Channel:
             end = begin + tx.airtime
             other.arrivals.append((begin, end, tx))
             self.scheduler.call_later(
-                end - now, lambda o=other, t=tx, b=begin, e=end, d=distance: self._arrive(o, t, b, e, d)
+                end - now, functools.partial(self._arrive, other, tx, begin, end, distance)
             )
         return now + tx.airtime
 

@@ -102,12 +102,13 @@ class Links:
 
         class Protocol(asyncio.DatagramProtocol):
             def connection_made(self, transport: asyncio.BaseTransport) -> None:
-                self.transport = transport  # type: ignore[assignment]
+                assert isinstance(transport, asyncio.DatagramTransport)
+                self.transport = transport
                 if push_to is not None:
                     links.senders[("udpout", push_to)] = lambda data: self.transport.sendto(data, push_to)
 
             def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
-                links.senders.setdefault(("udp", addr), lambda d, a=addr: self.transport.sendto(d, a))
+                links.senders.setdefault(("udp", addr), lambda d: self.transport.sendto(d, addr))
                 links.feed(("udp", addr), data)
 
         loop = asyncio.get_running_loop()
@@ -199,10 +200,10 @@ class SimulatedVehicle:
     def _imu_values(self) -> tuple[list[int], list[int], list[int]]:
         r = self.rov
         ax, ay, az = r.accel_body
-        accel = [ax / G * 1000, ay / G * 1000, az / G * 1000 - 1000.0]  # specific force, mG, FRD
-        accel = [int(a + b + self.rng.gauss(0, 6)) for a, b in zip(accel, self.accel_bias, strict=True)]
-        gyro = [0.0, 0.0, r.yaw_rate * 1000]
-        gyro = [int(g + b + self.rng.gauss(0, 2)) for g, b in zip(gyro, self.gyro_bias, strict=True)]
+        force = [ax / G * 1000, ay / G * 1000, az / G * 1000 - 1000.0]  # specific force, mG, FRD
+        accel = [int(a + b + self.rng.gauss(0, 6)) for a, b in zip(force, self.accel_bias, strict=True)]
+        rate = [0.0, 0.0, r.yaw_rate * 1000]
+        gyro = [int(g + b + self.rng.gauss(0, 2)) for g, b in zip(rate, self.gyro_bias, strict=True)]
         mag = [int(450 * math.cos(r.yaw)), int(-450 * math.sin(r.yaw)), 400]
         return accel, gyro, mag
 

@@ -89,10 +89,25 @@ class MicroModemEmulator:
         talker = nmea.split(raw, require_checksum=False)[0]
         if isinstance(sentence, nmea.Raw) or nmea.HOST not in sentence.TALKERS or talker != nmea.HOST:
             return self._error("NMEA", 2, f"unknown command {raw[:6].decode('ascii', 'replace')}")
-        handler = self._HOST_HANDLERS.get(type(sentence))
-        if handler is None:
-            return self._error("NMEA", 2, f"unsupported command CC{sentence.SID}")
-        handler(self, sentence)
+        match sentence:
+            case nmea.Config():
+                self._on_config(sentence)
+            case nmea.ConfigQuery():
+                self._on_config_query(sentence)
+            case nmea.Clock():
+                self._on_clock(sentence)
+            case nmea.Cycle():
+                self._on_cycle(sentence)
+            case nmea.TxData():
+                self._on_txd(sentence)
+            case nmea.Ping():
+                self._on_ping(sentence)
+            case nmea.MiniPacket():
+                self._on_mini(sentence)
+            case nmea.Sleep():
+                self._on_sleep(sentence)
+            case _:
+                self._error("NMEA", 2, f"unsupported command CC{sentence.SID}")
 
     def _on_config(self, cfg: nmea.Config) -> None:
         name = cfg.name.upper()
@@ -176,12 +191,6 @@ class MicroModemEmulator:
         if msc.minutes == 0:
             self.scheduler.call_later(0.5, self.boot)
 
-    _HOST_HANDLERS: dict[type, Callable[[MicroModemEmulator, nmea.Sentence], None]] = {
-        nmea.Config: _on_config, nmea.ConfigQuery: _on_config_query, nmea.Clock: _on_clock,
-        nmea.Cycle: _on_cycle, nmea.TxData: _on_txd, nmea.Ping: _on_ping, nmea.MiniPacket: _on_mini,
-        nmea.Sleep: _on_sleep,
-    }  # fmt: skip
-
     # --- the data cycle -------------------------------------------------------------------------
 
     def _request_frame(self, cycle: _Outgoing) -> None:
@@ -262,8 +271,8 @@ class MicroModemEmulator:
         info = rec.transmission.info
         if not rec.heard:
             return
-        src, dest = int(info["src"]), int(info["dest"])  # type: ignore[call-overload]
-        rate, ack, nframes = int(info["rate"]), bool(info["ack"]), int(info["nframes"])  # type: ignore[call-overload]
+        src, dest = int(info["src"]), int(info["dest"])
+        rate, ack, nframes = int(info["rate"]), bool(info["ack"]), int(info["nframes"])
         cycle = nmea.Cycle(src, dest, rate, ack, nframes)
         if src == self.address and self._cycle is None:  # we are polled
             self._emit(cycle)
@@ -319,7 +328,7 @@ class MicroModemEmulator:
     def _heard_ack(self, rec: Reception) -> None:
         tx = rec.transmission
         if rec.heard and tx.dest == self.address:
-            for number in tx.info["frames"]:  # type: ignore[union-attr]
+            for number in tx.info["frames"]:
                 self._emit(nmea.Ack(tx.src, self.address, int(number), 1))
 
     def _heard_ping(self, rec: Reception) -> None:

@@ -152,10 +152,10 @@ class SimWorld:
         env_cfg = dict(cfg.environment)
         self.environment = (Environment.load(env_cfg["file"]) if env_cfg.get("file")
                             else Environment.generate(cfg.seed, env_cfg.get("kind", "river")))  # fmt: skip
-        for spec in cfg.vehicles:
-            await self._start_vehicle(spec)
-        for spec in cfg.modems:
-            await self._start_modem(spec)
+        for vehicle_spec in cfg.vehicles:
+            await self._start_vehicle(vehicle_spec)
+        for modem_spec in cfg.modems:
+            await self._start_modem(modem_spec)
 
     async def _start_vehicle(self, spec: VehicleSpec) -> None:
         vehicle = SimulatedVehicle(self.scheduler, self.environment, seed=spec.seed,
@@ -177,21 +177,26 @@ class SimWorld:
         self.vehicles[spec.name] = vehicle
 
     async def _start_modem(self, spec: ModemSpec) -> None:
-        if spec.attach:
-            rov = self.vehicles[spec.attach].rov
-            position = lambda: (rov.north, rov.east, rov.depth)  # noqa: E731
-        else:
-            fixed = tuple(float(x) for x in spec.position)
-            position = lambda: fixed  # noqa: E731
+        rov = self.vehicles[spec.attach].rov if spec.attach else None
+        north, east, depth = (float(x) for x in spec.position)
+
+        def position() -> tuple[float, float, float]:
+            return (rov.north, rov.east, rov.depth) if rov is not None else (north, east, depth)
+
         modem = MicroModemEmulator(spec.name or f"modem{spec.address}", spec.address, self.channel,
-                                   self.scheduler, position)  # type: ignore[arg-type]  # fmt: skip
+                                   self.scheduler, position)  # fmt: skip
         pty = PtyPort(asyncio.get_running_loop(), modem.handle_line, spec.link or None)
         ports: list[PtyPort | TcpPort] = [pty]
         if spec.tcp_port is not None:
             tcp = TcpPort(modem.handle_line)
             await tcp.start(port=spec.tcp_port)
             ports.append(tcp)
-        modem.output = lambda line: [port.write(line) for port in ports]  # type: ignore[func-returns-value]
+
+        def output(line: str) -> None:
+            for port in ports:
+                port.write(line)
+
+        modem.output = output
         self.modems[spec.address] = modem
         self.ports[spec.address] = ports
         modem.boot()
@@ -203,7 +208,7 @@ class SimWorld:
             entry: dict[str, Any] = {
                 "address": address,
                 "name": self.modems[address].name,
-                "pty": ports[0].path,
+                "pty": next(p for p in ports if isinstance(p, PtyPort)).path,
             }
             tcp = next((p for p in ports if isinstance(p, TcpPort)), None)
             entry["tcp"] = f"socket://127.0.0.1:{tcp.port}" if tcp else None

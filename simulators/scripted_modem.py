@@ -13,13 +13,15 @@ import time
 import tty
 from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 from tacit import nmea
 
-Rule = Callable[["ScriptedModem", nmea.Sentence], list[str]]
+S = TypeVar("S", bound=nmea.Sentence)
+Rule = Callable[["ScriptedModem", nmea.Sentence | nmea.Raw], list[str]]
 
 
-def default_rule(modem: ScriptedModem, sentence: nmea.Sentence) -> list[str]:
+def default_rule(modem: ScriptedModem, sentence: nmea.Sentence | nmea.Raw) -> list[str]:
     """Echo every host command as the real modem does; answer CFQ with CFG."""
     if isinstance(sentence, nmea.ConfigQuery):
         return [nmea.Config(sentence.name, modem.config.get(sentence.name, "0")).line(nmea.MODEM)]
@@ -38,7 +40,7 @@ class ScriptedModem:
         self.path = path
         self.rule = rule
         self.config: dict[str, str] = {"SRC": "0"}
-        self.received: list[nmea.Sentence] = []
+        self.received: list[nmea.Sentence | nmea.Raw] = []
         self.silent = False
         self._master: int | None = None
         self._slave: int | None = None
@@ -66,12 +68,12 @@ class ScriptedModem:
         if self._thread:
             self._thread.join(timeout=2)
 
-    def send(self, line: str) -> None:
+    def send(self, line: str | bytes) -> None:
         with self._lock:
             if self._master is not None:
                 os.write(self._master, line.encode("ascii") if isinstance(line, str) else line)
 
-    def wait_for(self, kind: type, timeout: float = 5.0, count: int = 1) -> list[nmea.Sentence]:
+    def wait_for(self, kind: type[S], timeout: float = 5.0, count: int = 1) -> list[S]:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             found = [s for s in self.received if isinstance(s, kind)]

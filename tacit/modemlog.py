@@ -137,7 +137,7 @@ DIRECTIONS = {"to_modem": TO_MODEM, "from_modem": FROM_MODEM}
 
 def run(args: argparse.Namespace) -> int:
     try:
-        handle = open(args.file, encoding="ascii", errors="backslashreplace")  # noqa: SIM115
+        handle = open(args.file, encoding="ascii", errors="backslashreplace")
     except OSError as exc:
         print(f"tacit modem-log: cannot read {args.file}: {exc.strerror}", file=sys.stderr)
         return 1

@@ -87,7 +87,8 @@ import enum
 import math
 import struct
 from dataclasses import dataclass, fields, replace
-from typing import ClassVar
+from enum import IntEnum
+from typing import Any, ClassVar, TypeVar
 
 PACKET_SIZE = 32
 VERSION = 2
@@ -225,10 +226,13 @@ class Field:
 
     def encode(self, value: float) -> int | float:
         if self.enum is not None:
+            member = int(value) if isinstance(value, float) and value.is_integer() else value
             try:
-                return int(self.enum(value))
+                if isinstance(member, int):
+                    return int(self.enum(member))
             except ValueError:
-                raise FieldRangeError(self.name, value, min(self.enum), max(self.enum), "") from None
+                pass
+            raise FieldRangeError(self.name, value, min(self.enum), max(self.enum), "")
         if self.fmt == "f":
             try:
                 struct.pack(">f", value)
@@ -247,10 +251,10 @@ class Field:
             raise FieldRangeError(self.name, value, self.lo, self.hi, self.unit)
         return raw
 
-    def decode(self, raw: int | float) -> float | int | enum.IntEnum:
+    def decode(self, raw: int | float) -> float | int | IntEnum:
         if self.enum is not None:
             try:
-                return self.enum(raw)
+                return self.enum(int(raw))
             except ValueError:
                 raise PacketError(f"{self.name}: unknown value {raw}") from None
         if self.fmt == "f":
@@ -298,7 +302,8 @@ class _Packet:
         return bytes([header]) + struct.pack(fmt, *values)
 
     @classmethod
-    def _unpack_fields(cls, frame: bytes) -> dict[str, object]:
+    def _unpack_fields(cls, frame: bytes) -> dict[str, Any]:
+        # Any: each value's type is its field's (int, float or the field's enum), known from the table.
         fmt = ">" + "".join(f.fmt for f in cls.FIELDS)
         size = struct.calcsize(fmt)
         raws = struct.unpack(fmt, frame[1 : 1 + size])
@@ -465,6 +470,7 @@ class PriorityPacket(_Packet):
 
 
 VehiclePacket = CheckpointPacket | PriorityPacket
+_V = TypeVar("_V", CheckpointPacket, PriorityPacket)
 Packet = ControlPacket | CheckpointPacket | PriorityPacket
 
 
@@ -523,7 +529,7 @@ def decode(frame: bytes) -> Packet:
     )
 
 
-def with_seq(packet: VehiclePacket, seq: int) -> VehiclePacket:
+def with_seq(packet: _V, seq: int) -> _V:
     """A copy of a vehicle packet with another sequence number (u8, wraps)."""
     return replace(packet, seq=seq % 256)
 

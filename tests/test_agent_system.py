@@ -20,7 +20,7 @@ HEADING_TOLERANCE = 8.0  # deg
 
 
 @pytest.fixture
-def system_factory(tmp_path: Path):  # noqa: ANN201
+def system_factory(tmp_path: Path):
     made: list[System] = []
 
     def make(**kw: object) -> System:
@@ -33,7 +33,7 @@ def system_factory(tmp_path: Path):  # noqa: ANN201
 
 
 @pytest.mark.parametrize("fix", [False, True], ids=["dead-reckoning", "position-source"])
-def test_move_command_is_executed_within_tolerance(system_factory, fix: bool) -> None:  # noqa: ANN001
+def test_move_command_is_executed_within_tolerance(system_factory, fix: bool) -> None:
     system = system_factory(position_source=fix)
     wait_for(lambda: system.checkpoint(), what="first check-point")
     start = system.truth.latest
@@ -55,7 +55,7 @@ def test_move_command_is_executed_within_tolerance(system_factory, fix: bool) ->
     assert history.count("acknowledged") == 1 and history[-1] == "executed"
 
 
-def test_out_of_limits_command_is_refused_by_the_vehicle(system_factory) -> None:  # noqa: ANN001
+def test_out_of_limits_command_is_refused_by_the_vehicle(system_factory) -> None:
     system = system_factory(agent={"limits": {"max_depth": 5.0}})
     wait_for(lambda: system.checkpoint(), what="first check-point")
     command = system.command(command="goto_depth", depth=8.0)  # the server allows 100 m; the vehicle 5 m
@@ -70,7 +70,7 @@ PLUME = {"surface_temp": 20.0, "thermocline_depth": 40.0, "front_step": 0.0, "pl
          "patches": []}  # fmt: skip
 
 
-def test_warm_plume_sends_a_time_sensitive_packet_and_turns_towards_it(system_factory) -> None:  # noqa: ANN001
+def test_warm_plume_sends_a_time_sensitive_packet_and_turns_towards_it(system_factory) -> None:
     system = system_factory(environment=PLUME, agent={"missions": [{"builtin": "square", "number": 1, "side": 14.0, "depth": 2.0}]})  # fmt: skip
     wait_for(lambda: system.checkpoint(), what="first check-point")
     system.command(command="start_mission", param_id=1)
@@ -83,7 +83,7 @@ def test_warm_plume_sends_a_time_sensitive_packet_and_turns_towards_it(system_fa
     assert "warm water" in system.agent_log()
 
 
-def test_square_mission_completes_and_survives_an_agent_restart(system_factory) -> None:  # noqa: ANN001
+def test_square_mission_completes_and_survives_an_agent_restart(system_factory) -> None:
     system = system_factory(
         agent={"missions": [{"builtin": "square", "number": 1, "side": 8.0, "depth": 1.5}]}
     )
@@ -106,7 +106,7 @@ def test_square_mission_completes_and_survives_an_agent_restart(system_factory) 
     assert distance(system.truth.latest, 0, 0) < 2.0
 
 
-def test_forged_and_replayed_commands_are_ignored(system_factory, tmp_path: Path) -> None:  # noqa: ANN001
+def test_forged_and_replayed_commands_are_ignored(system_factory, tmp_path: Path) -> None:
     import asyncio
 
     from sqlmodel import Session, select
@@ -145,7 +145,7 @@ def test_forged_and_replayed_commands_are_ignored(system_factory, tmp_path: Path
 
 def test_agent_on_a_replayed_real_dive_sends_priority_and_checkpoint_packets(
     system_factory, shared_data
-) -> None:  # noqa: ANN001
+) -> None:
     system = system_factory(replay=str(shared_data / "ardusub" / "small.tlog"))
     wait_for(
         lambda: system.packets(type="checkpoint"), timeout=60, what="a check-point from the replayed dive"
@@ -162,7 +162,7 @@ def test_agent_on_a_replayed_real_dive_sends_priority_and_checkpoint_packets(
     assert list((system.tmp / "tlogs").glob("*.tlog"))  # the agent recorded the session
 
 
-def test_consecutive_moves_are_executed_only_when_the_vehicle_got_there(system_factory) -> None:  # noqa: ANN001
+def test_consecutive_moves_are_executed_only_when_the_vehicle_got_there(system_factory) -> None:
     """The second move starts while the vehicle sits on the first one's target: "executed" must wait
     until the vehicle (the simulator's truth) reached the second target, and say where and when."""
     system = system_factory()

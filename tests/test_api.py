@@ -115,7 +115,7 @@ def test_stopping_the_shore_modem_loses_nothing(tmp_path: Path, database_url: st
 
 
 @pytest.fixture
-def client(tmp_path: Path, database_url: str):  # noqa: ANN201
+def client(tmp_path: Path, database_url: str):
     with TestClient(create_app(app_settings(tmp_path, database_url=database_url))) as c:
         c.post("/api/v1/vehicles", json={"name": "rov1", "address": 2}, headers=OP)
         yield c

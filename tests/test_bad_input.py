@@ -50,7 +50,7 @@ def _raw(body: dict, path: tuple, token: str) -> bytes:
 
 
 @pytest.fixture(scope="module")
-def client(tmp_path_factory: pytest.TempPathFactory):  # noqa: ANN201
+def client(tmp_path_factory: pytest.TempPathFactory):
     tmp = tmp_path_factory.mktemp("bad-input")
     app = create_app(Settings(database_url=f"sqlite:///{tmp}/tacit.db", map_enabled=False,
                               write_tokens=["operator-token"], read_tokens=["observer-token"]))  # fmt: skip

@@ -25,7 +25,7 @@ FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-ne
 
 
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory: pytest.TempPathFactory):  # noqa: ANN201
+def demo(tmp_path_factory: pytest.TempPathFactory):
     data = tmp_path_factory.mktemp("demo")
     with tacit_process("demo", "--headless", "--time-scale", "4", "--data-dir", str(data), "--port", "18311",
                        "--map-port", "18391") as (proc, info):  # fmt: skip

@@ -12,7 +12,7 @@ from simulators.micromodem import MicroModemEmulator
 from tacit import nmea, rates
 
 
-def channel_with(positions: dict[str, tuple[float, float, float]], **params: object):  # noqa: ANN201
+def channel_with(positions: dict[str, tuple[float, float, float]], **params: object):
     sched = VirtualScheduler()
     channel = Channel(sched, ChannelParameters(**params))  # type: ignore[arg-type]
     heard: dict[str, list[tuple[float, Reception]]] = {name: [] for name in positions}

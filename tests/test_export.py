@@ -28,7 +28,7 @@ def env(tick: int, values: list, certain: bool = True, vehicle_id: int = 1) -> d
 
 
 @pytest.fixture
-def client(tmp_path: Path):  # noqa: ANN201
+def client(tmp_path: Path):
     settings = Settings(database_url=f"sqlite:///{tmp_path}/tacit.db", modem_url="", map_enabled=False,
                         write_tokens=["operator-token"], read_tokens=["observer-token"], ping_interval=3600)  # fmt: skip
     with TestClient(create_app(settings)) as c:

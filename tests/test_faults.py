@@ -35,7 +35,7 @@ def test_server_killed_mid_mission_loses_nothing_and_executes_once() -> None:
         rig.close()
 
 
-def test_mavlink_link_drops_and_the_agent_reconnects(tmp_path) -> None:  # noqa: ANN001
+def test_mavlink_link_drops_and_the_agent_reconnects(tmp_path) -> None:
     import socket
 
     from tests.conftest import tacit_process

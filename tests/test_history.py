@@ -26,7 +26,7 @@ KEY = "7e" * 32
 
 
 @pytest.fixture
-def client(tmp_path: Path, database_url: str):  # noqa: ANN201
+def client(tmp_path: Path, database_url: str):
     settings = Settings(database_url=database_url, modem_url="", map_enabled=False, write_tokens=["operator-token"],
                         read_tokens=["observer-token"], ping_interval=3600)  # fmt: skip
     with TestClient(create_app(settings)) as c:

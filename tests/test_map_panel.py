@@ -73,7 +73,7 @@ class FakeGui:
 
 
 @pytest.fixture
-def shore_map(tmp_path: Path):  # noqa: ANN201
+def shore_map(tmp_path: Path):
     settings = Settings(database_url=f"sqlite:///{tmp_path}/tacit.db", modem_url="", map_enabled=False,
                         modem_log=str(tmp_path / "modem.log"), write_tokens=["operator-token"],
                         read_tokens=["observer-token"])  # fmt: skip

@@ -23,7 +23,7 @@ VEHICLE = 2
 SHORE = 1
 
 
-def cycle_rule(modem: ScriptedModem, sentence: nmea.Sentence) -> list[str]:
+def cycle_rule(modem: ScriptedModem, sentence: nmea.Sentence | nmea.Raw) -> list[str]:
     """A modem that runs a full data cycle with ACK from the vehicle, and answers pings at 0.0101 s."""
     replies = default_rule(modem, sentence)
     if isinstance(sentence, nmea.Cycle) and sentence.src == SHORE:
@@ -46,7 +46,7 @@ def settings(path: Path, **kw: object) -> DriverSettings:
     return DriverSettings(**base)  # type: ignore[arg-type]
 
 
-async def wait_until(predicate, timeout: float = 5.0) -> None:  # noqa: ANN001
+async def wait_until(predicate, timeout: float = 5.0) -> None:
     loop = asyncio.get_running_loop()
     deadline = loop.time() + timeout
     while not predicate():
@@ -62,7 +62,7 @@ def modem(tmp_path: Path):
     m.close()
 
 
-def run(coro):  # noqa: ANN001, ANN201
+def run(coro):
     return asyncio.run(asyncio.wait_for(coro, 30))
 
 
@@ -82,7 +82,7 @@ def test_configure_sets_address_statistics_and_clock(modem: ScriptedModem, tmp_p
 
 
 def test_send_with_ack_delivers_the_bytes(modem: ScriptedModem) -> None:
-    async def scenario():  # noqa: ANN202
+    async def scenario():
         driver = ModemDriver(settings(modem.path))
         await driver.start()
         result = await driver.send(VEHICLE, [bytes(range(32))], rate=0, ack=True, ack_timeout=2)
@@ -103,7 +103,7 @@ def test_send_without_ack_reply_reports_no_acknowledgement(tmp_path: Path) -> No
 
     modem = ScriptedModem(tmp_path / "modem", no_ack)
 
-    async def scenario():  # noqa: ANN202
+    async def scenario():
         driver = ModemDriver(settings(modem.path))
         await driver.start()
         result = await driver.send(VEHICLE, [b"x" * 32], ack=True, ack_timeout=0.3)
@@ -135,7 +135,7 @@ def test_received_frame_carries_its_statistics(modem: ScriptedModem) -> None:
 
 
 def test_ping_returns_travel_time(modem: ScriptedModem) -> None:
-    async def scenario():  # noqa: ANN202
+    async def scenario():
         driver = ModemDriver(settings(modem.path))
         await driver.start()
         travel = await driver.ping(VEHICLE, timeout=2)
@@ -243,7 +243,7 @@ def test_modem_rebooting_mid_cycle_fails_the_cycle_then_recovers(tmp_path: Path)
 
     modem = ScriptedModem(tmp_path / "modem", reboot_once)
 
-    async def scenario():  # noqa: ANN202
+    async def scenario():
         driver = ModemDriver(settings(modem.path, keepalive=60, drq_timeout=1.0))
         await driver.start()
         configured = len([s for s in modem.received if isinstance(s, nmea.Config) and s.name == "SRC"])

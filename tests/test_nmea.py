@@ -120,7 +120,7 @@ def test_random_bytes_never_escape_as_anything_but_nmea_error(data: bytes) -> No
 
 @given(st.sampled_from(nmea.SENTENCES).flatmap(example), st.integers(0, 200), st.characters(codec="ascii"))
 @settings(max_examples=300)
-def test_mutated_sentences_are_parsed_or_rejected(sentence, position: int, char: str) -> None:  # noqa: ANN001
+def test_mutated_sentences_are_parsed_or_rejected(sentence, position: int, char: str) -> None:
     line = sentence.line(sentence.TALKERS[0]).rstrip("\r\n")
     position %= len(line)
     mutated = line[:position] + char + line[position + 1 :]
@@ -165,7 +165,7 @@ def test_nan_snr_in_cst_is_rejected_not_parsed() -> None:
 @settings(max_examples=400)
 def test_fuzzed_numeric_fields_parse_to_bounded_finite_values_or_field_errors(
     cls, index: int, text: str
-) -> None:  # noqa: ANN001
+) -> None:
     """Any field replaced with a numeric-looking string: the line parses with every int short and every
     float finite, or it is rejected with an ``NmeaError`` (never OverflowError, never a nan)."""
     names = [f.name for f in dataclasses.fields(cls)]

@@ -25,7 +25,7 @@ schema = schemathesis.openapi.from_asgi("/openapi.json", APP).exclude(path="/api
     deadline=None,
     suppress_health_check=list(HealthCheck),
 )
-def test_no_request_crashes_the_server(case) -> None:  # noqa: ANN001
+def test_no_request_crashes_the_server(case) -> None:
     case.headers = {**(case.headers or {}), "Authorization": "Bearer fuzz-operator"}
     response = case.call()
     assert response.status_code < 500, (

@@ -38,7 +38,7 @@ def set_mode(conn: mavutil.mavfile, mode: int, texts: list[str] | None = None) -
     return command(conn, mav.MAV_CMD_DO_SET_MODE, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, mode, texts=texts)
 
 
-def latest(conn: mavutil.mavfile, kind: str, timeout: float = 5.0):  # noqa: ANN201
+def latest(conn: mavutil.mavfile, kind: str, timeout: float = 5.0):
     """The newest message of ``kind`` after draining what is queued."""
     msg = conn.recv_match(type=kind, blocking=True, timeout=timeout)
     while (newer := conn.recv_match(type=kind, blocking=False)) is not None:
@@ -46,7 +46,7 @@ def latest(conn: mavutil.mavfile, kind: str, timeout: float = 5.0):  # noqa: ANN
     return msg
 
 
-def wait_for(conn: mavutil.mavfile, kind: str, predicate, timeout: float) -> object:  # noqa: ANN001
+def wait_for(conn: mavutil.mavfile, kind: str, predicate, timeout: float) -> object:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         msg = conn.recv_match(type=kind, blocking=True, timeout=1)
@@ -153,7 +153,7 @@ def test_message_interval_changes_the_stream_rate() -> None:
         assert 18 <= count <= 30  # 25 Hz asked
 
 
-def test_replay_streams_a_real_dive(shared_data) -> None:  # noqa: ANN001
+def test_replay_streams_a_real_dive(shared_data) -> None:
     tlog = shared_data / "ardusub" / "small.tlog"
     with tacit_process("sim", "--replay", str(tlog), "--time-scale", "20") as (_, info):
         conn = gcs(info["vehicle"]["mavlink"][0])

@@ -17,7 +17,7 @@ from launch.rig import TOKEN, Rig
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "survey.py"
 
 
-def load_example():  # noqa: ANN201
+def load_example():
     spec = importlib.util.spec_from_file_location("survey_example", EXAMPLE)
     module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
     sys.modules["survey_example"] = module

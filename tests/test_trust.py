@@ -75,7 +75,7 @@ class Vehicle_:
 
 
 @pytest.fixture
-def shore(tmp_path: Path):  # noqa: ANN201
+def shore(tmp_path: Path):
     url = f"sqlite:///{tmp_path}/tacit.db"
     migrate(url)
     db = make_engine(url)
@@ -99,7 +99,7 @@ def send(ingest: Ingest, *packets: bytes) -> list[dict]:
     return ingest.handle(IncomingFrame(ADDRESS, 1, b"".join(packets)))
 
 
-def rows(db, model, **where):  # noqa: ANN001, ANN003, ANN201
+def rows(db, model, **where):
     with Session(db) as s:
         query = select(model)
         for name, value in where.items():
@@ -107,7 +107,7 @@ def rows(db, model, **where):  # noqa: ANN001, ANN003, ANN201
         return s.exec(query).all()
 
 
-def decoded_matches_truth(db, vehicle: Vehicle_) -> int:  # noqa: ANN001
+def decoded_matches_truth(db, vehicle: Vehicle_) -> int:
     """How many stored, certain env rows are within eps of what the vehicle measured (all must be)."""
     good = 0
     for row in rows(db, Telemetry, stream="env", certain=True):
@@ -120,7 +120,7 @@ def decoded_matches_truth(db, vehicle: Vehicle_) -> int:  # noqa: ANN001
     return good
 
 
-def test_priority_data_is_unverified_until_a_checkpoint_covers_it(shore) -> None:  # noqa: ANN001
+def test_priority_data_is_unverified_until_a_checkpoint_covers_it(shore) -> None:
     db, start = shore
     ingest, vehicle = start(), Vehicle_()
     vehicle.measure(10)
@@ -135,7 +135,7 @@ def test_priority_data_is_unverified_until_a_checkpoint_covers_it(shore) -> None
     assert decoded_matches_truth(db, vehicle) == 20
 
 
-def test_forged_checkpoints_change_nothing(shore) -> None:  # noqa: ANN001
+def test_forged_checkpoints_change_nothing(shore) -> None:
     db, start = shore
     ingest, vehicle = start(), Vehicle_()
     send(ingest, vehicle.checkpoint(north=10.0))
@@ -159,7 +159,7 @@ def test_forged_checkpoints_change_nothing(shore) -> None:  # noqa: ANN001
     assert ingest.vehicles[ADDRESS].checkpoint["north"] == 30.0 and ingest.stats["replayed"] == 1
 
 
-def test_forged_priority_packet_with_a_genuine_seq_is_marked_forged(shore) -> None:  # noqa: ANN001
+def test_forged_priority_packet_with_a_genuine_seq_is_marked_forged(shore) -> None:
     db, start = shore
     ingest, vehicle, attacker = start(), Vehicle_(), Vehicle_(STRANGER, warmer=20.0)  # 40 C water
     attacker.t = vehicle.t
@@ -174,7 +174,7 @@ def test_forged_priority_packet_with_a_genuine_seq_is_marked_forged(shore) -> No
     assert sorted(by_bytes.values()) == ["forged", "verified"]
 
 
-def test_a_checkpoint_settles_the_commands_before_its_last(shore) -> None:  # noqa: ANN001
+def test_a_checkpoint_settles_the_commands_before_its_last(shore) -> None:
     db, start = shore
     ingest, vehicle = start(), Vehicle_()
     settled = pack_settled([CommandStatus.SUPERSEDED, CommandStatus.REFUSED, None, CommandStatus.EXECUTED])
@@ -184,7 +184,7 @@ def test_a_checkpoint_settles_the_commands_before_its_last(shore) -> None:  # no
                         6: "superseded", 7: "executing"}  # fmt: skip
 
 
-def test_a_restarted_shore_decodes_again(shore) -> None:  # noqa: ANN001
+def test_a_restarted_shore_decodes_again(shore) -> None:
     db, start = shore
     ingest, vehicle = start(), Vehicle_()
     for _ in range(3):
@@ -200,7 +200,7 @@ def test_a_restarted_shore_decodes_again(shore) -> None:  # noqa: ANN001
     assert ingest.vehicles[ADDRESS].seen.first_time(b"x" * 32)
 
 
-def test_packets_the_shore_never_stored_are_recovered_by_one_restart_request(shore) -> None:  # noqa: ANN001
+def test_packets_the_shore_never_stored_are_recovered_by_one_restart_request(shore) -> None:
     db, start = shore
     ingest, vehicle = start(), Vehicle_()
     vehicle.measure(10)

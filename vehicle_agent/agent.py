@@ -26,6 +26,7 @@ import sys
 import time
 import tomllib
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -110,7 +111,11 @@ class AgentConfig:
                 plan = MissionPlan.load(base / entry["file"])
             else:
                 builtin = entry.pop("builtin")
-                plan = {"square": MissionPlan.square, "lawnmower": MissionPlan.lawnmower}[builtin](**entry)
+                builders: dict[str, Callable[..., MissionPlan]] = {
+                    "square": MissionPlan.square,
+                    "lawnmower": MissionPlan.lawnmower,
+                }
+                plan = builders[builtin](**entry)
             plans[plan.number] = plan
         return plans
 
@@ -142,7 +147,7 @@ class Agent:
         self.compressor = Compressor(default_streams(), config.max_latency, config.max_silence)
         self.plume = PlumeDetector(self.fsm.status.params.get("plume_threshold", config.plume_threshold))
         window = auth.ReplayWindow.from_dict(self.state.replay)
-        sync = auth.SyncWindow(config.max_clock_correction, tuple(self.state.heartbeat))  # type: ignore[arg-type]
+        sync = auth.SyncWindow(config.max_clock_correction, tuple(self.state.heartbeat))
         self.driver = modem.ModemDriver(modem.DriverSettings(url=config.modem_url, address=config.address,
                                                              log_path=config.modem_log or None))  # fmt: skip
         self.link = VehicleLink(
@@ -168,8 +173,9 @@ class Agent:
 
     def _on_mavlink(self, kind: str, msg: object) -> None:
         """MAVLink thread: hand samples to the loop (a deque is safe between threads)."""
-        if kind == "RAW_IMU":
-            self.samples.append(("imu", self.now(), self.mav.telemetry.imu))
+        imu = self.mav.telemetry.imu
+        if kind == "RAW_IMU" and imu is not None:
+            self.samples.append(("imu", self.now(), imu))
         elif kind == "SCALED_PRESSURE2":
             self.samples.append(("env", self.now(), (self.mav.telemetry.temperature, self.mav.telemetry.depth,
                                                       self.mav.telemetry.oxygen)))  # fmt: skip
@@ -214,7 +220,7 @@ class Agent:
         self.state.heartbeat = list(self.link.receiver.sync.last)
         self._persist()
 
-    def _on_delivered(self, packet: bytes):  # noqa: ANN202
+    def _on_delivered(self, packet: bytes):
         """What to do when a priority packet is delivered: remember it for the next check-point's MAC."""
 
         def done(delivered: bool) -> None:
@@ -249,7 +255,7 @@ class Agent:
                 if event is not None:
                     self._plume(event, pose)
 
-    def _plume(self, event, pose: Pose) -> None:  # noqa: ANN001
+    def _plume(self, event, pose: Pose) -> None:
         bearing = event.bearing if event.bearing is not None else pose.heading
         d = self.config.explore_distance
         target = (pose.north + d * math.cos(math.radians(bearing)), pose.east + d * math.sin(math.radians(bearing)),
@@ -268,7 +274,7 @@ class Agent:
             frame = packet.encode()
             covered = self._on_delivered(frame)
 
-            def resolved(ok: bool, s: Stream = stream, covered=covered) -> None:  # noqa: ANN001
+            def resolved(ok: bool, s: Stream = stream, covered=covered) -> None:
                 self.compressor.resolve(s, ok)
                 covered(ok)
 
@@ -310,8 +316,8 @@ class Agent:
 
     def _send_checkpoint(self) -> None:
         packet, report, self._report = self.checkpoint(), self._report, None
-        same = report is not None and report.last_command == packet.last_command
-        if same and report.command_status is packet.command_status:  # type: ignore[union-attr]
+        if (report is not None and report.last_command == packet.last_command
+                and report.command_status is packet.command_status):  # fmt: skip
             packet = with_seq(report, packet.seq)  # the pose and time of the tick the status changed
         covered = self._reachable(packet.seq)
         packet = replace(packet, covered=cover_bitmap(packet.seq, [u[0] for u in covered]))

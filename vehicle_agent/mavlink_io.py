@@ -83,7 +83,7 @@ class MavlinkLink:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._write_lock = threading.Lock()
-        self._tlog = open(tlog, "ab") if tlog else None  # noqa: SIM115 - closed in stop()
+        self._tlog = open(tlog, "ab") if tlog else None
         self._updated = time.monotonic()
 
     # --- lifecycle ------------------------------------------------------------------------------

@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Query
-from sqlmodel import select
+from sqlmodel import col, select
 
 from server.api.deps import CommandsDep, Id, Offset, ReadSession
 from server.auth import require_read, require_write
 from server.errors import NotFound
-from server.models import Command, CommandEvent
+from server.models import Command, CommandEvent, saved_id
 from server.schemas import CommandDetail, CommandEventOut, CommandIn, CommandListed, CommandOut
 from server.services import commands, vehicles
 
@@ -33,10 +33,10 @@ def list_commands(vehicle_id: Id, s: ReadSession, limit: int = Query(100, ge=1, 
                   history: bool = Query(False, description="include each command's history")) -> list[CommandListed]:  # fmt: skip
     """The vehicle's commands, newest first; with ``history=true`` each one's steps as well."""
     vehicles.get(s, vehicle_id)
-    query = select(Command).where(Command.vehicle_id == vehicle_id).order_by(Command.id.desc())  # type: ignore[union-attr]
+    query = select(Command).where(Command.vehicle_id == vehicle_id).order_by(col(Command.id).desc())
     rows = list(s.exec(query.offset(offset).limit(limit)))
-    steps = commands.histories(s, [c.id for c in rows]) if history else {}  # type: ignore[misc]
-    return [CommandListed(**_out(c).model_dump(), history=_events(steps.get(c.id, [])) if history else None)
+    steps = commands.histories(s, [saved_id(c) for c in rows]) if history else {}
+    return [CommandListed(**_out(c).model_dump(), history=_events(steps.get(saved_id(c), [])) if history else None)
             for c in rows]  # fmt: skip
 
 

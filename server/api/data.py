@@ -10,7 +10,7 @@ from collections.abc import AsyncIterator, Iterator
 from fastapi import APIRouter, Depends, Query
 from fastapi.responses import Response, StreamingResponse
 from sqlalchemy import func
-from sqlmodel import Session, select
+from sqlmodel import Session, col, select
 
 from server.api.deps import BusDep, LinkDep, Offset, OptionalId, QueryId, ReadSession, ShoreDep
 from server.auth import require_read
@@ -22,7 +22,7 @@ from server.shore import Shore
 router = APIRouter(prefix="/api/v1", tags=["data"])
 
 
-def _page(s: Session, query, limit: int, offset: int, model) -> Page:  # noqa: ANN001
+def _page(s: Session, query, limit: int, offset: int, model) -> Page:
     total = s.exec(select(func.count()).select_from(query.subquery())).one()
     rows = s.exec(query.offset(offset).limit(limit)).all()
     return Page(
@@ -37,7 +37,7 @@ def _page(s: Session, query, limit: int, offset: int, model) -> Page:  # noqa: A
 def packets(s: ReadSession, vehicle_id: OptionalId = None,
             type: str | None = Query(None, pattern="^(checkpoint|priority)$"), since: float | None = None,
             until: float | None = None, limit: int = Query(100, ge=1, le=1000), offset: Offset = 0) -> Page:  # fmt: skip
-    query = _filtered(select(Packet).order_by(Packet.id.desc()), Packet.vehicle_id, Packet.at,  # type: ignore[union-attr]
+    query = _filtered(select(Packet).order_by(col(Packet.id).desc()), Packet.vehicle_id, Packet.at,
                       vehicle_id, since, until)  # fmt: skip
     if type is not None:
         query = query.where(Packet.type == type)
@@ -46,7 +46,7 @@ def packets(s: ReadSession, vehicle_id: OptionalId = None,
 
 def _filtered(
     query, vehicle_column, time_column, vehicle_id: int | None, since: float | None, until: float | None
-):  # noqa: ANN001, ANN202  (a select and its columns)
+):
     """The filters every data route shares: one vehicle, a time window."""
     if vehicle_id is not None:
         query = query.where(vehicle_column == vehicle_id)
@@ -57,8 +57,8 @@ def _filtered(
     return query
 
 
-def _telemetry_query(vehicle_id: int | None, stream: str | None, since: float | None, until: float | None):  # noqa: ANN202
-    query = _filtered(select(Telemetry).order_by(Telemetry.time), Telemetry.vehicle_id, Telemetry.time,
+def _telemetry_query(vehicle_id: int | None, stream: str | None, since: float | None, until: float | None):
+    query = _filtered(select(Telemetry).order_by(col(Telemetry.time)), Telemetry.vehicle_id, Telemetry.time,
                       vehicle_id, since, until)  # fmt: skip
     return query.where(Telemetry.stream == stream) if stream is not None else query
 
@@ -74,7 +74,7 @@ def telemetry(s: ReadSession, vehicle_id: OptionalId = None, stream: str | None 
 EXPORT_ROWS = 5000  # rows per database fetch and per Parquet row group
 
 
-def _export(shore: Shore, vehicle_id: int, stream: str, since: float | None, until: float | None):  # noqa: ANN202
+def _export(shore: Shore, vehicle_id: int, stream: str, since: float | None, until: float | None):
     """The channels of ``stream`` and the rows to export, oldest first, fetched in pages."""
     streams = {spec.name: spec for spec in shore.ingest.streams.values()}
     if stream not in streams:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends
-from sqlmodel import select
+from sqlmodel import col, select
 
 from server.api.deps import CommandsDep, Id, ReadSession, WriteDep
 from server.auth import require_read, require_write
@@ -34,7 +34,7 @@ def create_mission(vehicle_id: Id, body: MissionIn, write: WriteDep) -> Mission:
 )
 def list_missions(vehicle_id: Id, s: ReadSession) -> list[Mission]:
     vehicles.get(s, vehicle_id)
-    return list(s.exec(select(Mission).where(Mission.vehicle_id == vehicle_id).order_by(Mission.id)))
+    return list(s.exec(select(Mission).where(Mission.vehicle_id == vehicle_id).order_by(col(Mission.id))))
 
 
 def _transition(desk: CommandsDep, s: ReadSession, mission_id: int, command: str, status: str) -> CommandOut:

@@ -1,7 +1,7 @@
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends
-from sqlmodel import select
+from sqlmodel import col, select
 
 from server.api.deps import Id, LinkDep, ReadSession, WriteDep
 from server.auth import require_read, require_write
@@ -26,7 +26,7 @@ def create_vehicle(body: VehicleIn, write: WriteDep, link: LinkDep) -> VehicleCr
 
 @router.get("", response_model=list[VehicleOut], dependencies=[Depends(require_read)])
 def list_vehicles(s: ReadSession) -> list[VehicleOut]:
-    return [_out(v) for v in s.exec(select(Vehicle).order_by(Vehicle.id))]
+    return [_out(v) for v in s.exec(select(Vehicle).order_by(col(Vehicle.id)))]
 
 
 @router.get("/{vehicle_id}", response_model=VehicleOut, dependencies=[Depends(require_read)])

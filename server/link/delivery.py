@@ -14,7 +14,7 @@ import asyncio
 import logging
 import time
 
-from sqlmodel import Session, select
+from sqlmodel import Session, col, select
 
 from server.db import writing
 from server.events import EventBus
@@ -46,11 +46,11 @@ class Delivery:
         confirmed in time. Only the latest: re-sending an older one could run it after a newer one."""
         with Session(self.store.db) as s:
             by_vehicle = select(Command).where(Command.vehicle_id == vehicle_id)
-            pending = s.exec(by_vehicle.where(Command.status.in_(commands.PENDING))  # type: ignore[attr-defined]
-                             .order_by(Command.id)).first()  # type: ignore[arg-type]  # fmt: skip
+            pending = s.exec(by_vehicle.where(col(Command.status).in_(commands.PENDING))
+                             .order_by(col(Command.id))).first()  # fmt: skip
             if pending is not None:
                 return pending
-            latest = s.exec(by_vehicle.order_by(Command.id.desc())).first()  # type: ignore[union-attr]
+            latest = s.exec(by_vehicle.order_by(col(Command.id).desc())).first()
         if latest is not None and latest.status == Status.ACKNOWLEDGED:
             if latest.updated_at < self.timing.confirm_deadline(time.time()):
                 log.info("vehicle %d: command seq %d acknowledged but never confirmed: sending again",
@@ -93,18 +93,33 @@ class Delivery:
                 raise LookupError(f"vehicle {vehicle_id} was removed")
             return commands.sign(command, vehicle)
 
-    async def _advance(self, command: Command, status: Status, detail: str = "", **extra: object) -> None:
+    async def _advance(
+        self,
+        command: Command,
+        status: Status,
+        detail: str = "",
+        reason: str | None = None,
+        **extra: int | bytes,
+    ) -> None:
         """What the modem said of a command, if the lifecycle allows it: a check-point may already have
-        said executing / executed / refused, which a late ACK must not undo."""
-        if await self.store.run(self._advance_now, command.id, status, detail, extra):
+        said executing / executed / refused, which a late ACK must not undo. ``extra``: column values
+        (attempts, frame)."""
+        if await self.store.run(self._advance_now, command.id, status, detail, reason, extra):
             self.bus.publish("command", id=command.id, seq=command.seq, status=status.value, detail=detail)
 
     def _advance_now(
-        self, command_id: int | None, status: Status, detail: str, extra: dict[str, object]
+        self,
+        command_id: int | None,
+        status: Status,
+        detail: str,
+        reason: str | None,
+        extra: dict[str, int | bytes],
     ) -> bool:
         with writing(self.store.db) as s:
             current = s.get(Command, command_id)
-            if current is None or not commands.advance(s, current, status, detail, **extra):
+            if current is None or not commands.advance(
+                s, current, status, detail, reason=reason, report=None, **extra
+            ):
                 return False
             s.commit()
             return True

@@ -16,6 +16,7 @@ import asyncio
 import contextlib
 import logging
 import time
+from typing import Any
 
 from sqlalchemy import Engine
 
@@ -188,7 +189,7 @@ class LinkEngine:
 
     # --- status ---------------------------------------------------------------------------------
 
-    def status(self) -> dict[str, object]:
+    def status(self) -> dict[str, Any]:
         modem = self.driver.state.value if self.driver else "none"
         hours = max(1e-9, (time.time() - self.started_at) / 3600)
         vehicles = {}

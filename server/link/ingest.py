@@ -34,7 +34,7 @@ from sqlmodel import Session, col, select
 from server.db import writing
 from server.events import EventBus
 from server.link import keys
-from server.models import Command, Frame, LinkEvent, LinkState, Packet, Telemetry, Vehicle, now
+from server.models import Command, Frame, LinkEvent, LinkState, Packet, Telemetry, Vehicle, now, saved_id
 from server.services import commands
 from tacit import auth, packets
 from tacit.codec import CodecError, PacketDecoder, StreamSpec
@@ -140,7 +140,7 @@ class Ingest:
         """A vehicle's state as the last run left it: saved link state, decoders rebuilt by decoding the
         last stored priority packets again, in the order they arrived."""
         decoder = PacketDecoder(list(self.streams.values()))
-        state = VehicleState(v.id, v.name, v.address, decoder)
+        state = VehicleState(saved_id(v), v.name, v.address, decoder)
         saved = s.get(LinkState, v.id)
         if saved is not None:
             try:
@@ -219,7 +219,7 @@ class Ingest:
         row = {"direction": "in", "src": frame.src, "dest": frame.dest, "rate": frame.rate, "data": frame.data,
                "snr_in": _finite(frame.snr_in), "snr_out": _finite(frame.snr_out), "stats": frame.stats,
                "at": frame.at}  # fmt: skip
-        frame_id = s.execute(insert(Frame).returning(Frame.id), [row]).scalar_one()
+        frame_id = s.execute(insert(Frame).returning(col(Frame.id)), [row]).scalar_one()
         if vehicle is None:
             self.stats["unknown_vehicle"] += 1
             batch.events.append({"vehicle_id": None, "kind": "unknown_vehicle", "at": frame.at,
@@ -264,7 +264,7 @@ class Ingest:
             events, row["auth"] = self._checkpoint(s, batch, v, packet, body)
             s.execute(insert(Packet), [row])
         else:
-            packet_id = s.execute(insert(Packet).returning(Packet.id), [row]).scalar_one()
+            packet_id = s.execute(insert(Packet).returning(col(Packet.id)), [row]).scalar_one()
             recent = v.recent.setdefault(packet.seq, [])
             recent[:] = [*recent[-3:], (auth.packet_hash(chunk), packet_id)]
             while len(v.recent) > RECENT_SEQS:  # drop the seq furthest behind this one
@@ -283,10 +283,11 @@ class Ingest:
                     body: dict) -> tuple[Events, str]:  # fmt: skip
         """Verify, then apply; returns the events and the packet's ``auth``."""
         vehicle = s.get(Vehicle, v.id)
+        assert vehicle is not None, "a vehicle with link state is stored"
         seqs = cp.covered_seqs()
         candidates = [[h for h, _ in v.recent.get(seq, [])] for seq in seqs]
         try:
-            version, chosen = auth.verify_checkpoint(cp, keys.accepted(vehicle), v.address, candidates)  # type: ignore[arg-type]
+            version, chosen = auth.verify_checkpoint(cp, keys.accepted(vehicle), v.address, candidates)
         except auth.BadMac as exc:
             return self._refused(batch, v, "forged", f"check-point seq {cp.seq}: {exc}", cp), "forged"
         if cp.time < v.checkpoint_time:
@@ -298,7 +299,7 @@ class Ingest:
         events: Events = [("vehicle", {"vehicle": v.name, "checkpoint": body})]
         events += self._vouch(s, batch, v, seqs, chosen)
         if vehicle is not None and vehicle.previous_key_hex and version == vehicle.key_version:
-            s.execute(update(Vehicle).where(Vehicle.id == v.id).values(previous_key_hex=None))
+            s.execute(update(Vehicle).where(col(Vehicle.id) == v.id).values(previous_key_hex=None))
             batch.events.append({"vehicle_id": v.id, "kind": "key_confirmed", "at": now(),
                                  "detail": {"key_version": version}})  # fmt: skip
             events.append(("link", {"event": "key_confirmed", "vehicle": v.name, "key_version": version}))
@@ -321,7 +322,8 @@ class Ingest:
         self, s: Session, batch: _Batch, v: VehicleState, seqs: list[int], chosen: tuple[bytes, ...]
     ) -> Events:
         """The covered packets are verified; another packet received with one of their seqs is forged."""
-        good, bad = [], []
+        good: list[int] = []
+        bad: list[int] = []
         for seq, digest in zip(seqs, chosen, strict=True):
             for h, packet_id in v.recent.get(seq, []):
                 (good if h == digest else bad).append(packet_id)
@@ -345,7 +347,7 @@ class Ingest:
         latest = vehicle.next_seq - 1  # the check-point names the latest seq with these low 16 bits
         last = latest - ((latest - cp.last_command) % 65536)
         report = commands.report_of(v.checkpoint or {})
-        updates = [(last, cp.command_status, report)]
+        updates: list[tuple[int, CommandStatus | None, dict | None]] = [(last, cp.command_status, report)]
         updates += [(last - k, status, None) for k, status in enumerate(unpack_settled(cp.settled), start=1)]
         events: Events = []
         for seq, reported, where in updates:

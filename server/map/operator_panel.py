@@ -222,7 +222,7 @@ class OperatorPanel:
         if vehicle is None:
             return self._status("**Not sent**: no vehicle registered")
         try:
-            queued = self.map.shore.commands.submit(vehicle.id, command)  # type: ignore[arg-type]
+            queued = self.map.shore.commands.submit(vehicle.id, command)
         except ApiError as exc:
             return self._status(f"**Refused**: {exc.field}: {exc.detail}")
         self.last_sent = queued.id

@@ -27,7 +27,7 @@ import time
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from sqlmodel import Session, select
+from sqlmodel import Session, col, select
 
 from server import operator
 from server.map.operator_panel import OperatorPanel, colour_scale
@@ -132,7 +132,7 @@ class OperatorMap:
 
     def vehicle_names(self) -> list[str]:
         with Session(self.shore.db) as s:
-            return [v.name for v in s.exec(select(Vehicle).order_by(Vehicle.id))]
+            return [v.name for v in s.exec(select(Vehicle).order_by(col(Vehicle.id)))]
 
     def vehicle(self, name: str) -> Vehicle | None:
         with Session(self.shore.db) as s:
@@ -210,7 +210,7 @@ class OperatorMap:
         with Session(self.shore.db) as s:
             vehicle = s.exec(select(Vehicle).where(Vehicle.name == name)).first()
             mission = s.exec(select(Mission).where(Mission.vehicle_id == vehicle.id, Mission.status == "started")
-                             .order_by(Mission.id.desc())).first() if vehicle else None  # type: ignore[union-attr]  # fmt: skip
+                             .order_by(col(Mission.id).desc())).first() if vehicle else None  # fmt: skip
         if mission and mission.plan.get("waypoints"):
             points = [(w["east"], w["north"], -w["depth"]) for w in mission.plan["waypoints"]]
             if len(points) >= 2:
@@ -256,7 +256,7 @@ class OperatorMap:
 
     def _command_status(self, event: dict) -> None:
         with Session(self.shore.db) as s:
-            rows = s.exec(select(Command).order_by(Command.id.desc()).limit(6)).all()  # type: ignore[union-attr]
+            rows = s.exec(select(Command).order_by(col(Command.id).desc()).limit(6)).all()
         lines = "\n".join(f"- #{c.id} **{c.command}** seq {c.seq}: **{c.status}** {c.reason}" for c in rows)
         for panel in list(self.panels.values()):
             panel.command_status(event, lines or "none yet")

@@ -27,13 +27,13 @@ import time
 from collections.abc import Callable, Mapping
 
 from sqlalchemy import Engine, insert, update
-from sqlmodel import Session, select
+from sqlmodel import Session, col, select
 
 from server.db import writing
 from server.errors import NotFound, Refused
 from server.events import EventBus
 from server.link import keys
-from server.models import Command, CommandEvent, Mission, Vehicle, now
+from server.models import Command, CommandEvent, Mission, Vehicle, now, saved_id
 from server.schemas import CommandIn
 from tacit import auth
 from tacit.limits import Limits
@@ -117,9 +117,9 @@ def submit(s: Session, vehicle: Vehicle, body: CommandIn, pose: Pose | None = No
     """Check and queue a command in one transaction (with the mission's new status, if it starts or
     aborts one); raises ``CommandRefused``. ``s`` must be a writing session (``server.db.writing``)."""
     check_limits(body, vehicle, pose)
-    seq = s.exec(update(Vehicle).where(Vehicle.id == vehicle.id).values(next_seq=Vehicle.next_seq + 1)
-                 .returning(Vehicle.next_seq)).one()[0] - 1  # fmt: skip
-    command = Command(vehicle_id=vehicle.id, seq=seq, frame=b"", **body.model_dump())  # type: ignore[arg-type]
+    seq = s.exec(update(Vehicle).where(col(Vehicle.id) == vehicle.id).values(next_seq=col(Vehicle.next_seq) + 1)
+                 .returning(col(Vehicle.next_seq))).one()[0] - 1  # fmt: skip
+    command = Command(vehicle_id=saved_id(vehicle), seq=seq, frame=b"", **body.model_dump())
     try:
         packet_for(command).signed_part()  # every field within its range on the wire
     except FieldRangeError as exc:
@@ -127,9 +127,9 @@ def submit(s: Session, vehicle: Vehicle, body: CommandIn, pose: Pose | None = No
         raise CommandRefused(str(exc), exc.field) from None
     s.add(command)
     s.flush()
-    s.add(CommandEvent(command_id=command.id, status=Status.QUEUED, detail=""))  # type: ignore[arg-type]
+    s.add(CommandEvent(command_id=saved_id(command), status=Status.QUEUED, detail=""))
     if mission_id is not None:
-        s.execute(update(Mission).where(Mission.id == mission_id).values(status=mission_status))
+        s.execute(update(Mission).where(col(Mission.id) == mission_id).values(status=mission_status))
     s.commit()
     return command
 
@@ -144,7 +144,7 @@ def advance(s: Session, command: Command, status: Status, detail: str = "", reas
     values = {"status": status.value, "updated_at": now(), **extra}
     if reason is not None:
         values["reason"] = reason
-    s.execute(update(Command).where(Command.id == command.id).values(**values))
+    s.execute(update(Command).where(col(Command.id) == command.id).values(**values))
     s.execute(insert(CommandEvent).values(command_id=command.id, status=status.value, detail=detail, at=now(),
                                           report=report))  # fmt: skip
     return True
@@ -162,7 +162,7 @@ def supersede_older(s: Session, command: Command) -> list[Command]:
     commands still executing were abandoned on board; mark them superseded (it reports only its latest)."""
     if command.command not in NEW_COURSE:
         return []
-    query = select(Command).where(Command.vehicle_id == command.vehicle_id, Command.id < command.id,  # type: ignore[operator]
+    query = select(Command).where(Command.vehicle_id == command.vehicle_id, col(Command.id) < saved_id(command),
                                   Command.status == Status.EXECUTING.value)  # fmt: skip
     older = list(s.exec(query))
     return [
@@ -185,7 +185,11 @@ def histories(s: Session, command_ids: list[int]) -> dict[int, list[CommandEvent
     out: dict[int, list[CommandEvent]] = {}
     if not command_ids:
         return out
-    query = select(CommandEvent).where(CommandEvent.command_id.in_(command_ids)).order_by(CommandEvent.id)  # type: ignore[attr-defined]
+    query = (
+        select(CommandEvent)
+        .where(col(CommandEvent.command_id).in_(command_ids))
+        .order_by(col(CommandEvent.id))
+    )
     for event in s.exec(query):
         out.setdefault(event.command_id, []).append(event)
     return out

@@ -118,9 +118,21 @@ class Cycles:
     # --- what the modem says ------------------------------------------------------------------------
 
     def handle(self, sentence: nmea.Sentence | nmea.Raw) -> None:
-        handler = self._HANDLERS.get(type(sentence))
-        if handler is not None:
-            handler(self, sentence)
+        match sentence:
+            case nmea.DataRequest():
+                self._on_drq(sentence)
+            case nmea.TxFinished():
+                self._on_txf(sentence)
+            case nmea.TxStats():
+                self._on_xst(sentence)
+            case nmea.Ack():
+                self._on_ack(sentence)
+            case nmea.RxData():
+                self._on_rxd(sentence)
+            case nmea.RxStats():
+                self._on_cst(sentence)
+            case nmea.PingReply():
+                self._on_ping_reply(sentence)
 
     def _on_drq(self, drq: nmea.DataRequest) -> None:
         self.spawn(self._answer_drq(drq))
@@ -180,8 +192,3 @@ class Cycles:
         waiter = self._ping_waiters.get(reply.src)
         if waiter is not None and not waiter.done() and reply.dest == self.settings.address:
             waiter.set_result(abs(reply.travel_time))
-
-    _HANDLERS: dict[type, Callable[[Cycles, nmea.Sentence], None]] = {
-        nmea.DataRequest: _on_drq, nmea.TxFinished: _on_txf, nmea.TxStats: _on_xst, nmea.Ack: _on_ack,
-        nmea.RxData: _on_rxd, nmea.RxStats: _on_cst, nmea.PingReply: _on_ping_reply,
-    }  # type: ignore[dict-item]  # fmt: skip

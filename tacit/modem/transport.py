@@ -62,7 +62,7 @@ class Transport:
         """Reader thread: split bytes into lines and hand them to the event loop."""
         buffer = b""
         try:
-            while self._port is port:
+            while self._port is not None and self._port is port:
                 chunk = port.read(max(1, port.in_waiting))
                 if not chunk:
                     continue
