@@ -18,6 +18,7 @@ import random
 import sys
 import time
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
@@ -81,7 +82,9 @@ def run_codec(series: Series, spec: StreamSpec, max_latency: float, loss: float 
     sent = np.zeros(truth.shape, dtype=bool)
     row_of: list[int] = []  # the encoder's sample number -> input row (all-absent rows are not samples)
     symbols: list[list[int]] = [[] for _ in spec.channels]
-    packets, latencies, confirmations, cpu = 0, [], [], 0.0
+    packets, cpu = 0, 0.0
+    latencies: list[float] = []
+    confirmations: list[float] = []
     code_bits: list[int] = []
 
     def send(now: float) -> None:
@@ -121,7 +124,10 @@ def run_codec(series: Series, spec: StreamSpec, max_latency: float, loss: float 
         if i % 1000 == 0:
             bar.update(min(1000, rows - bar.n))
     bar.close()
-    while encoder.pending and encoder.ready(due := max(encoder.deadline(), series.times[-1])):  # type: ignore[type-var]
+    while encoder.pending and (deadline := encoder.deadline()) is not None:
+        due = max(deadline, float(series.times[-1]))
+        if not encoder.ready(due):
+            break
         send(due)
     present = ~np.isnan(truth)
     held = present & ~np.isnan(shore)
@@ -146,7 +152,8 @@ def run_codec(series: Series, spec: StreamSpec, max_latency: float, loss: float 
 def pack(items: list[tuple[float, int]], capacity_bits: int, max_latency: float) -> tuple[int, float]:
     """Packets needed for (time, bits) items sent in order, each packet leaving when the next item does
     not fit or when its oldest item is ``max_latency`` old; returns (packets, largest latency)."""
-    packets, worst, batch, used = 0, 0.0, [], 0
+    packets, worst, used = 0, 0.0, 0
+    batch: list[float] = []
 
     def flush(at: float) -> None:
         nonlocal packets, worst, batch, used
@@ -298,7 +305,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="one JSON object")
 
 
-def evaluate(args: argparse.Namespace) -> tuple[dict[str, object], Series, StreamSpec, Reconstruction]:
+def evaluate(args: argparse.Namespace) -> tuple[dict[str, Any], Series, StreamSpec, Reconstruction]:
     columns = [c.strip() for c in args.columns.split(",")] if args.columns else None
     progress = getattr(args, "progress", True)
     series = load(
@@ -329,7 +336,7 @@ def _baseline(result: Result) -> dict[str, object]:
     return {k: v for k, v in asdict(result).items() if k not in ("unbounded_samples", "us_per_tick")}
 
 
-def _table(report: dict[str, object]) -> str:
+def _table(report: dict[str, Any]) -> str:
     keys = (
         "samples",
         "packets",
@@ -339,7 +346,7 @@ def _table(report: dict[str, object]) -> str:
         "rms_error_ratio",
         "max_latency_s",
     )
-    rows = [(f"tacit ({report['method']})", report)] + list(report["baselines"].items())  # type: ignore[union-attr]
+    rows = [(f"tacit ({report['method']})", report)] + list(report["baselines"].items())
     lines = [f"{'method':<18}" + "".join(f"{k:>17}" for k in keys)]
     for name, row in rows:
         cells = "".join(f"{row[k]:>17.3f}" if isinstance(row[k], float) else f"{row[k]:>17}" for k in keys)
@@ -358,7 +365,7 @@ def _table(report: dict[str, object]) -> str:
         f"predictable samples confirmed within {report['max_confirmation_s']:.1f} s "
         "(baselines: silence is never confirmed)"
     )
-    lines.append(f"vehicle CPU: {report['us_per_tick']:.0f} us per {len(report['channels'])}-channel tick")  # type: ignore[arg-type]
+    lines.append(f"vehicle CPU: {report['us_per_tick']:.0f} us per {len(report['channels'])}-channel tick")
     return "\n".join(lines)
 
 

@@ -59,7 +59,7 @@ def degraded(series: Series, seed: int = 2) -> Series:
     return Series(series.names, times[keep][order], series.values[keep][order])
 
 
-def decode_rate(series: Series, spec, max_latency: float) -> float:  # noqa: ANN001
+def decode_rate(series: Series, spec, max_latency: float) -> float:
     """Packets per second the pure-Python shore decoder handles."""
     encoder, payloads = StreamEncoder(spec, max_latency), []
     for t, x in zip(series.times, series.values, strict=True):

@@ -73,6 +73,7 @@ import json
 import struct
 import zlib
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -200,15 +201,15 @@ class _Dual:
             self.beta[c, used] = beta if explained >= CROSS_MIN_R2 else 0.0
         self.beta[:, :n] = np.tril(self.beta[:, :n], -1)
 
-    def state(self) -> object:
+    def state(self) -> Any:
         return (self.base.state(), self.sums.copy(), self.beta.copy(), self.count, self.raw_before.copy(),
                 self.previous.copy(), self.errors.copy())  # fmt: skip
 
-    def restore(self, state: object) -> None:
-        base, sums, beta, count, raw_before, previous, errors = state  # type: ignore[misc]
-        self.previous, self.errors = np.array(previous, dtype=float), np.array(errors, dtype=float)
+    def restore(self, state: Any) -> None:
+        base, sums, beta, count, raw_before, previous, errors = state
+        self.previous, self.errors = np.array(previous, dtype=np.float64), np.array(errors, dtype=np.float64)
         self.base.restore(base)
-        self.sums, self.beta = np.array(sums, dtype=float), np.array(beta, dtype=float)
+        self.sums, self.beta = np.array(sums, dtype=np.float64), np.array(beta, dtype=np.float64)
         self.count = int(count)
         self.raw_before = np.array(raw_before, dtype=bool)
 
@@ -236,7 +237,7 @@ class StreamSpec:
 
     @property
     def step(self) -> np.ndarray:
-        return 2 * np.asarray(self.eps, dtype=float) * MARGIN
+        return 2 * np.asarray(self.eps, dtype=np.float64) * MARGIN
 
     @property
     def time_precision(self) -> float:
@@ -555,7 +556,7 @@ class PacketEncoder:
         """Add one sample of stream number ``stream`` (NaN = a channel without a value). Always coded:
         True unless every channel is absent (then there is nothing to send and nothing is queued)."""
         spec = self.specs[stream]
-        row = np.array(values, dtype=float).reshape(-1)
+        row = np.array(values, dtype=np.float64).reshape(-1)
         if row.shape != (len(spec.channels),):
             raise ValueError(f"{spec.name}: {len(spec.channels)} values per sample, got {row.shape[0]}")
         row[~np.isfinite(row)] = np.nan

@@ -33,7 +33,8 @@ second sample in the same tick (no time passes: the filter is not advanced).
 from __future__ import annotations
 
 from collections import deque
-from typing import Protocol
+from collections.abc import Callable
+from typing import Any, Protocol
 
 import numpy as np
 from filterpy.kalman import KalmanFilter
@@ -63,11 +64,11 @@ class Predictor(Protocol):
         """Ticks whose values neither side holds (absent or lost): advance without an update."""
         ...
 
-    def state(self) -> object:
+    def state(self) -> Any:
         """A snapshot that ``restore`` returns to (cheap: arrays, not objects)."""
         ...
 
-    def restore(self, state: object) -> None: ...
+    def restore(self, state: Any) -> None: ...
 
 
 GAINS = np.array([1 / 64, 1 / 32, 1 / 16, 1 / 8, 1 / 4, 1 / 2, 3 / 4, 7 / 8])
@@ -122,7 +123,7 @@ class _AdaptiveKalman:
         return self.kf.x[:: self.order].copy()
 
     def update(self, reconstructed: np.ndarray) -> None:
-        values = np.array(reconstructed, dtype=float)
+        values = np.array(reconstructed, dtype=np.float64)
         absent = np.isnan(values)
         if absent.all():
             return
@@ -141,11 +142,11 @@ class _AdaptiveKalman:
         for _ in range(min(ticks, MAX_SKIP)):
             self.kf.predict()
 
-    def state(self) -> object:
+    def state(self) -> Any:
         return (self.kf.x.copy(), self.kf.P.copy(), self.ratio.copy(), list(self.history), self.count)
 
-    def restore(self, state: object) -> None:
-        x, p, ratio, history, count = state  # type: ignore[misc]
+    def restore(self, state: Any) -> None:
+        x, p, ratio, history, count = state
         self.kf.x, self.kf.P, self.ratio, self.count = x.copy(), p.copy(), ratio.copy(), count
         self.history = deque(history, maxlen=ADAPT_WINDOW)
         self._set_noise()
@@ -169,7 +170,7 @@ class WindowMean:
     """The paper's model-free predictor: mean of the last ``window`` reconstructed values."""
 
     def __init__(self, channels: int, initial: np.ndarray, window: int = MEAN_WINDOW) -> None:
-        self.last = np.array(initial, dtype=float)  # each channel's last value (initial before any)
+        self.last = np.array(initial, dtype=np.float64)  # each channel's last value (initial before any)
         self.values: deque[np.ndarray] = deque(maxlen=window)
 
     def predict(self) -> np.ndarray:
@@ -185,18 +186,18 @@ class WindowMean:
         return np.where(count > 0, total / np.maximum(count, 1), self.last)
 
     def update(self, reconstructed: np.ndarray) -> None:
-        values = np.array(reconstructed, dtype=float)
+        values = np.array(reconstructed, dtype=np.float64)
         self.values.append(values)
         self.last = np.where(np.isnan(values), self.last, values)
 
     def skip(self, ticks: int = 1) -> None:
         pass
 
-    def state(self) -> object:
+    def state(self) -> Any:
         return list(self.values), self.last.copy()
 
-    def restore(self, state: object) -> None:
-        values, last = state  # type: ignore[misc]
+    def restore(self, state: Any) -> None:
+        values, last = state
         self.values = deque(values, maxlen=self.values.maxlen)
         self.last = last.copy()
 
@@ -209,8 +210,9 @@ class Hold(WindowMean):
 
 
 def make_predictor(method: str, channels: int, initial: np.ndarray | None = None) -> Predictor:
-    start = np.zeros(channels) if initial is None else np.asarray(initial, dtype=float)
-    factories = {"kalman": kalman_level, "kalman-cv": kalman_cv, "mean": WindowMean, "hold": Hold}
+    start = np.zeros(channels) if initial is None else np.asarray(initial, dtype=np.float64)
+    factories: dict[str, Callable[[int, np.ndarray], Predictor]] = {
+        "kalman": kalman_level, "kalman-cv": kalman_cv, "mean": WindowMean, "hold": Hold}  # fmt: skip
     try:
         return factories[method](channels, start)
     except KeyError:

@@ -132,13 +132,13 @@ def test_gaps_jitter_nans_and_duplicate_times_lose_nothing(rows: list, eps: floa
     run.check()
 
 
-def real_imu(shared_data) -> tuple[np.ndarray, np.ndarray, list[str]]:  # noqa: ANN001
+def real_imu(shared_data) -> tuple[np.ndarray, np.ndarray, list[str]]:
     cols = ["xacc", "yacc", "zacc", "xgyro", "ygyro", "zgyro", "xmag", "ymag", "zmag"]
     d = np.genfromtxt(shared_data / "ardusub" / "small_raw_imu.csv", delimiter=",", names=True)
     return d["t_unix_s"], np.column_stack([d[c] for c in cols]), cols
 
 
-def test_bound_holds_on_real_imu_with_dropouts_and_jitter(shared_data) -> None:  # noqa: ANN001
+def test_bound_holds_on_real_imu_with_dropouts_and_jitter(shared_data) -> None:
     times, values, cols = real_imu(shared_data)
     rng = np.random.default_rng(5)
     keep = rng.random(len(times)) > 0.05
@@ -152,7 +152,7 @@ def test_bound_holds_on_real_imu_with_dropouts_and_jitter(shared_data) -> None: 
     run.check()
 
 
-def test_lost_packets_are_marked_and_the_rest_stays_exact(shared_data) -> None:  # noqa: ANN001
+def test_lost_packets_are_marked_and_the_rest_stays_exact(shared_data) -> None:
     times, values, cols = real_imu(shared_data)
     s = StreamSpec("imu", Stream.KINEMATIC, tuple(cols), tuple(0.5 * values.std(axis=0)), 0.5)
     run = Run(s, lose={3, 4, 10}).feed(times, values)

@@ -303,7 +303,9 @@ class Agent:
             seq=self.state.packet_seq % 256, time=int(self.now()), state=s.state, mission_id=s.mission or 0,
             waypoint=min(s.waypoint, 255), heading=round(pose.heading, 2) % 360.0,
             last_command=s.last_command & 0xFFFF, command_status=s.command_status, reason=s.reason,
-            settled=self.settled(s.last_command), flags=flags, **measured)  # fmt: skip
+            settled=self.settled(s.last_command), flags=flags, north=measured["north"], east=measured["east"],
+            depth=measured["depth"], battery=measured["battery"], temperature=measured["temperature"],
+            oxygen=measured["oxygen"])  # fmt: skip
 
     def _reachable(self, seq: int) -> list[list]:
         """The uncovered packets a check-point with ``seq`` can still cover (the others are dropped)."""

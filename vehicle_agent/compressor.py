@@ -80,7 +80,7 @@ class PlumeDetector:
 def _restart(encoder: PacketEncoder) -> None:
     """Base the encoder's next packet on the initial state (its gap then says RESET)."""
     encoder.delivered = encoder.initial
-    encoder._rebase(encoder.initial)  # noqa: SLF001 - the codec's own re-base, as after a lost packet
+    encoder._rebase(encoder.initial)
 
 
 class Compressor:
