@@ -479,6 +479,7 @@ class EncodedPacket:
     samples_by_stream: dict[str, int] = field(default_factory=dict)
     serials: list[list[int]] = field(default_factory=list)  # per stream: the samples' numbers, in order
     code_bits: int = 0  # of the payload's 232 code bits, how many the arithmetic code used
+    surprises_by_stream: dict[str, int] = field(default_factory=dict)  # values the shore could not predict
 
 
 def _code_sample(coder: _Coder, enc: Encoder, cursor: int | None, sample: _Sample) -> int:
@@ -718,7 +719,7 @@ class PacketEncoder:
         urgent = any(x.urgent for x in draft)
         main = self._main_stream(urgent)  # before the taken samples leave the queues
         main_first = self._first_index(main, draft)
-        positions, counts, serials = [], {}, []
+        positions, counts, serials, surprises = [], {}, [], {}
         for s, section in enumerate(self._sections):
             taken, rest = self._queues[s][: section.count], self._queues[s][section.count :]
             predictor = rest[0].state_before if rest else self.predictors[s].state()
@@ -726,6 +727,7 @@ class PacketEncoder:
             coder.encode_token(Encoder(), END)  # the model update END made (both ends make it)
             positions.append(_Position(predictor, coder, section.open_cursor))
             counts[self.specs[s].name] = len(taken)
+            surprises[self.specs[s].name] = sum(1 for x in taken for v in x.q if v)
             serials.append([x.serial for x in taken])
             self._queues[s] = rest
         chain = _Chain(_next_id(self._base.id), positions)
@@ -733,7 +735,8 @@ class PacketEncoder:
                                 self.specs[main].stream, payload)  # fmt: skip
         encoded = EncodedPacket(packet, main_first, len(draft), sum(sec.lost or 0 for sec in self._sections),
                                 [x.time for x in draft], [x.time for x in draft if any(x.q)],
-                                sum(1 for x in draft for v in x.q if v), counts, serials, len(bits))  # fmt: skip
+                                sum(1 for x in draft for v in x.q if v), counts, serials, len(bits),
+                                surprises)  # fmt: skip
         carried = [sec.count > 0 or sec.lost is not None for sec in self._sections]
         self.in_flight = (chain, carried)
         self.seq += 1

@@ -283,7 +283,8 @@ class Agent:
             self._dirty = True
             log.info("priority packet seq %d (%s, %d ticks, %d surprises) queued", packet.seq,
                      stream.name.lower(), encoded.ticks, encoded.nonzero)  # fmt: skip
-            if stream is Stream.ENVIRONMENTAL and encoded.nonzero and not urgent:
+            env = self.compressor.name_of(Stream.ENVIRONMENTAL)
+            if encoded.surprises_by_stream.get(env) and not urgent:  # the water, not the vehicle's motion
                 self.fsm.on_unpredictable(False, None)
 
     def settled(self, last: int) -> int:

@@ -77,12 +77,6 @@ class PlumeDetector:
         return math.degrees(math.atan2(gradient[1], gradient[0])) % 360.0
 
 
-def _restart(encoder: PacketEncoder) -> None:
-    """Base the encoder's next packet on the initial state (its gap then says RESET)."""
-    encoder.delivered = encoder.initial
-    encoder._rebase(encoder.initial)
-
-
 class Compressor:
     """Every stream through one packet encoder: a packet carries the due samples of all streams (a quiet
     one rides along). Each sample is pushed at its sensor's own time and rate; a value that is None or
@@ -93,7 +87,10 @@ class Compressor:
         self.order = list(streams)
         self.encoder = PacketEncoder(list(streams.values()), max_latency, urgent_threshold, max_silence)
         self.samples = 0
-        self._restart_pending = False
+
+    def name_of(self, stream: Stream) -> str:
+        """The stream's name as the codec's per-stream counts key it."""
+        return self.encoder.specs[self.order.index(stream)].name
 
     def add(self, stream: Stream, time: float, values: list[float | None], urgent: bool = False) -> None:
         row = [float("nan") if v is None else v for v in values]
@@ -109,15 +106,8 @@ class Compressor:
 
     def resolve(self, stream: Stream, delivered: bool) -> None:
         self.encoder.resolve(delivered)
-        if self._restart_pending:
-            self._restart_pending = False
-            _restart(self.encoder)
 
     def restart_chains(self) -> None:
         """The shore lost its decoder states (its SYNC asked): the streams start again from the initial
-        state, so the next packet decodes without any history. A packet in flight keeps its chain; the
-        restart applies when it is resolved."""
-        if self.encoder.in_flight is None:
-            _restart(self.encoder)
-        else:
-            self._restart_pending = True
+        state, so the next packet decodes without any history (``PacketEncoder.restart``)."""
+        self.encoder.restart()

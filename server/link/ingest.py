@@ -37,7 +37,7 @@ from server.link import keys
 from server.models import Command, Frame, LinkEvent, LinkState, Packet, Telemetry, Vehicle, now, saved_id
 from server.services import commands
 from tacit import auth, packets
-from tacit.codec import CodecError, PacketDecoder, StreamSpec
+from tacit.codec import CodecError, PacketDecoder, StreamSpec, UnknownBase
 from tacit.link import SeenWindow, from_frame
 from tacit.navigation import Pose
 from tacit.packets import CheckpointPacket, CommandStatus, PacketError, PriorityPacket, Stream, unpack_settled
@@ -412,7 +412,7 @@ class Ingest:
         body["error"] = str(exc)
         batch.events.append({"vehicle_id": v.id, "kind": "undecodable", "at": at,
                              "detail": {"stream": stream, "error": str(exc)}})  # fmt: skip
-        if "no state" in str(exc) and not v.needs_restart:
+        if isinstance(exc, UnknownBase) and not v.needs_restart:
             v.needs_restart = True  # the engine's next SYNC asks the vehicle to restart its chains
             log.warning(
                 "vehicle %s: sample chain state lost: asking the vehicle to restart its chains", v.name
