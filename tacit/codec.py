@@ -479,7 +479,9 @@ class EncodedPacket:
     samples_by_stream: dict[str, int] = field(default_factory=dict)
     serials: list[list[int]] = field(default_factory=list)  # per stream: the samples' numbers, in order
     code_bits: int = 0  # of the payload's 232 code bits, how many the arithmetic code used
-    surprises_by_stream: dict[str, int] = field(default_factory=dict)  # values the shore could not predict
+    surprises: dict[str, list[int]] = field(
+        default_factory=dict
+    )  # per stream and channel: values not predicted
 
 
 def _code_sample(coder: _Coder, enc: Encoder, cursor: int | None, sample: _Sample) -> int:
@@ -727,7 +729,9 @@ class PacketEncoder:
             coder.encode_token(Encoder(), END)  # the model update END made (both ends make it)
             positions.append(_Position(predictor, coder, section.open_cursor))
             counts[self.specs[s].name] = len(taken)
-            surprises[self.specs[s].name] = sum(1 for x in taken for v in x.q if v)
+            surprises[self.specs[s].name] = [
+                sum(1 for x in taken if x.q[c]) for c in range(len(self.specs[s].channels))
+            ]
             serials.append([x.serial for x in taken])
             self._queues[s] = rest
         chain = _Chain(_next_id(self._base.id), positions)

@@ -12,6 +12,7 @@ from tacit.packets import Stream
 
 IMU_CHANNELS = ("xacc", "yacc", "zacc", "xgyro", "ygyro", "zgyro", "xmag", "ymag", "zmag")
 ENV_CHANNELS = ("temperature", "depth", "oxygen")
+WATER_CHANNELS = ("temperature", "oxygen")  # what the water does (depth is the vehicle's own motion)
 
 DEFAULT_EPS = {
     # RAW_IMU units: mG, mrad/s, mGauss. About half a standard deviation of a BlueROV2 at rest.

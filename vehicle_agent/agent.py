@@ -31,6 +31,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from tacit import auth, modem
+from tacit.codec import EncodedPacket
 from tacit.config import check_keys
 from tacit.limits import Limits
 from tacit.navigation import Pose, Target
@@ -49,7 +50,7 @@ from tacit.packets import (
     pack_settled,
     with_seq,
 )
-from tacit.streams import default_streams
+from tacit.streams import WATER_CHANNELS, default_streams
 from vehicle_agent.compressor import Compressor, PlumeDetector
 from vehicle_agent.link import VehicleLink
 from vehicle_agent.mavlink_io import MavlinkLink
@@ -144,7 +145,8 @@ class Agent:
             status = None
         self.fsm = MissionFSM(plans, config.limits, status, config.link_lost_timeout, config.lost_action,
                               config.checkpoint_interval)  # fmt: skip
-        self.compressor = Compressor(default_streams(), config.max_latency, config.max_silence)
+        self.streams = default_streams()
+        self.compressor = Compressor(self.streams, config.max_latency, config.max_silence)
         self.plume = PlumeDetector(self.fsm.status.params.get("plume_threshold", config.plume_threshold))
         window = auth.ReplayWindow.from_dict(self.state.replay)
         sync = auth.SyncWindow(config.max_clock_correction, tuple(self.state.heartbeat))
@@ -283,9 +285,16 @@ class Agent:
             self._dirty = True
             log.info("priority packet seq %d (%s, %d ticks, %d surprises) queued", packet.seq,
                      stream.name.lower(), encoded.ticks, encoded.nonzero)  # fmt: skip
-            env = self.compressor.name_of(Stream.ENVIRONMENTAL)
-            if encoded.surprises_by_stream.get(env) and not urgent:  # the water, not the vehicle's motion
+            if self._water_surprised(encoded) and not urgent:
                 self.fsm.on_unpredictable(False, None)
+
+    def _water_surprised(self, encoded: EncodedPacket) -> bool:
+        """Whether the packet carries water the shore could not predict (temperature, oxygen): the
+        paper's unpredictable environmental data. The vehicle's own motion (its depth in the same
+        stream, its IMU sharing the packet) is not."""
+        spec = self.streams[Stream.ENVIRONMENTAL]
+        counts = encoded.surprises.get(spec.name, [])
+        return any(n for channel, n in zip(spec.channels, counts, strict=False) if channel in WATER_CHANNELS)
 
     def settled(self, last: int) -> int:
         """The check-point's ``settled`` byte: final statuses of the four commands before ``last``."""

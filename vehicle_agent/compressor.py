@@ -88,10 +88,6 @@ class Compressor:
         self.encoder = PacketEncoder(list(streams.values()), max_latency, urgent_threshold, max_silence)
         self.samples = 0
 
-    def name_of(self, stream: Stream) -> str:
-        """The stream's name as the codec's per-stream counts key it."""
-        return self.encoder.specs[self.order.index(stream)].name
-
     def add(self, stream: Stream, time: float, values: list[float | None], urgent: bool = False) -> None:
         row = [float("nan") if v is None else v for v in values]
         if self.encoder.push(self.order.index(stream), time, row, urgent=urgent):
