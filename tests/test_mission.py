@@ -127,9 +127,10 @@ def test_unpredictable_data_time_sensitive_or_not() -> None:
     m.on_unpredictable(False, None)
     assert m.state is MissionState.AWAITING_COMMAND  # keeps the trajectory meanwhile
     assert m.step(1, HOME, None, 1) is not None
-    m._go(MissionState.PREPROGRAMMED)
-    m.on_unpredictable(True, (4.0, 4.0, 2.0))
+    m.on_unpredictable(True, (4.0, 4.0, 2.0))  # a plume while awaiting a command: it will not wait
     assert m.state is MissionState.SELF_DETERMINED and m.step(2, HOME, None, 2).east == 4.0
+    m.on_unpredictable(False, None)  # ordinary surprises do not pull it off its self-determined course
+    assert m.state is MissionState.SELF_DETERMINED
 
 
 def test_limits_unknown_missions_and_parameters_are_refused_with_a_reason() -> None:

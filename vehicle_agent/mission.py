@@ -4,6 +4,7 @@
     PREPROGRAMMED --data predictable--> PREPROGRAMMED (check-points at an interval)
     PREPROGRAMMED --unpredictable, time-sensitive--> SELF_DETERMINED (decide locally, priority packet)
     PREPROGRAMMED --unpredictable, not time-sensitive--> AWAITING_COMMAND (keep the trajectory)
+    AWAITING_COMMAND --unpredictable, time-sensitive--> SELF_DETERMINED (a plume will not wait)
     SELF_DETERMINED / AWAITING_COMMAND / any --control packet--> COMMANDED (follow the command)
     COMMANDED --done, mission time left--> PREPROGRAMMED (back to the trajectory: "go to line 3")
     COMMANDED --done, no mission--> HOLDING
@@ -41,6 +42,7 @@ NEW_COURSE = {
     Command.START_MISSION,
     Command.ABORT_MISSION,
 }  # end a command's run
+FOLLOWING = (MissionState.PREPROGRAMMED, MissionState.AWAITING_COMMAND)  # on the pre-programmed trajectory
 PARAMS = {1: "plume_threshold", 2: "checkpoint_interval", 3: "cruise_speed", 4: "link_lost_timeout"}
 
 
@@ -231,13 +233,14 @@ class MissionFSM:
     # --- data events ----------------------------------------------------------------------------
 
     def on_unpredictable(self, time_sensitive: bool, local_target: tuple[float, float, float] | None) -> None:
-        """Unpredictable data was found (and a priority packet queued by the compressor)."""
-        if self.status.state is not MissionState.PREPROGRAMMED:
-            return
-        if time_sensitive and local_target is not None:
+        """Unpredictable data was found (and a priority packet queued by the compressor). A time-sensitive
+        event turns the vehicle towards it also while it awaits a command on its trajectory: waiting for
+        the shore must not make it miss a plume that will not wait."""
+        state = self.status.state
+        if time_sensitive and local_target is not None and state in FOLLOWING:
             self.status.target = local_target
             self._go(MissionState.SELF_DETERMINED)
-        else:
+        elif state is MissionState.PREPROGRAMMED:
             self._go(MissionState.AWAITING_COMMAND)
 
     # --- time -----------------------------------------------------------------------------------
