@@ -57,7 +57,7 @@ def test_dashboard_and_map_in_a_real_browser(demo: dict) -> None:
 
         map_page = browser.new_page(viewport={"width": 1400, "height": 900})
         map_page.goto(demo["map_url"])
-        map_page.get_by_text("Watching only").first.wait_for(timeout=30_000)
+        map_page.get_by_text("Watching only").first.wait_for(timeout=90_000)
         assert map_page.get_by_role("button", name="Send").is_disabled()  # not signed in: watch only
         map_page.locator(MAP_TOKEN).first.fill(demo["token"])
         map_page.keyboard.press("Tab")
@@ -148,7 +148,7 @@ def test_sign_in_says_what_to_do_and_observers_cannot_write(demo: dict) -> None:
 
         map_page = browser.new_page(viewport={"width": 1400, "height": 900})
         map_page.goto(demo["map_url"])
-        map_page.get_by_text("Watching only").first.wait_for(timeout=30_000)
+        map_page.get_by_text("Watching only").first.wait_for(timeout=90_000)
         map_page.locator(MAP_TOKEN).first.fill(demo["read_token"])
         map_page.keyboard.press("Tab")
         map_page.get_by_role("button", name="Sign in").click()
