@@ -42,11 +42,15 @@ CASES = [
 
 
 PUBLIC = Path(__file__).resolve().parent / "data"
+XIO_RATE = 390.0  # x-IMU packets per second (its DateTime packets), the unit of its "Packet number"
 PUBLIC_CASES = [
-    # file, eps, max latency (s), label: slow sensors get a latency that lets a packet fill
-    ("glider_amadeus_ctd_temperature.csv", 0.05, 600.0, "glider CTD temp 0.05 degC"),
-    ("glider_sea035_oxygen.csv", 1.0, 600.0, "glider O2 30 s 1 umol/L"),
-    ("glider_sea035_oxygen.csv", 1.0, 3600.0, "glider O2 30 s 1 umol/L"),
+    # file, time column (None: detected), eps, relative, max latency (in the time column's unit), label:
+    # slow sensors get a latency that lets a packet fill
+    ("glider_amadeus_ctd_temperature.csv", None, 0.05, False, 600.0, "glider CTD temp 0.05 degC (600 s)"),
+    ("glider_sea035_oxygen.csv", None, 1.0, False, 600.0, "glider O2 30 s 1 umol/L (600 s)"),
+    ("glider_sea035_oxygen.csv", None, 1.0, False, 3600.0, "glider O2 30 s 1 umol/L (3600 s)"),
+    # the x-IMU's only clock is its packet counter: latency 10 s = 3900 packets
+    ("handheld_ximu_256hz_imu.csv", "Packet number", 0.5, True, 10 * XIO_RATE, "x-IMU 256 Hz 0.5 sd (10 s)"),
 ]
 
 
@@ -87,8 +91,8 @@ def robustness_table(data: Path) -> None:
             (f"{name} clean", series, 0.5, True, 10.0),
             (f"{name} 5% gone +-30% jitter", degraded(series), 0.5, True, 10.0),
         ]
-    for name, eps, latency, label in PUBLIC_CASES:
-        cases.append((f"{label} ({latency:.0f} s)", load(PUBLIC / name), eps, False, latency))
+    for name, time_column, eps, relative, latency, label in PUBLIC_CASES:
+        cases.append((label, load(PUBLIC / name, time_column=time_column), eps, relative, latency))
     clean_spec = None
     for label, series, eps, relative, latency in cases:
         spec = make_spec(series, eps, relative, "kalman", None)
