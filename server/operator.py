@@ -3,7 +3,7 @@
 - ``command_form``: which fields each command takes, with labels, units, ranges and hints, built from
   the control packet's field table (``tacit.packets.ControlPacket.FIELDS``) narrowed by the vehicle's
   limits. The dashboard reads it from the API, the map panel calls it; ``check_form`` is the page's
-  rule in Python (the map's panel), ``web/app.js`` applies the same spec in the browser.
+  rule in Python (the map's panel), ``server/web/app.js`` applies the same spec in the browser.
 - ``STATES``: what each mission state means to an operator (``awaiting_command`` still follows the
   waypoints: it only means the vehicle reported unusual data and would take a command).
 - ``estimate``: what the shore knows of a vehicle: the last reported pose and its age, and the pose

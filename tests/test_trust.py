@@ -184,6 +184,18 @@ def test_a_checkpoint_settles_the_commands_before_its_last(shore) -> None:
                         6: "superseded", 7: "executing"}  # fmt: skip
 
 
+def test_a_settled_final_wins_over_superseding(shore) -> None:
+    """6 was executing; the next check-point says 7 is executing and settles 6 as executed: the vehicle's
+    word for 6 stands (superseding applies only to what it left unsettled)."""
+    db, start = shore
+    ingest, vehicle = start(), Vehicle_()
+    send(ingest, vehicle.checkpoint(last_command=6, command_status=CommandStatus.EXECUTING))
+    settled = pack_settled([CommandStatus.EXECUTED, None, None, None])
+    send(ingest, vehicle.checkpoint(last_command=7, command_status=CommandStatus.EXECUTING, settled=settled))
+    statuses = {c.seq: c.status for c in rows(db, Command)}
+    assert statuses[6] == "executed" and statuses[7] == "executing"
+
+
 def test_a_restarted_shore_decodes_again(shore) -> None:
     db, start = shore
     ingest, vehicle = start(), Vehicle_()

@@ -199,7 +199,8 @@ class Agent:
             return
         previous = (self.fsm.status.last_command, self.fsm.status.command_status)
         status, reason = self.fsm.on_control(packet, self.pose(), now)
-        if previous[0] and previous[0] != packet.seq:
+        if previous[0] and previous[0] != packet.seq and previous[0] != self.fsm.status.commanded:
+            # the previous command is over (a move still steered to is reported when it arrives)
             final = previous[1] if previous[1] in (CommandStatus.EXECUTED, CommandStatus.REFUSED) else (
                 CommandStatus.SUPERSEDED)  # fmt: skip
             self.state.settled = [*self.state.settled, [previous[0], final.name]][-16:]

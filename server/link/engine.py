@@ -59,7 +59,7 @@ class LinkEngine:
 
     async def start(self) -> None:
         self._loop = asyncio.get_running_loop()
-        self.ingest.load_vehicles()
+        await asyncio.to_thread(self.ingest.load_vehicles)  # rebuilding decoders can take seconds
         self._worker = asyncio.create_task(self._ingest())
         if not self.settings.modem_url:
             log.warning("no shore modem configured (TACIT_MODEM_URL): API and storage only")

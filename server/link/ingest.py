@@ -148,7 +148,8 @@ class Ingest:
             except (KeyError, TypeError, ValueError) as exc:
                 log.error("vehicle %s: saved link state unreadable (%s): starting afresh", v.name, exc)
         self._last_checkpoint(s, state)
-        query = (select(Packet.body, Packet.at).where(Packet.vehicle_id == v.id, Packet.type == "priority")
+        query = (select(Packet.body, Packet.at).where(Packet.vehicle_id == v.id, Packet.type == "priority",
+                                                      Packet.auth != "forged")
                  .order_by(col(Packet.id).desc()).limit(REPLAY_PACKETS))  # fmt: skip
         rows = list(reversed(s.exec(query).all()))
         decoded = 0
@@ -347,9 +348,11 @@ class Ingest:
         latest = vehicle.next_seq - 1  # the check-point names the latest seq with these low 16 bits
         last = latest - ((latest - cp.last_command) % 65536)
         report = commands.report_of(v.checkpoint or {})
-        updates: list[tuple[int, CommandStatus | None, dict | None]] = [(last, cp.command_status, report)]
-        updates += [(last - k, status, None) for k, status in enumerate(unpack_settled(cp.settled), start=1)]
+        settled: list[tuple[int, CommandStatus | None, dict | None]] = [
+            (last - k, status, None) for k, status in enumerate(unpack_settled(cp.settled), start=1)]  # fmt: skip
+        updates = [*reversed(settled), (last, cp.command_status, report)]  # oldest first: each in its turn
         events: Events = []
+        newest: Command | None = None
         for seq, reported, where in updates:
             status = commands.FROM_CHECKPOINT.get(reported) if reported else None
             if status is None or seq <= 0:
@@ -363,9 +366,11 @@ class Ingest:
             events.append(("command", {"id": command.id, "vehicle": v.name, "seq": command.seq,
                                        "status": status.value, "reason": reason, "report": where}))  # fmt: skip
             if where is not None and status in (commands.Status.EXECUTING, commands.Status.EXECUTED):
-                for old in commands.supersede_older(s, command):
-                    events.append(("command", {"id": old.id, "vehicle": v.name, "seq": old.seq,
-                                               "status": commands.Status.SUPERSEDED.value, "reason": ""}))  # fmt: skip
+                newest = command
+        if newest is not None:  # after the settled finals: only what the vehicle left unsettled is superseded
+            for old in commands.supersede_older(s, newest):
+                events.append(("command", {"id": old.id, "vehicle": v.name, "seq": old.seq,
+                                           "status": commands.Status.SUPERSEDED.value, "reason": ""}))  # fmt: skip
         return events
 
     # --- priority packets ---------------------------------------------------------------------------

@@ -53,7 +53,12 @@ def rotate_key(s: Session, vehicle_id: int, key_hex: str | None = None) -> Vehic
         key = auth.parse_key(key_hex) if key_hex else auth.new_key()
     except ValueError as exc:
         raise Refused(str(exc), "key") from None
-    vehicle.previous_key_hex = vehicle.previous_key_hex or vehicle.key_hex  # staged: see server.link.keys
+    if key.hex() == vehicle.key_hex:
+        return vehicle  # the key it already has: nothing to stage, no new version
+    if vehicle.previous_key_hex:  # keys.py names the previous key by version - 1: one rotation at a time
+        raise Conflict("a key rotation is waiting for the vehicle's confirmation (its next check-point "
+                       "signed with the new key); rotate again after that", "key")  # fmt: skip
+    vehicle.previous_key_hex = vehicle.key_hex  # staged: see server.link.keys
     vehicle.key_hex = key.hex()
     vehicle.key_version += 1
     s.add(vehicle)
