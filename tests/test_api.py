@@ -164,6 +164,10 @@ def test_key_rotation(client: TestClient) -> None:
     assert "key" not in client.get("/api/v1/vehicles/1", headers=OBS).json()
     assert client.post("/api/v1/vehicles/1/key", json={"key": "00"}, headers=OP).json()["field"] == "key"
     assert client.post("/api/v1/vehicles/1/key", json={}, headers=OBS).status_code == 403
+    same = client.post("/api/v1/vehicles/1/key", json={"key": rotated["key"]}, headers=OP).json()
+    assert same["key_version"] == rotated["key_version"]  # the key it has: nothing new (a demo re-run)
+    waiting = client.post("/api/v1/vehicles/1/key", json={}, headers=OP)  # the vehicle has not confirmed yet
+    assert waiting.status_code == 409 and waiting.json()["field"] == "key"
 
 
 def test_missions_queue_start_and_abort(client: TestClient) -> None:
