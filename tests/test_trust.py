@@ -196,6 +196,25 @@ def test_a_settled_final_wins_over_superseding(shore) -> None:
     assert statuses[6] == "executed" and statuses[7] == "executing"
 
 
+def test_a_batch_that_fails_to_commit_leaves_memory_as_it_was(shore) -> None:
+    """A commit that fails (here a trigger standing in for a full disk) puts back the duplicate window and
+    the decoder: the retried frame is stored and decoded, not dropped as a duplicate."""
+    db, start = shore
+    ingest, vehicle = start(), Vehicle_()
+    vehicle.measure(10)
+    frame = vehicle.priority()
+    with db.begin() as conn:
+        conn.exec_driver_sql(
+            "CREATE TRIGGER full BEFORE INSERT ON packet BEGIN SELECT RAISE(ABORT, 'disk full'); END"
+        )
+    with pytest.raises(Exception, match="disk full"):
+        send(ingest, frame)
+    with db.begin() as conn:
+        conn.exec_driver_sql("DROP TRIGGER full")
+    send(ingest, frame)
+    assert len(rows(db, Packet, type="priority")) == 1 and decoded_matches_truth(db, vehicle) > 0
+
+
 def test_a_restarted_shore_decodes_again(shore) -> None:
     db, start = shore
     ingest, vehicle = start(), Vehicle_()

@@ -27,7 +27,7 @@ from server.link.ingest import IncomingFrame, Ingest, VehicleState
 from server.link.ranging import Ranging
 from server.link.store import LinkStore
 from server.link.timing import Timing
-from server.models import LinkEvent
+from server.models import Frame, LinkEvent
 from server.settings import Settings
 from tacit import modem as mm
 from tacit.link import choose_rate
@@ -127,13 +127,25 @@ class LinkEngine:
                 batch.append(self._frames.get_nowait())
             try:
                 await self.store.run(self.ingest.handle_batch, batch)
-            except Exception:  # not the database being busy (that is retried): say so, keep running
-                log.exception("%d frame(s) could not be stored", len(batch))
-                continue
+            except Exception:  # not the database being busy (that is retried): one by one, keep running
+                log.exception("%d frame(s) could not be stored together: storing them one by one", len(batch))
+                await self._one_by_one(batch)
             for frame in batch:
                 heard = self._heard.get(frame.src)
                 if heard is not None:
                     heard.set()
+
+    async def _one_by_one(self, batch: list[IncomingFrame]) -> None:
+        """Each frame in its own transaction; one that still cannot be handled is kept as it came
+        (the raw frame and a link event), never dropped: the modem has already acknowledged it."""
+        for frame in batch:
+            try:
+                await self.store.run(self.ingest.handle_batch, [frame])
+            except Exception as exc:
+                log.exception("frame from %d could not be handled: kept raw", frame.src)
+                await self.store.add(
+                    Frame(direction="in", src=frame.src, dest=frame.dest, rate=frame.rate, data=frame.data, at=frame.at),
+                    LinkEvent(kind="ingest_failed", detail={"src": frame.src, "error": repr(exc)[:200]}))  # fmt: skip
 
     # --- the schedule ---------------------------------------------------------------------------
 

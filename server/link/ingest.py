@@ -79,6 +79,17 @@ class VehicleState:
                 "checkpoint_time": self.checkpoint_time, "needs_restart": self.needs_restart,
                 "recent": {str(seq): [[h.hex(), pid] for h, pid in items] for seq, items in self.recent.items()}}  # fmt: skip
 
+    def memento(self) -> tuple[Any, ...]:
+        """Everything a batch changes in memory, to be put back if its transaction does not commit
+        (a retried batch must decode and de-duplicate exactly as the first try would have)."""
+        return (list(self.seen.recent), {k: list(v) for k, v in self.recent.items()}, self.checkpoint,
+                self.checkpoint_time, self.needs_restart, self.decoder.to_bytes())  # fmt: skip
+
+    def rollback(self, memento: tuple[Any, ...]) -> None:
+        seen, recent, self.checkpoint, self.checkpoint_time, self.needs_restart, decoder = memento
+        self.seen.recent, self.recent = seen, recent
+        self.decoder.load(decoder)
+
     def restore(self, data: dict[str, Any]) -> None:
         self.seen.recent = [bytes.fromhex(p) for p in data.get("seen", [])]
         self.checkpoint = data.get("checkpoint")
@@ -185,18 +196,27 @@ class Ingest:
     def handle_batch(self, frames: list[IncomingFrame]) -> list[dict]:
         """Frames that arrived together, in one transaction: nothing is published before the commit."""
         with self._lock:
-            pending: Events = []
-            with writing(self.db) as s:
-                batch = _Batch()
-                touched: dict[int, VehicleState] = {}
-                for frame in frames:
-                    pending.extend(self._frame(s, batch, frame))
-                    if frame.src in self.vehicles:
-                        touched[frame.src] = self.vehicles[frame.src]
-                batch.flush(s)
-                for v in touched.values():  # in the same transaction as the packets it describes
-                    self._save(s, v)
-                s.commit()
+            mementos = {v.address: v.memento() for f in frames if (v := self.vehicles.get(f.src))}
+            try:
+                return self._commit_batch(frames)
+            except BaseException:
+                for address, memento in mementos.items():
+                    self.vehicles[address].rollback(memento)
+                raise
+
+    def _commit_batch(self, frames: list[IncomingFrame]) -> list[dict]:
+        pending: Events = []
+        with writing(self.db) as s:
+            batch = _Batch()
+            touched: dict[int, VehicleState] = {}
+            for frame in frames:
+                pending.extend(self._frame(s, batch, frame))
+                if frame.src in self.vehicles:
+                    touched[frame.src] = self.vehicles[frame.src]
+            batch.flush(s)
+            for v in touched.values():  # in the same transaction as the packets it describes
+                self._save(s, v)
+            s.commit()
         for kind, data in pending:
             self.bus.publish(kind, **data)
         return [{"kind": kind, **data} for kind, data in pending]
