@@ -139,3 +139,13 @@ def test_an_operator_sends_with_the_same_rules_as_the_dashboard(shore_map: tuple
     panel.command_dd.value = "move"
     panel.command_dd.press()
     assert panel.inputs["depth"].label == "Depth change (m)"
+
+
+def test_a_blank_mission_number_is_refused_in_the_panel(shore_map: tuple) -> None:
+    shore, owner = shore_map
+    panel = panel_for(owner)
+    assert panel.sign_in("operator-token") == "write"
+    panel.inputs["param_id"].value = None  # a cleared number box, as a websocket client can send it
+    panel.ask("start_mission")
+    panel.confirm_btn.press()
+    assert "not a mission number" in panel.status_md.content and commands(shore) == []

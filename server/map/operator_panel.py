@@ -249,9 +249,15 @@ class OperatorPanel:
     def confirm(self) -> None:
         action, self.pending_confirm = self.pending_confirm, None
         self.ask(None)
-        if action:
+        if not action:
+            return
+        try:
             param = int(self.inputs["param_id"].value) if action == "start_mission" else 0
-            self.send(CommandIn(command=action, param_id=param))
+            command = CommandIn(command=action, param_id=param)
+        except (TypeError, ValueError) as exc:  # a blank or out-of-range mission number (pydantic's too)
+            self._status(f"**Refused**: the mission number is not a mission number ({exc})")
+            return
+        self.send(command)
 
     # --- the scene -----------------------------------------------------------------------------
 
