@@ -38,6 +38,9 @@ function tokenFromFragment() {
 }
 
 async function signIn(token) {
+  // a token that does not work never replaces one that does (a stray #token= link must not sign an
+  // operator out), and one that works is kept for the next visit
+  const before = { token: state.token, role: state.role };
   state.token = token;
   $("login-error").hidden = true;
   let error = null;
@@ -47,6 +50,12 @@ async function signIn(token) {
   } catch (e) {
     state.role = null;
     error = e;
+  }
+  if (!state.role && before.role) {
+    Object.assign(state, before);
+    $("login-error").textContent = "That link's token was not accepted; you are still signed in as before.";
+    $("login-error").hidden = false;
+    return;
   }
   if (!state.role) {
     localStorage.removeItem("tacit-token");
