@@ -116,7 +116,13 @@ def create_app(settings: Settings) -> FastAPI:
 
     @app.exception_handler(OperationalError)
     async def busy(_: Request, exc: OperationalError) -> JSONResponse:
-        """Another process held the database's write lock past the busy timeout: nothing was written."""
+        """Another process held the database's write lock past the busy timeout: nothing was written.
+        Any other database failure is the server's own (500), logged with its cause."""
+        if "locked" not in str(exc.orig) and "busy" not in str(exc.orig):
+            log.error("database error: %s", exc.orig)
+            return JSONResponse(
+                {"detail": "database error; nothing was changed", "field": None}, status_code=500
+            )
         log.warning("database busy: %s", exc.orig)
         return JSONResponse({"detail": "the database is busy; nothing was changed, try again", "field": None},
                             status_code=503, headers={"Retry-After": "1"})  # fmt: skip

@@ -14,10 +14,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validat
 
 from tacit.navigation import wrap180
 from tacit.packets import FLOAT32_MAX, CheckpointPacket
-from tacit.packets import Command as CommandKind
 from tacit.packets import ControlPacket as WIRE
 
-COMMANDS = tuple(c.name.lower() for c in CommandKind)
 # Request bodies: unknown fields and non-finite numbers are errors.
 STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 MAX_KEY_HEX = 128  # 64 bytes: twice what HMAC-SHA256 needs

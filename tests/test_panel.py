@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import pytest
 
-from server.map.panel import move_to, ray_to_depth_plane, refusal
+from server.map.panel import move_to, ray_to_depth_plane
 from server.models import Vehicle
 from server.schemas import CommandIn
+from server.services.commands import CommandRefused, check_limits
 from tacit.navigation import Pose
 
 VEHICLE = Vehicle(
@@ -40,10 +41,18 @@ def test_clicked_point_becomes_distance_angle_and_depth(
     assert (command.distance, command.angle, command.depth) == pytest.approx(expected)
 
 
-def test_limits_refuse_in_the_panel_with_the_reason() -> None:
+def refusal(command: CommandIn, pose: Pose | None) -> str | None:
+    try:
+        check_limits(command, VEHICLE, pose)
+    except CommandRefused as exc:
+        return f"{exc.field}: {exc}"
+    return None
+
+
+def test_limits_refuse_a_clicked_target_with_the_field_and_reason() -> None:
     here = Pose(0, 0, 2, 0)
-    assert refusal(move_to(here, 30, 0, 2), VEHICLE, here) is None
-    assert "distance" in refusal(move_to(here, 80, 0, 2), VEHICLE, here)  # more than 50 m per move
-    assert "geofence" in refusal(move_to(Pose(90, 0, 2, 0), 130, 0, 2), VEHICLE, Pose(90, 0, 2, 0))
-    assert "depth" in refusal(move_to(here, 5, 0, 25), VEHICLE, here)
-    assert "depth" in refusal(CommandIn(command="goto_depth", depth=30), VEHICLE, None)
+    assert refusal(move_to(here, 30, 0, 2), here) is None
+    assert "distance" in refusal(move_to(here, 80, 0, 2), here)  # more than 50 m per move
+    assert "geofence" in refusal(move_to(Pose(90, 0, 2, 0), 130, 0, 2), Pose(90, 0, 2, 0))
+    assert "depth" in refusal(move_to(here, 5, 0, 25), here)
+    assert "depth" in refusal(CommandIn(command="goto_depth", depth=30), None)

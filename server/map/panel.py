@@ -6,11 +6,10 @@ it lands where the ray meets the water surface or the chosen depth plane.
 
 from __future__ import annotations
 
-from server.models import Vehicle
 from server.schemas import CommandIn
-from server.services.commands import CommandRefused, check_limits
 from tacit import navigation
 from tacit.navigation import Pose
+from tacit.packets import ControlPacket
 
 
 def ray_to_depth_plane(origin: tuple[float, float, float], direction: tuple[float, float, float],
@@ -30,14 +29,5 @@ def move_to(pose: Pose, north: float, east: float, depth: float, absolute: bool 
     distance, angle = navigation.distance_and_angle(
         pose.north, pose.east, pose.heading, north, east, absolute
     )
-    return CommandIn(command="move", distance=round(min(distance, 6553.5), 1), angle=round(angle, 2),
+    return CommandIn(command="move", distance=round(min(distance, ControlPacket.field("distance").hi), 1), angle=round(angle, 2),
                      depth=round(depth - pose.depth, 2), absolute_angle=absolute)  # fmt: skip
-
-
-def refusal(command: CommandIn, vehicle: Vehicle, pose: Pose | None) -> str | None:
-    """Why the vehicle's limits refuse this command (None: it may be sent)."""
-    try:
-        check_limits(command, vehicle, pose)
-    except CommandRefused as exc:
-        return f"{exc.field}: {exc}"
-    return None

@@ -24,6 +24,7 @@ import math
 import sys
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -57,6 +58,7 @@ class OperatorMap:
         self.port: int | None = None
         self.server: Any = None
         self._loop: asyncio.AbstractEventLoop | None = None
+        self._updates = ThreadPoolExecutor(max_workers=1, thread_name_prefix="tacit-map")  # one: in order
         self._lock = threading.RLock()
         self.track: dict[str, list[tuple[float, float, float]]] = {}
         self.temperatures: list[tuple[float, float, float, float]] = []  # north, east, depth, degC
@@ -90,6 +92,7 @@ class OperatorMap:
 
     def stop(self) -> None:
         self._running = False
+        self._updates.shutdown(wait=True, cancel_futures=True)
         if self.server is not None:
             with contextlib.redirect_stdout(sys.stderr):
                 self.server.stop()
@@ -149,7 +152,12 @@ class OperatorMap:
     # --- live updates ---------------------------------------------------------------------------
 
     def _on_event(self, event: dict) -> None:
-        """Called on the FastAPI loop for every published event: update the scene (viser is thread-safe)."""
+        """Called on the FastAPI loop for every published event: handed to the map's own thread, in order,
+        so that the scene's database reads never hold up the loop that serves the modem."""
+        self._updates.submit(self._handle, event)
+
+    def _handle(self, event: dict) -> None:
+        """Update the scene for one event (viser is thread-safe)."""
         kind = event["kind"]
         try:
             if kind == "vehicle":
