@@ -52,8 +52,8 @@ def test_submit_checks_queues_and_records(desk: CommandDesk) -> None:
     )
     assert started.seq == command.seq + 1  # a refused command takes no sequence number
     with Session(desk.db) as s:
-        assert s.get(Mission, 1).status == "started"  # type: ignore[union-attr]
-        assert [e.status for e in history(s, started.id)] == ["queued"]  # type: ignore[arg-type]
+        assert s.get(Mission, 1).status == "started"
+        assert [e.status for e in history(s, started.id)] == ["queued"]
 
 
 def test_advance_writes_history_only_for_allowed_moves(desk: CommandDesk) -> None:
@@ -62,7 +62,7 @@ def test_advance_writes_history_only_for_allowed_moves(desk: CommandDesk) -> Non
     for status, applied in steps:
         with writing(desk.db) as s:
             current = s.get(type(command), command.id)
-            assert advance(s, current, status, "detail") is applied  # type: ignore[arg-type]
+            assert advance(s, current, status, "detail") is applied
             s.commit()
     with Session(desk.db) as s:
-        assert [e.status for e in history(s, command.id)] == ["queued", "sent", "executed"]  # type: ignore[arg-type]
+        assert [e.status for e in history(s, command.id)] == ["queued", "sent", "executed"]

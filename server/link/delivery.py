@@ -21,7 +21,7 @@ from server.events import EventBus
 from server.link.ingest import VehicleState
 from server.link.store import LinkStore
 from server.link.timing import Timing
-from server.models import Command, Frame, Vehicle
+from server.models import Command, CommandEvent, Frame, Vehicle
 from server.services import commands
 from server.services.commands import Status
 from server.settings import Settings
@@ -81,10 +81,23 @@ class Delivery:
             self.counters["commands_acked"] += 1
             await self._advance(command, Status.ACKNOWLEDGED)
             log.info("vehicle %s: command seq %d acknowledged", vehicle.name, command.seq)
-        elif attempt >= self.settings.command_attempts:
+        elif await self.store.run(self._unanswered, command.id) >= self.settings.command_attempts:
             error = result.error or "no acknowledgement"
             await self._advance(command, Status.FAILED, error, reason=error)
             log.warning("vehicle %s: command seq %d failed: %s", vehicle.name, command.seq, error)
+
+    def _unanswered(self, command_id: int | None) -> int:
+        """Attempts since the command was last acknowledged: a command sent again because no check-point
+        confirmed it gets its own ``command_attempts``, not what is left of the first round's."""
+        with Session(self.store.db) as s:
+            steps = s.exec(select(CommandEvent.status).where(CommandEvent.command_id == command_id)
+                           .order_by(col(CommandEvent.id))).all()  # fmt: skip
+        since = (
+            steps[len(steps) - steps[::-1].index(Status.ACKNOWLEDGED) :]
+            if Status.ACKNOWLEDGED in steps
+            else steps
+        )
+        return sum(step == Status.SENT for step in since)
 
     def _sign(self, command: Command, vehicle_id: int) -> bytes:
         with Session(self.store.db) as s:
