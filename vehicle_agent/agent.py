@@ -215,6 +215,9 @@ class Agent:
         error = packet.time - (local + self.link.offset)
         if abs(error) > 30.0:  # travel and airtime are seconds: only correct what matters
             self.link.offset = self.state.clock_offset = packet.time - local
+            window = self.link.receiver.window
+            if window.floor:  # set from this (wrong) clock at a fresh start: on the shore's time now
+                window.floor += int(error)
             log.warning("clock corrected by %+.0f s from the shore's SYNC (offset now %+.0f s)", error,
                         self.link.offset)  # fmt: skip
         if packet.param_id & SYNC_RESTART_CHAINS:
