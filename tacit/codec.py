@@ -453,6 +453,13 @@ def _next_id(base: int) -> int:
     return base % CHAIN_IDS + 1
 
 
+def chain_ids(payload: bytes) -> tuple[int, int]:
+    """(the base packet id a payload continues from, 0 = the initial state; the id of the state it
+    leaves): what a receiver needs to know which earlier packet a packet's decoding depends on."""
+    base = payload[0] & 0x3F if payload else 0
+    return base, _next_id(base)
+
+
 @dataclass
 class _Sample:
     time: float

@@ -184,6 +184,29 @@ def test_a_checkpoint_settles_the_commands_before_its_last(shore) -> None:
                         6: "superseded", 7: "executing"}  # fmt: skip
 
 
+def test_data_decoded_on_a_forged_state_is_never_marked_verified(shore) -> None:
+    """A stranger's packet (its own seq, not one the vehicle uses) can leave a decoder state a genuine
+    packet then builds on. The check-point vouches for the genuine packet's bytes, but its data came
+    through the forged state: they must stay unverified, and the vehicle is asked to restart its chains."""
+    db, start = shore
+    ingest, vehicle, attacker = start(), Vehicle_(), Vehicle_(STRANGER, warmer=20.0)
+    attacker.t = vehicle.t
+    vehicle.measure(10)
+    attacker.measure(10)
+    send(ingest, vehicle.priority())
+    forged = bytearray(attacker.priority())
+    forged[1] = 200  # a seq of its own: nothing collides with the vehicle's packets
+    send(ingest, bytes(forged))
+    vehicle.measure(10)
+    send(ingest, vehicle.priority())
+    send(ingest, vehicle.checkpoint())
+    verified = rows(db, Telemetry, stream="env", verified=True)
+    assert verified  # the first packet's data, decoded from the initial state, are vouched for
+    for row in verified:  # and every row marked verified is what the vehicle measured
+        assert np.all(np.abs(np.array(row.values) - vehicle.truth[row.tick]) <= np.array(ENV.eps) + 1e-9)
+    assert ingest.vehicles[ADDRESS].needs_restart
+
+
 def test_a_settled_final_wins_over_superseding(shore) -> None:
     """6 was executing; the next check-point says 7 is executing and settles 6 as executed: the vehicle's
     word for 6 stands (superseding applies only to what it left unsettled)."""

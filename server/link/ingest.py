@@ -37,7 +37,7 @@ from server.link import keys
 from server.models import Command, Frame, LinkEvent, LinkState, Packet, Telemetry, Vehicle, now, saved_id
 from server.services import commands
 from tacit import auth, packets
-from tacit.codec import CodecError, PacketDecoder, StreamSpec, UnknownBase
+from tacit.codec import CodecError, PacketDecoder, StreamSpec, UnknownBase, chain_ids
 from tacit.link import SeenWindow, from_frame
 from tacit.navigation import Pose
 from tacit.packets import CheckpointPacket, CommandStatus, PacketError, PriorityPacket, Stream, unpack_settled
@@ -71,22 +71,26 @@ class VehicleState:
     checkpoint_time: int = 0  # the last verified check-point's time stamp (older ones are replays)
     recent: dict[int, list[tuple[bytes, int]]] = field(default_factory=dict)  # seq -> [(hash, packet id)]
     needs_restart: bool = False  # the engine should send a SYNC asking the vehicle to restart its chains
+    producers: dict[int, int] = field(default_factory=dict)  # chain state id -> the packet row that left it
     forged: int = 0
     verified: int = 0
 
     def saved(self) -> dict[str, Any]:
         return {"seen": [p.hex() for p in self.seen.recent[-SAVED_SEEN:]], "checkpoint": self.checkpoint,
                 "checkpoint_time": self.checkpoint_time, "needs_restart": self.needs_restart,
+                "producers": {str(k): v for k, v in self.producers.items()},
                 "recent": {str(seq): [[h.hex(), pid] for h, pid in items] for seq, items in self.recent.items()}}  # fmt: skip
 
     def memento(self) -> tuple[Any, ...]:
         """Everything a batch changes in memory, to be put back if its transaction does not commit
         (a retried batch must decode and de-duplicate exactly as the first try would have)."""
         return (list(self.seen.recent), {k: list(v) for k, v in self.recent.items()}, self.checkpoint,
-                self.checkpoint_time, self.needs_restart, self.decoder.to_bytes())  # fmt: skip
+                self.checkpoint_time, self.needs_restart, dict(self.producers), self.decoder.to_bytes())  # fmt: skip
 
     def rollback(self, memento: tuple[Any, ...]) -> None:
-        seen, recent, self.checkpoint, self.checkpoint_time, self.needs_restart, decoder = memento
+        seen, recent, self.checkpoint, self.checkpoint_time, self.needs_restart, self.producers, decoder = (
+            memento
+        )
         self.seen.recent, self.recent = seen, recent
         self.decoder.load(decoder)
 
@@ -95,6 +99,7 @@ class VehicleState:
         self.checkpoint = data.get("checkpoint")
         self.checkpoint_time = int(data.get("checkpoint_time", 0))
         self.needs_restart = bool(data.get("needs_restart", False))
+        self.producers = {int(k): int(v) for k, v in data.get("producers", {}).items()}
         self.recent = {int(seq): [(bytes.fromhex(h), int(pid)) for h, pid in items]
                        for seq, items in data.get("recent", {}).items()}  # fmt: skip
 
@@ -352,13 +357,43 @@ class Ingest:
         batch.flush(s)  # telemetry of packets in this batch is in the table before it is marked
         if good:
             s.execute(update(Packet).where(col(Packet.id).in_(good)).values(auth="verified"))
-            s.execute(update(Telemetry).where(col(Telemetry.packet_id).in_(good)).values(verified=True))
+            trusted = self._trusted(s, good)
+            if trusted:
+                s.execute(
+                    update(Telemetry).where(col(Telemetry.packet_id).in_(trusted)).values(verified=True)
+                )
+            if len(trusted) < len(good) and not v.needs_restart:
+                v.needs_restart = True  # its chain ran through a packet nobody vouched for: start clean
+                log.warning("vehicle %s: %d genuine packet(s) were decoded on a state no check-point vouched "
+                            "for: their data stay unverified; asking for a chain restart", v.name,
+                            len(good) - len(trusted))  # fmt: skip
         if bad:
             s.execute(update(Packet).where(col(Packet.id).in_(bad)).values(auth="forged"))
             self.stats["forged"] += len(bad)
             log.warning("vehicle %s: %d priority packet(s) not the ones the check-point vouched for: forged",
                         v.name, len(bad))  # fmt: skip
         return [("link", {"event": "verified", "vehicle": v.name, "packets": len(good), "forged": len(bad)})]
+
+    def _trusted(self, s: Session, good: list[int]) -> list[int]:
+        """Of packets whose bytes a check-point just vouched for, those whose data can be trusted too: the
+        MAC covers a packet's bytes, not the decoder state it was decoded on, so a packet's data are
+        verified only if the packet its state came from (its origin) was verified and trusted as well. A
+        forged packet slipped into the chain leaves what was decoded after it unverified."""
+        rows = {p.id: p for p in s.exec(select(Packet).where(col(Packet.id).in_(good))).all()}
+        trusted: list[int] = []
+        for packet_id in sorted(rows, key=lambda i: i or 0):  # arrival order: an origin comes first
+            row = rows[packet_id]
+            origin = row.body.get("origin")
+            if origin is None or origin in trusted or self._was_trusted(s, origin):
+                trusted.append(saved_id(row))
+                row.body = {**row.body, "trusted": True}
+                s.add(row)
+        return trusted
+
+    @staticmethod
+    def _was_trusted(s: Session, packet_id: int) -> bool:
+        row = s.get(Packet, packet_id)
+        return row is not None and row.auth == "verified" and bool(row.body.get("trusted"))
 
     def _statuses(self, s: Session, v: VehicleState, cp: CheckpointPacket, vehicle: Vehicle | None) -> Events:
         """Command statuses through the one lifecycle (``server.services.commands``): last_command's,
@@ -401,6 +436,9 @@ class Ingest:
             spans = v.decoder.decode(pp.payload, at)
         except CodecError as exc:
             return self._undecodable(batch, v, pp, body, at, exc)
+        base, own = chain_ids(pp.payload)
+        body["origin"] = v.producers.get(base) if base else None  # the packet whose state this one built on
+        v.producers = {own: packet_id} if not base else {**v.producers, own: packet_id}
         events: Events = []
         carried = []
         for span in spans:
