@@ -96,7 +96,8 @@ async def _replay(args: argparse.Namespace, duration: float) -> dict:
             base_url=api, headers={"Authorization": f"Bearer {secret['token']}"}
         ) as http:
             await _register(http, secret["key"])
-        stack.write_agent_config(max_silence=20)
+        # the agent runs on the wall clock (no time_scale): it stamps what it hears as a real vehicle would
+        stack.write_agent_config(max_silence=20, time_scale=None)
         stack.start_agent()
         live = {"dashboard_url": api + "/", "api_url": api + "/api/v1", "token": secret["token"],
                 "data_dir": str(data), "seconds": round(duration + args.settle, 1)}  # fmt: skip

@@ -139,20 +139,22 @@ def create_app(settings: Settings) -> FastAPI:
 
 
 def _offline_docs(app: FastAPI) -> None:
-    """Swagger UI at /docs from files installed with the server (swagger-ui-bundle), not from a CDN:
-    shore stations are usually offline."""
+    """Swagger UI at /docs from files installed with the server, not from a CDN: shore stations are
+    usually offline. The files come from fastapi-offline's package (Swagger UI 5, which reads the
+    OpenAPI 3.1 that FastAPI writes; swagger-ui-bundle's Swagger UI 4 cannot)."""
+    import fastapi_offline
     from fastapi.openapi.docs import get_swagger_ui_html
     from fastapi.responses import HTMLResponse
-    from swagger_ui_bundle import swagger_ui_path
 
-    app.mount(DOCS_ASSETS, StaticFiles(directory=swagger_ui_path), name="docs-assets")
+    assets = Path(fastapi_offline.__file__).parent / "static"
+    app.mount(DOCS_ASSETS, StaticFiles(directory=assets), name="docs-assets")
 
     @app.get("/docs", include_in_schema=False)
     def docs() -> HTMLResponse:
         return get_swagger_ui_html(openapi_url=app.openapi_url or "/openapi.json", title="Tacit API",
                                    swagger_js_url=f"{DOCS_ASSETS}/swagger-ui-bundle.js",
                                    swagger_css_url=f"{DOCS_ASSETS}/swagger-ui.css",
-                                   swagger_favicon_url=f"{DOCS_ASSETS}/favicon-32x32.png")  # fmt: skip
+                                   swagger_favicon_url=f"{DOCS_ASSETS}/favicon.png")  # fmt: skip
 
 
 class PortBusy(OSError):

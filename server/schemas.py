@@ -183,7 +183,9 @@ class PacketOut(BaseModel):
     body: dict
     at: float
     auth: str = Field(
-        "pending", description="verified / pending (no check-point covered it yet) / forged / replayed"
+        "pending",
+        description="verified / pending (no check-point covered it yet) / forged / replayed / unverifiable (covers a "
+        "packet this shore never received)",
     )
 
 

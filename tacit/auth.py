@@ -65,6 +65,11 @@ class BadMac(AuthError):
     pass
 
 
+class Unverifiable(BadMac):
+    """A check-point covers a priority packet this shore never received (its modem acknowledged it while
+    the shore was down): it may well be genuine, but its MAC cannot be checked, so it is not applied."""
+
+
 class Replayed(AuthError):
     pass
 
@@ -154,7 +159,7 @@ def verify_checkpoint(packet: CheckpointPacket, keys: Keys, address: int,
     if not versions:
         raise BadMac("no key of this parity")
     if any(not c for c in candidates):
-        raise BadMac("a covered priority packet was never received here")
+        raise Unverifiable("a covered priority packet was never received here")
     combinations = 1
     for c in candidates:
         combinations *= len(c)

@@ -155,3 +155,14 @@ def test_sign_in_says_what_to_do_and_observers_cannot_write(demo: dict) -> None:
         map_page.get_by_text("watching only (an observer").first.wait_for(timeout=10_000)
         assert map_page.get_by_role("button", name="Send").is_disabled()
         browser.close()
+
+
+def test_api_docs_render_offline(demo: dict) -> None:
+    """/docs draws every operation from local files (Swagger UI 5 reads FastAPI's OpenAPI 3.1)."""
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS)
+        page = browser.new_page(viewport={"width": 1400, "height": 900})
+        page.goto(demo["dashboard_url"] + "docs")
+        page.get_by_text("/api/v1/vehicles/{vehicle_id}/commands").first.wait_for(timeout=30_000)
+        assert "Unable to render" not in page.content()
+        browser.close()

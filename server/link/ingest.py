@@ -139,7 +139,7 @@ class Ingest:
         self.vehicles: dict[int, VehicleState] = {}  # by modem address
         self._lock = threading.Lock()
         self.stats = {"frames": 0, "packets": 0, "duplicates": 0, "rejected": 0, "unknown_vehicle": 0,
-                      "verified": 0, "forged": 0, "replayed": 0}  # fmt: skip
+                      "verified": 0, "forged": 0, "replayed": 0, "unverifiable": 0}  # fmt: skip
 
     def load_vehicles(self) -> None:
         """The vehicles from the database; one new here gets its saved link state and decoders back."""
@@ -314,6 +314,10 @@ class Ingest:
         candidates = [[h for h, _ in v.recent.get(seq, [])] for seq in seqs]
         try:
             version, chosen = auth.verify_checkpoint(cp, keys.accepted(vehicle), v.address, candidates)
+        except auth.Unverifiable as exc:
+            return self._refused(
+                batch, v, "unverifiable", f"check-point seq {cp.seq}: {exc}", cp
+            ), "unverifiable"
         except auth.BadMac as exc:
             return self._refused(batch, v, "forged", f"check-point seq {cp.seq}: {exc}", cp), "forged"
         if cp.time < v.checkpoint_time:
@@ -337,7 +341,7 @@ class Ingest:
     def _refused(
         self, batch: _Batch, v: VehicleState, kind: str, detail: str, cp: CheckpointPacket
     ) -> Events:
-        v.forged += 1
+        v.forged += kind != "unverifiable"
         self.stats[kind] += 1
         batch.events.append({"vehicle_id": v.id, "kind": f"{kind}_checkpoint", "at": now(),
                              "detail": {"error": detail, "hex": cp.encode().hex()}})  # fmt: skip

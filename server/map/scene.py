@@ -24,6 +24,7 @@ import math
 import sys
 import threading
 import time
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
@@ -59,6 +60,7 @@ class OperatorMap:
         self.server: Any = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._updates = ThreadPoolExecutor(max_workers=1, thread_name_prefix="tacit-map")  # one: in order
+        self._running = False
         self._lock = threading.RLock()
         self.track: dict[str, list[tuple[float, float, float]]] = {}
         self.temperatures: list[tuple[float, float, float, float]] = []  # north, east, depth, degC
@@ -154,7 +156,10 @@ class OperatorMap:
     def _on_event(self, event: dict) -> None:
         """Called on the FastAPI loop for every published event: handed to the map's own thread, in order,
         so that the scene's database reads never hold up the loop that serves the modem."""
-        self._updates.submit(self._handle, event)
+        if not self._running:  # events published while the server stops (the modem closing) are not drawn
+            return
+        with contextlib.suppress(RuntimeError):  # stop() shut the map's thread down meanwhile
+            self._updates.submit(self._handle, event)
 
     def _handle(self, event: dict) -> None:
         """Update the scene for one event (viser is thread-safe)."""
@@ -338,12 +343,15 @@ class OperatorMap:
             data = np.array(self.temperatures[-400:])
         if len(data) < 8 or np.ptp(data[:, :2], axis=0).max() < 2.0:
             return
+        from sklearn.exceptions import ConvergenceWarning
         from sklearn.gaussian_process import GaussianProcessRegressor
         from sklearn.gaussian_process.kernels import RBF, WhiteKernel
 
         xy = data[:, :2]
-        gp = GaussianProcessRegressor(RBF(length_scale=10.0, length_scale_bounds=(2.0, 100.0)) + WhiteKernel(0.01),
-                                      normalize_y=True).fit(xy, data[:, 3])  # fmt: skip
+        with warnings.catch_warnings():  # a length scale at its bound is expected for a sharp front: not news
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            gp = GaussianProcessRegressor(RBF(length_scale=10.0, length_scale_bounds=(2.0, 100.0)) + WhiteKernel(0.01),
+                                          normalize_y=True).fit(xy, data[:, 3])  # fmt: skip
         lo, hi = xy.min(axis=0) - 10, xy.max(axis=0) + 10
         grid_n, grid_e = np.meshgrid(
             np.linspace(lo[0], hi[0], 30), np.linspace(lo[1], hi[1], 30), indexing="ij"
