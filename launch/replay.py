@@ -152,7 +152,8 @@ def _summary(db, data: Path, started: float) -> dict:
     imu = [
         p for p in packets if p.type == "priority" and "imu" in p.body.get("streams", [])
     ]  # shared packets
-    latencies = [p.at - p.body["first_tick"] * spec.period for p in imu if "first_tick" in p.body]
+    arrived = {p.id: p.at for p in imu}  # the agent stamps what it hears with its clock, as the shore's
+    latencies = [arrived[r.packet_id] - r.time for r in rows if r.packet_id in arrived]
     samples = sum(len(tick) for tick in measured.values()) * len(IMU_CHANNELS)
     return {
         "samples": samples, "packets": len(imu), "link_bits": len(imu) * 256,
