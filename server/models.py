@@ -47,7 +47,7 @@ class Mission(SQLModel, table=True):
     name: str = Field(max_length=128)
     number: int = Field(ge=0, le=255)
     plan: dict = Field(default_factory=dict, sa_column=Column(JSON, nullable=False))
-    status: str = Field(default="created", max_length=16)
+    status: str = Field(default="created", max_length=16)  # services.commands.MissionStatus
     created_at: float = Field(default_factory=now)
 
 

@@ -58,13 +58,11 @@ def main(argv: list[str] | None = None) -> int:
     command = COMMANDS[options.command]
     missing = missing_requirements(command.extra)
     if missing:
-        print(f"tacit {options.command}: needs {', '.join(missing)}, not installed; "
-              f"install them with: pip install 'tacit[{command.extra}]'", file=sys.stderr)  # fmt: skip
-        return 2
+        return _missing(options.command, missing)
     try:
         module = importlib.import_module(command.module)
     except ModuleNotFoundError as exc:
-        return _missing(options.command, exc)
+        return _missing(options.command, [exc.name or str(exc)])
     parser = argparse.ArgumentParser(prog=f"tacit {options.command}", description=command.help)
     module.add_arguments(parser)
     args = parser.parse_args(argv[first + 1 :])
@@ -76,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         return 130
     except ModuleNotFoundError as exc:  # commands import their heavier packages when they need them
-        return _missing(options.command, exc)
+        return _missing(options.command, [exc.name or str(exc)])
 
 
 def missing_requirements(extra: str) -> list[str]:
@@ -110,12 +108,12 @@ def _installed(name: str) -> bool:
     return True
 
 
-def _missing(name: str, exc: ModuleNotFoundError) -> int:
+def _missing(name: str, packages: list[str]) -> int:
     """One line naming the extra to install, instead of a traceback."""
     extra = COMMANDS[name].extra
     requirement = f"tacit[{extra}]" if extra else "tacit"
-    print(f"tacit {name}: needs the package {exc.name!r}, which is not installed; "
-          f"install it with: pip install '{requirement}'", file=sys.stderr)  # fmt: skip
+    print(f"tacit {name}: needs {', '.join(packages)}, not installed; "
+          f"install with: pip install '{requirement}'", file=sys.stderr)  # fmt: skip
     return 2
 
 

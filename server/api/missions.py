@@ -11,6 +11,7 @@ from server.errors import NotFound
 from server.models import Mission
 from server.schemas import CommandIn, CommandOut, MissionIn, MissionOut
 from server.services import vehicles
+from server.services.commands import MissionStatus
 
 router = APIRouter(prefix="/api/v1", tags=["missions"])
 
@@ -37,7 +38,9 @@ def list_missions(vehicle_id: Id, s: ReadSession) -> list[Mission]:
     return list(s.exec(select(Mission).where(Mission.vehicle_id == vehicle_id).order_by(col(Mission.id))))
 
 
-def _transition(desk: CommandsDep, s: ReadSession, mission_id: int, command: str, status: str) -> CommandOut:
+def _transition(
+    desk: CommandsDep, s: ReadSession, mission_id: int, command: str, status: MissionStatus
+) -> CommandOut:
     """The control packet that starts or aborts a mission, queued with the mission's new status."""
     mission = s.get(Mission, mission_id)
     if mission is None:
@@ -50,10 +53,10 @@ def _transition(desk: CommandsDep, s: ReadSession, mission_id: int, command: str
 @router.post("/missions/{mission_id}/start", status_code=202, response_model=CommandOut,
              dependencies=[Depends(require_write)])  # fmt: skip
 def start_mission(mission_id: Id, desk: CommandsDep, s: ReadSession) -> CommandOut:
-    return _transition(desk, s, mission_id, "start_mission", "started")
+    return _transition(desk, s, mission_id, "start_mission", MissionStatus.STARTED)
 
 
 @router.post("/missions/{mission_id}/abort", status_code=202, response_model=CommandOut,
              dependencies=[Depends(require_write)])  # fmt: skip
 def abort_mission(mission_id: Id, desk: CommandsDep, s: ReadSession) -> CommandOut:
-    return _transition(desk, s, mission_id, "abort_mission", "aborted")
+    return _transition(desk, s, mission_id, "abort_mission", MissionStatus.ABORTED)

@@ -34,6 +34,7 @@ from sqlmodel import Session, col, select
 from server import operator
 from server.map.operator_panel import OperatorPanel, colour_scale
 from server.models import Command, Mission, Vehicle
+from server.services.commands import MissionStatus
 from tacit.navigation import Pose
 
 if TYPE_CHECKING:
@@ -222,7 +223,7 @@ class OperatorMap:
         """The pre-programmed trajectory (the mission's waypoints)."""
         with Session(self.shore.db) as s:
             vehicle = s.exec(select(Vehicle).where(Vehicle.name == name)).first()
-            mission = s.exec(select(Mission).where(Mission.vehicle_id == vehicle.id, Mission.status == "started")
+            mission = s.exec(select(Mission).where(Mission.vehicle_id == vehicle.id, Mission.status == MissionStatus.STARTED)
                              .order_by(col(Mission.id).desc())).first() if vehicle else None  # fmt: skip
         if mission and mission.plan.get("waypoints"):
             points = [(w["east"], w["north"], -w["depth"]) for w in mission.plan["waypoints"]]

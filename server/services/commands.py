@@ -55,6 +55,14 @@ class Status(enum.StrEnum):
     FAILED = "failed"
 
 
+class MissionStatus(enum.StrEnum):
+    """A recorded mission, as the shore last asked the vehicle (the vehicle's own state is its check-point's)."""
+
+    CREATED = "created"
+    STARTED = "started"
+    ABORTED = "aborted"
+
+
 PENDING = (Status.QUEUED, Status.SENT)  # waiting for the link
 FINAL = frozenset({Status.EXECUTED, Status.REFUSED, Status.SUPERSEDED})
 _FROM_VEHICLE = frozenset({Status.EXECUTING, *FINAL})
