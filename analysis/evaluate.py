@@ -99,10 +99,10 @@ def run_codec(series: Series, spec: StreamSpec, max_latency: float, loss: float 
         span = decoder.decode(encoded.packet.payload, now)
         latencies.extend(now - t for t in encoded.surprise_times)
         confirmations.extend(now - t for t in encoded.sample_times)
-        for serial, tick, row in zip(encoded.serials[0], span.ticks, span.values, strict=True):
+        for serial, at, row in zip(encoded.serials[0], span.times, span.values, strict=True):
             held = shore[row_of[serial]]  # a sample too large for one packet arrives in parts (channels)
             shore[row_of[serial]] = np.where(np.isnan(row), held, row)
-            shore_time[row_of[serial]] = tick * spec.period
+            shore_time[row_of[serial]] = at
 
     bar = tqdm(
         total=rows, desc="encoding", unit=" rows", disable=None if progress else True, leave=False, delay=2.0

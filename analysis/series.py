@@ -7,15 +7,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 from tqdm import tqdm
 
 from analysis import tlog
-
-if TYPE_CHECKING:
-    from tacit.codec import StreamSpec
 
 DEFAULT_TLOG_COLUMNS = tuple(f"RAW_IMU.{f}" for f in
                              ("xacc", "yacc", "zacc", "xgyro", "ygyro", "zgyro", "xmag", "ymag", "zmag"))  # fmt: skip
@@ -191,15 +187,28 @@ def load_tlog(path: Path, columns: list[str]) -> Series:
     return Series(tuple(columns), times_array[order], np.array(values)[order])
 
 
-def measured_samples_per_tick(folder: Path, kind: str, fields: Sequence[str], spec: StreamSpec,
-                              scale: float = 1.0) -> dict[int, list[list[float]]]:  # fmt: skip
-    """Every sample of ``kind`` per codec tick, in order (the codec keeps them all), fields times ``scale``."""
-    measured: dict[int, list[list[float]]] = {}
+@dataclass(frozen=True)
+class Measured:
+    """What a vehicle measured (from its own log), in time order, to check the shore's reconstruction."""
+
+    times: np.ndarray
+    values: np.ndarray  # samples x fields
+
+    def near(self, at: float, within: float) -> list[list[float]]:
+        """The samples taken within ``within`` seconds of ``at``: the ones a reconstruction the shore
+        dated at ``at`` may be of (the codec dates a sample within half a tick)."""
+        lo, hi = np.searchsorted(self.times, [at - within - 1e-6, at + within + 1e-6])
+        return [list(row) for row in self.values[lo:hi]]
+
+
+def measured_samples(folder: Path, kind: str, fields: Sequence[str], scale: float = 1.0) -> Measured:
+    """Every sample of ``kind`` in the tlogs of ``folder`` (the codec keeps them all), fields times ``scale``."""
+    times, rows = [], []
     for msg in tlog.folder_messages(folder, kind):
-        measured.setdefault(spec.tick(msg._timestamp), []).append(
-            [float(getattr(msg, f)) * scale for f in fields]
-        )
-    return measured
+        times.append(msg._timestamp)
+        rows.append([float(getattr(msg, f)) * scale for f in fields])
+    order = np.argsort(np.array(times), kind="stable")
+    return Measured(np.array(times)[order], np.array(rows).reshape(len(rows), len(fields))[order])
 
 
 def error_ratios(values: Sequence[float | None], samples: Sequence[Sequence[float]],

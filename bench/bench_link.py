@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from analysis.series import error_ratios, measured_samples_per_tick
+from analysis.series import error_ratios, measured_samples
 from launch.rig import Rig  # the same process rig the end-to-end test uses
 from simulators.acoustics import ChannelParameters, cycle_with_ack_s
 from tacit.packets import Stream
@@ -114,11 +114,9 @@ def square_mission(minutes: float) -> None:
 def env_error(folder: Path, rows: list[dict]) -> float:
     """Compare the shore's reconstruction with the vehicle's own tlog, sample by sample."""
     spec = default_streams()[Stream.ENVIRONMENTAL]
-    measured = measured_samples_per_tick(
-        folder / "tlogs", "SCALED_PRESSURE2", ["temperature"], spec, scale=0.01
-    )
-    errors = [ratio for r in rows if r["certain"] and r["tick"] in measured
-              for ratio in error_ratios(r["values"][:1], measured[r["tick"]], spec.eps[:1])]  # fmt: skip
+    measured = measured_samples(folder / "tlogs", "SCALED_PRESSURE2", ["temperature"], scale=0.01)
+    errors = [ratio for r in rows if r["certain"] and (near := measured.near(r["time"], spec.time_precision))
+              for ratio in error_ratios(r["values"][:1], near, spec.eps[:1])]  # fmt: skip
     return max(errors) if errors else float("nan")
 
 

@@ -20,7 +20,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TextIO
 
-from analysis.series import error_ratios, measured_samples_per_tick
+from analysis.series import error_ratios, measured_samples
 from launch.demo import DemoError, _log_to, _register, _secrets, free_port, shutdown
 from launch.stack import Stack, StackConfig
 from tacit.packets import Stream
@@ -139,22 +139,22 @@ def _summary(db, data: Path, started: float) -> dict:
     from server.models import Packet, Telemetry
 
     spec = default_streams()[Stream.KINEMATIC]
-    measured = measured_samples_per_tick(data / "tlogs", "RAW_IMU", IMU_CHANNELS, spec)
+    measured = measured_samples(data / "tlogs", "RAW_IMU", IMU_CHANNELS)
     with Session(db) as s:
         packets = s.exec(select(Packet).where(Packet.at >= started)).all()
         rows = s.exec(select(Telemetry).where(Telemetry.stream == "imu", Telemetry.certain)).all()
     ratios = [
         ratio
         for r in rows
-        if r.tick in measured
-        for ratio in error_ratios(r.values, measured[r.tick], spec.eps)
+        if (near := measured.near(r.time, spec.time_precision))
+        for ratio in error_ratios(r.values, near, spec.eps)
     ]
     imu = [
         p for p in packets if p.type == "priority" and "imu" in p.body.get("streams", [])
     ]  # shared packets
     arrived = {p.id: p.at for p in imu}  # the agent stamps what it hears with its clock, as the shore's
     latencies = [arrived[r.packet_id] - r.time for r in rows if r.packet_id in arrived]
-    samples = sum(len(tick) for tick in measured.values()) * len(IMU_CHANNELS)
+    samples = measured.values.size
     return {
         "samples": samples, "packets": len(imu), "link_bits": len(imu) * 256,
         "bits_per_sample": round(len(imu) * 256 / samples, 3) if samples else None,

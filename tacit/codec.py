@@ -12,9 +12,14 @@ channel only while it has lately cut its squared error by 10 %. A residual of 2^
 value beyond what a step count can reach) is sent as the value itself (RAW: an IEEE double, exact);
 a single raw value (a glitch) is not given to the predictor, a second one in a row is (a real jump).
 
-Time. Each stream has a tick period T; a sample taken at time t belongs to tick k = round(t / T), and
-the shore dates it k T: **every sample's time is known to within T / 2** (``time_precision``), whatever
-its jitter, and jitter costs no bits. Nothing is dropped: a tick may hold no sample (a dropped
+Time. Each stream has a tick period T and a grid phase f (in sixteenths of a tick); a sample taken at
+time t belongs to tick k = round(t / T - f / 16), and the shore dates it (k + f / 16) T: **every
+sample's time is known to within T / 2** (``time_precision``), whatever its jitter, and jitter costs
+no bits. The phase keeps the grid's ticks where the sensor samples: on a grid half a tick off, each
+jittered sample would land in the tick before or after its own (two samples in one tick, then a tick
+without one: bits for nothing). START sends the first sample's phase; the vehicle follows the
+sensor's phase (a circular mean over about 8 samples) and, when it has moved 3/16 of a tick from the
+grid's (a jittered first sample, a clock that drifts against T), moves the grid with PHASE. Nothing is dropped: a tick may hold no sample (a dropped
 message, a blank row, a slower sensor), one, or several (a burst, duplicate times: each is coded, in
 order, with the same tick). A channel may be absent from a sample (NaN, a blank cell): the shore stores
 it as absent (NaN / None), never as a made-up value, and the predictors skip it.
@@ -30,7 +35,10 @@ STEP   the next sample is at cursor + 1                                         
 SAME   the next sample is at the cursor's tick (several samples in one tick)     a sample
 JUMP   the next sample is at cursor + 2 + n (n + 1 ticks without a sample)       n, a sample
 LOST   ticks cursor + 1 .. cursor + 1 + n were in a packet that was lost         n
-START  the stream's first sample (no cursor yet): its tick's low 24 bits         24 bits, a sample
+PHASE  the grid's phase becomes f; the cursor becomes the new grid's tick          4 bits (f)
+       nearest to its time (``_regrid``)
+START  the stream's first sample (no cursor yet): the grid phase, the tick's     4 + 24 bits, a sample
+       low 24 bits
 =====  ========================================================================  ==================
 
 The token is coded with a model per stream and previous token. A sample is then: one "all channels
@@ -42,7 +50,7 @@ tick costs hundredths of a bit beyond its q's; a 5 % dropout costs about 0.3 bit
 
 Payload (30 bytes after the priority packet's 2-byte header; version ``FORMAT``)::
 
-    byte 0     bits 7-6  format version (2); a decoder refuses any other with ``CodecError``
+    byte 0     bits 7-6  format version (3); a decoder refuses any other with ``CodecError``
                bits 5-0  base: 0 = starts from the initial state (first packet of a vehicle run);
                          1-63 = continues from the state after the packet whose id this is
                          (a packet's own id is base % 63 + 1)
@@ -81,7 +89,7 @@ from tacit.arithmetic import AdaptiveModel, Decoder, Encoder, pack_bits
 from tacit.packets import PAYLOAD_SIZE, Priority, PriorityPacket, Stream
 from tacit.predict import Predictor, make_predictor
 
-FORMAT = 2
+FORMAT = 3
 HEADER_BYTES = 1
 CODE_BYTES = PAYLOAD_SIZE - HEADER_BYTES
 CODE_BITS = CODE_BYTES * 8
@@ -90,9 +98,14 @@ SMALL = 6
 ESC_NEG, ESC_POS, RAW = 2 * SMALL + 1, 2 * SMALL + 2, 2 * SMALL + 3
 PRIOR = [1, 1, 1, 2, 4, 8, 24, 8, 4, 2, 1, 1, 1, 1, 1, 1]
 MARGIN = 1 - 1e-9
-END, STEP, SAME, JUMP, LOST, START = range(6)
-TOKEN_PRIOR = [2, 24, 1, 2, 1, 1]
+END, STEP, SAME, JUMP, LOST, START, PHASE = range(7)
+TOKEN_PRIOR = [2, 24, 1, 2, 1, 1, 1]
 TICK_BITS = 24
+PHASE_BITS = 4  # the grid phase in sixteenths of a tick
+PHASES = 1 << PHASE_BITS
+PHASE_FOLLOW = 1 / 8  # the vehicle's estimate of a sensor's phase: a circular mean over about 8 samples
+PHASE_MOVE = 3  # sixteenths: the grid moves when the sensor's phase is this far from it ...
+PHASE_SURE = 0.5  # ... and the samples agree on it (mean resultant length; a random clock gives ~0)
 RAW_Q = 1 << 40  # a residual of this many steps or more is sent as the value itself (RAW)
 FEED_LIMIT = 1e100  # the predictors see values clipped to +-this (both ends), so they stay finite
 
@@ -249,8 +262,22 @@ class StreamSpec:
             self.method, len(self.channels), None if self.initial is None else np.array(self.initial)
         )
 
-    def tick(self, time: float) -> int:
-        return round(time / self.period)
+    def tick(self, time: float, phase: int = 0) -> int:
+        """The tick a sample taken at ``time`` belongs to, on the grid of ``phase`` (sixteenths)."""
+        return round(time / self.period - phase / PHASES)
+
+    def phase_of(self, time: float) -> complex:
+        """Where ``time`` falls within a tick, as a unit phasor (so phases average across the wrap)."""
+        return complex(np.exp(2j * np.pi * (time / self.period % 1.0)))
+
+
+def _sixteenths(phasor: complex) -> float:
+    return float(np.angle(phasor) / (2 * np.pi) % 1.0 * PHASES)
+
+
+def _regrid(cursor: int, phase: int, new: int) -> int:
+    """The tick of the grid of phase ``new`` nearest the time of tick ``cursor`` of the grid ``phase``."""
+    return cursor + (phase - new + PHASES // 2) // PHASES
 
 
 # --- the models both ends keep per stream -------------------------------------------------------------
@@ -277,7 +304,7 @@ class _Coder:
     @classmethod
     def new(cls, channels: int) -> _Coder:
         return cls([[AdaptiveModel(list(PRIOR), Q_INCREMENT) for _ in range(Q_CONTEXTS)] for _ in range(channels)],
-                   [AdaptiveModel(list(TOKEN_PRIOR)) for _ in range(6)], [_binary() for _ in range(2)],
+                   [AdaptiveModel(list(TOKEN_PRIOR)) for _ in TOKEN_PRIOR], [_binary() for _ in range(2)],
                    [[_binary() for _ in range(2)] for _ in range(channels)],
                    [AdaptiveModel([1, 1]) for _ in range(24)], [0] * channels, [1] * channels)  # fmt: skip
 
@@ -441,6 +468,7 @@ class _Position:
     predictor: object
     coder: _Coder
     cursor: int | None
+    phase: int = 0  # the grid phase START set (sixteenths of a tick)
 
 
 @dataclass
@@ -468,6 +496,7 @@ class _Sample:
     urgent: bool
     serial: int = 0  # the stream's sample number (0, 1, ...), for the caller's bookkeeping
     flagged: bool = False  # urgent because the caller said so (an event), not only by its size
+    phase: int = 0  # the phase of the grid ``index`` is on
     q: list[int | None] = field(default_factory=list)
     state_before: object = None  # the predictor before this sample (for a packet that ends before it)
 
@@ -491,14 +520,34 @@ class EncodedPacket:
     )  # per stream and channel: values not predicted
 
 
-def _code_sample(coder: _Coder, enc: Encoder, cursor: int | None, sample: _Sample) -> int:
-    """The token that places ``sample`` after ``cursor``, then the sample; returns the new cursor."""
+def _encode_bits(enc: Encoder, value: int, bits: int) -> None:
+    for i in range(bits - 1, -1, -1):
+        enc.encode_bit((value >> i) & 1)
+
+
+def _decode_bits(dec: Decoder, bits: int) -> int:
+    value = 0
+    for _ in range(bits):
+        value = (value << 1) | dec.decode_bit()
+    return value
+
+
+def _code_sample(
+    coder: _Coder, enc: Encoder, cursor: int | None, phase: int, sample: _Sample
+) -> tuple[int, int]:
+    """The token(s) that place ``sample`` after ``cursor`` (on the grid ``phase``), then the sample;
+    returns the new cursor and phase."""
     if cursor is None:
         coder.encode_token(enc, START)
-        low = sample.index & ((1 << TICK_BITS) - 1)
-        for i in range(TICK_BITS - 1, -1, -1):
-            enc.encode_bit((low >> i) & 1)
-    elif sample.index == cursor:
+        _encode_bits(enc, sample.phase, PHASE_BITS)
+        _encode_bits(enc, sample.index & ((1 << TICK_BITS) - 1), TICK_BITS)
+        coder.encode_sample(enc, sample.q)
+        return sample.index, sample.phase
+    if sample.phase != phase:
+        coder.encode_token(enc, PHASE)
+        _encode_bits(enc, sample.phase, PHASE_BITS)
+        cursor = _regrid(cursor, phase, sample.phase)
+    if sample.index == cursor:
         coder.encode_token(enc, SAME)
     elif sample.index == cursor + 1:
         coder.encode_token(enc, STEP)
@@ -506,7 +555,7 @@ def _code_sample(coder: _Coder, enc: Encoder, cursor: int | None, sample: _Sampl
         coder.encode_token(enc, JUMP)
         coder.encode_count(enc, sample.index - cursor - 2)
     coder.encode_sample(enc, sample.q)
-    return sample.index
+    return sample.index, sample.phase
 
 
 @dataclass
@@ -520,6 +569,7 @@ class _Section:
     open_encoder: Encoder | None = None  # after this section's tokens, before its END
     open_coder: _Coder | None = None
     open_cursor: int | None = None
+    open_phase: int = 0
 
 
 class PacketEncoder:
@@ -548,6 +598,9 @@ class PacketEncoder:
         self._cursor: list[int | None] = [None] * len(self.specs)  # of the last processed sample
         self._lost: list[int | None] = [None] * len(self.specs)
         self._serial = [0] * len(self.specs)
+        self._grid = [0] * len(self.specs)  # the phase of the last processed sample's grid
+        self._phase = [0] * len(self.specs)  # the phase of the grid new samples go on (``_tick``)
+        self._follow: list[complex | None] = [None] * len(self.specs)  # each sensor's phase, followed
         self.last_q: list[int | None] = []  # the last pushed sample's quantised residuals (None: absent)
         self.split = 0  # samples too large for an empty packet, sent as parts (channels) in one tick
         self.refused = 0  # samples that fit no packet even alone from the initial state (never seen)
@@ -572,11 +625,10 @@ class PacketEncoder:
         row[~np.isfinite(row)] = np.nan
         if np.isnan(row).all():
             return False
-        index = spec.tick(time)
-        cursor = self._cursor[stream]
-        if cursor is not None and index < cursor:
-            index = cursor  # out of order by less than a tick's rounding: dated with the latest tick
-        sample = _Sample(time, index, row, urgent, self._serial[stream], flagged=urgent)
+        index = self._tick(stream, time)
+        sample = _Sample(
+            time, index, row, urgent, self._serial[stream], flagged=urgent, phase=self._phase[stream]
+        )
         self._serial[stream] += 1
         self._process(stream, sample)
         self.last_q = sample.q
@@ -587,9 +639,27 @@ class PacketEncoder:
             sample.urgent = True
         return True
 
+    def _tick(self, stream: int, time: float) -> int:
+        """The tick of a sample taken at ``time``, on a grid that follows the sensor's phase: the first
+        sample sets it, later ones move it when the sensor's mean phase has gone ``PHASE_MOVE`` away."""
+        spec, here, followed = self.specs[stream], self.specs[stream].phase_of(time), self._follow[stream]
+        if followed is None:
+            self._follow[stream] = here
+            self._phase[stream] = round(_sixteenths(here)) % PHASES
+        else:
+            followed = self._follow[stream] = followed + PHASE_FOLLOW * (here - followed)
+            off = (_sixteenths(followed) - self._phase[stream] + PHASES / 2) % PHASES - PHASES / 2
+            if abs(off) >= PHASE_MOVE and abs(followed) >= PHASE_SURE:
+                self._phase[stream] = round(_sixteenths(followed)) % PHASES
+        return spec.tick(time, self._phase[stream])
+
     def _process(self, stream: int, sample: _Sample, draft: bool = True) -> None:
         spec, predictor = self.specs[stream], self.predictors[stream]
         cursor = self._cursor[stream]
+        if cursor is not None and sample.phase != self._grid[stream]:
+            cursor = _regrid(cursor, self._grid[stream], sample.phase)
+        if cursor is not None and sample.index < cursor:
+            sample.index = cursor  # out of order by less than a tick's rounding: dated with the latest tick
         sample.state_before = predictor.state()
         if cursor is None or sample.index > cursor:
             if cursor is not None:
@@ -618,7 +688,7 @@ class PacketEncoder:
                 reconstruction[c] = prediction[c] + (correction + q) * spec.step[c]
                 z[c] = correction + q
         predictor.update(reconstruction, z, raw)
-        self._cursor[stream] = sample.index
+        self._cursor[stream], self._grid[stream] = sample.index, sample.phase
         self._queues[stream].append(sample)
         if draft:
             self._add_to_draft(stream)
@@ -639,6 +709,7 @@ class PacketEncoder:
             coder.encode_count(enc, section.lost)
             cursor = (cursor or 0) + section.lost
         section.open_encoder, section.open_coder, section.open_cursor = enc, coder, cursor
+        section.open_phase = section.base.phase
 
     def _layout(self, first: int, enc: Encoder | None = None) -> Encoder:
         """Re-code sections ``first``.. (their samples as counted) after ``enc``; the finished encoder."""
@@ -646,10 +717,10 @@ class PacketEncoder:
         for s in range(first, len(self.specs)):
             section = self._sections[s]
             self._open(section, enc)
-            coder, cursor = section.open_coder, section.open_cursor
+            coder, cursor, phase = section.open_coder, section.open_cursor, section.open_phase
             for sample in self._queues[s][: section.count]:
-                cursor = _code_sample(coder, enc, cursor, sample)  # type: ignore[arg-type]
-            section.open_encoder, section.open_cursor = enc.copy(), cursor
+                cursor, phase = _code_sample(coder, enc, cursor, phase, sample)  # type: ignore[arg-type]
+            section.open_encoder, section.open_cursor, section.open_phase = enc.copy(), cursor, phase
             section.open_coder = coder.copy()  # type: ignore[union-attr]
             coder.encode_token(enc, END)  # type: ignore[union-attr]
         return enc
@@ -659,20 +730,24 @@ class PacketEncoder:
         if self._full or section.closed or section.count != len(self._queues[stream]) - 1:
             return
         enc, coder = section.open_encoder.copy(), section.open_coder.copy()  # type: ignore[union-attr]
-        cursor = _code_sample(coder, enc, section.open_cursor, self._queues[stream][-1])
-        trial_open = (enc.copy(), coder.copy(), cursor)
+        cursor, phase = _code_sample(
+            coder, enc, section.open_cursor, section.open_phase, self._queues[stream][-1]
+        )
+        trial_open = (enc.copy(), coder.copy(), cursor, phase)
         coder.encode_token(enc, END)
-        saved = [(s.open_encoder, s.open_coder, s.open_cursor) for s in self._sections[stream + 1 :]]
+        saved = [
+            (s.open_encoder, s.open_coder, s.open_cursor, s.open_phase) for s in self._sections[stream + 1 :]
+        ]
         finished = self._layout(stream + 1, enc)
         if finished.bits_if_finished > CODE_BITS:
-            for s, (e, c, k) in zip(self._sections[stream + 1 :], saved, strict=True):
-                s.open_encoder, s.open_coder, s.open_cursor = e, c, k
+            for s, (e, c, k, f) in zip(self._sections[stream + 1 :], saved, strict=True):
+                s.open_encoder, s.open_coder, s.open_cursor, s.open_phase = e, c, k, f
             section.closed = self._full = True
             if not any(sec.count for sec in self._sections):
                 self._oversize = stream  # this sample alone overflows an empty packet
             return
         section.count += 1
-        section.open_encoder, section.open_coder, section.open_cursor = trial_open
+        section.open_encoder, section.open_coder, section.open_cursor, section.open_phase = trial_open
 
     def _rebase(self, base: _Chain) -> None:
         """Continue from ``base`` (the last delivered state): recompute every pending sample."""
@@ -680,16 +755,13 @@ class PacketEncoder:
         self._queues = [[] for _ in self.specs]
         for s, position in enumerate(base.streams):
             self.predictors[s].restore(position.predictor)
-            self._cursor[s] = position.cursor
+            self._cursor[s], self._grid[s] = position.cursor, position.phase
             if position.cursor is not None and self._lost[s]:
                 self._cursor[s] = position.cursor + self._lost[s]  # type: ignore[operator]
                 self.predictors[s].skip(self._lost[s])  # type: ignore[arg-type]
         self._start(base)
         for s, stream_samples in enumerate(samples):
             for sample in stream_samples:
-                cursor = self._cursor[s]
-                if cursor is not None and sample.index < cursor:
-                    sample.index = cursor
                 self._process(s, sample, draft=False)
         self._refill()
 
@@ -734,7 +806,7 @@ class PacketEncoder:
             predictor = rest[0].state_before if rest else self.predictors[s].state()
             coder = section.open_coder.copy()  # type: ignore[union-attr]
             coder.encode_token(Encoder(), END)  # the model update END made (both ends make it)
-            positions.append(_Position(predictor, coder, section.open_cursor))
+            positions.append(_Position(predictor, coder, section.open_cursor, section.open_phase))
             counts[self.specs[s].name] = len(taken)
             surprises[self.specs[s].name] = [
                 sum(1 for x in taken if x.q[c]) for c in range(len(self.specs[s].channels))
@@ -844,7 +916,7 @@ class PacketEncoder:
                     values = np.full_like(sample.values, np.nan)
                     values[channels] = sample.values[channels]
                     parts.append(_Sample(sample.time, sample.index, values, sample.urgent, sample.serial,
-                                         sample.flagged))  # fmt: skip
+                                         sample.flagged, sample.phase))  # fmt: skip
                 self._queues[s][0:1] = parts
                 self.split += 1
                 self._rebase(self._base)
@@ -878,9 +950,11 @@ class DecodedSpan:
     """One stream's samples from one packet."""
 
     spec: StreamSpec
-    ticks: np.ndarray  # the tick of each sample (sample time = tick x period, within period / 2)
+    ticks: np.ndarray  # the tick of each sample (its time: ``times``, within period / 2)
     values: np.ndarray  # samples x channels, the shore's reconstruction (within eps); NaN = absent
     lost: tuple[int, int] | None  # [start, end) ticks in a lost packet (the shore cannot vouch for them)
+    phases: np.ndarray | None = None  # each sample's grid phase, sixteenths of a tick (None: all 0)
+    lost_phase: int = 0  # the grid the lost ticks are on
 
     @property
     def first_tick(self) -> int:
@@ -888,7 +962,15 @@ class DecodedSpan:
 
     @property
     def times(self) -> np.ndarray:
-        return self.ticks * self.spec.period
+        """Each sample's time as the shore dates it (seconds; within period / 2 of when it was taken)."""
+        phases = np.zeros(len(self.ticks)) if self.phases is None else self.phases
+        return (self.ticks + phases / PHASES) * self.spec.period
+
+    @property
+    def lost_times(self) -> np.ndarray:
+        """The times of the ticks in ``lost`` (none if nothing was lost)."""
+        ticks = np.arange(*self.lost) if self.lost else np.zeros(0)
+        return (ticks + self.lost_phase / PHASES) * self.spec.period
 
 
 class PacketDecoder:
@@ -951,7 +1033,7 @@ class PacketDecoder:
         if keep is not None:
             chains = chains[len(chains) - keep :] if keep > 0 else []
         doc = {"format": FORMAT, "specs": self._fingerprint(),
-               "chains": [[c.id, [[_dump(p.predictor), p.coder.dump(), p.cursor] for p in c.streams]]
+               "chains": [[c.id, [[_dump(p.predictor), p.coder.dump(), p.cursor, p.phase] for p in c.streams]]
                           for c in chains]}  # fmt: skip
         return zlib.compress(json.dumps(doc, separators=(",", ":")).encode(), 6)
 
@@ -972,7 +1054,9 @@ class PacketDecoder:
                 )
                 if not ok:
                     raise CodecError("saved decoder state is malformed")
-                positions = [_Position(_load(p), _Coder.load(c), k) for p, c, k in streams]
+                positions = [
+                    _Position(_load(p), _Coder.load(c), k, int(f) % PHASES) for p, c, k, f in streams
+                ]
                 snapshots[chain_id] = _Chain(chain_id, positions)
         except CodecError:
             raise
@@ -991,8 +1075,9 @@ class PacketDecoder:
                  received_at: float) -> tuple[DecodedSpan, _Position]:  # fmt: skip
         predictor = self.predictors[s]
         predictor.restore(base.predictor)
-        coder, cursor = base.coder.copy(), base.cursor
+        coder, cursor, phase = base.coder.copy(), base.cursor, base.phase
         ticks: list[int] = []
+        phases: list[int] = []
         rows: list[np.ndarray] = []
         lost = None
         step = spec.step
@@ -1001,20 +1086,25 @@ class PacketDecoder:
             if token == END:
                 break
             if token == LOST:
-                if cursor is None or ticks:
+                if cursor is None or ticks or phase != base.phase:
                     raise CodecError(f"{spec.name}: LOST where it cannot be")
                 n = coder.decode_count(decoder)
                 lost = (cursor + 1, cursor + 1 + n) if n else (cursor, cursor + 1)
                 cursor += n
                 predictor.skip(n)
                 continue
+            if token == PHASE:
+                if cursor is None:
+                    raise CodecError(f"{spec.name}: PHASE before the stream's start")
+                new = _decode_bits(decoder, PHASE_BITS)
+                cursor, phase = _regrid(cursor, phase, new), new
+                continue
             if token == START:
                 if cursor is not None:
                     raise CodecError(f"{spec.name}: START after the stream started")
-                low = 0
-                for _ in range(TICK_BITS):
-                    low = (low << 1) | decoder.decode_bit()
-                now = spec.tick(received_at) + 1
+                phase = _decode_bits(decoder, PHASE_BITS)
+                low = _decode_bits(decoder, TICK_BITS)
+                now = spec.tick(received_at, phase) + 1
                 index = now - ((now - low) % (1 << TICK_BITS))
                 prediction = predictor.predict()
             elif cursor is None:
@@ -1040,13 +1130,14 @@ class PacketDecoder:
                     z[c] = correction + v
             predictor.update(values, z, raw)
             ticks.append(index)
+            phases.append(phase)
             rows.append(values)
             cursor = index
             if len(rows) > CODE_BITS * 64:
                 raise CodecError("more samples than a packet can hold")
         values = np.array(rows) if rows else np.zeros((0, len(spec.channels)))
-        span = DecodedSpan(spec, np.array(ticks, dtype=np.int64), values, lost)
-        return span, _Position(predictor.state(), coder, cursor)
+        span = DecodedSpan(spec, np.array(ticks, dtype=np.int64), values, lost, np.array(phases), base.phase)
+        return span, _Position(predictor.state(), coder, cursor, phase)
 
 
 class StreamDecoder(PacketDecoder):

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 import time
 
-from analysis.series import measured_samples_per_tick
+from analysis.series import Measured, measured_samples
 from launch.rig import Rig
 from launch.stack import wait_for
 from tacit.packets import Stream
@@ -20,14 +20,9 @@ PLUME = {"surface_temp": 20.0, "thermocline_depth": 40.0, "front_step": 0.0, "pl
          "patches": []}  # fmt: skip
 
 
-def measured_temperatures(rig: Rig) -> dict[int, list[float]]:
-    """What the vehicle measured (its agent's tlog), by codec tick: every sample of the tick (the codec
-    keeps them all, each dated with its tick)."""
-    spec = default_streams()[Stream.ENVIRONMENTAL]
-    measured = measured_samples_per_tick(
-        rig.dir / "tlogs", "SCALED_PRESSURE2", ["temperature"], spec, scale=0.01
-    )
-    return {tick: [v[0] for v in rows] for tick, rows in measured.items()}
+def measured_temperatures(rig: Rig) -> Measured:
+    """What the vehicle measured (its agent's tlog): every sample, with its time."""
+    return measured_samples(rig.dir / "tlogs", "SCALED_PRESSURE2", ["temperature"], scale=0.01)
 
 
 def test_scripted_mission_end_to_end() -> None:
@@ -72,11 +67,12 @@ def test_scripted_mission_end_to_end() -> None:
         assert sorted(executed) == [start["seq"], move["seq"], abort["seq"]] and set(executed.values()) == {1}
         measured = measured_temperatures(rig)
         rows = api.get("/telemetry", params={"stream": "env", "limit": 5000}).json()["items"]
-        eps = default_streams()[Stream.ENVIRONMENTAL].eps[0]
-        checked = [  # each certain row is within eps of one of the samples its tick holds
-            min(abs(r["values"][0] - m) for m in measured[r["tick"]])
+        spec = default_streams()[Stream.ENVIRONMENTAL]
+        eps = spec.eps[0]
+        checked = [  # each certain row is within eps of one of the samples taken within half a tick of it
+            min(abs(r["values"][0] - m[0]) for m in near)
             for r in rows
-            if r["certain"] and r["tick"] in measured
+            if r["certain"] and (near := measured.near(r["time"], spec.time_precision))
         ]
         assert len(checked) >= 5 and max(checked) <= eps + 1e-9
     finally:

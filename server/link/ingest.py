@@ -448,22 +448,21 @@ class Ingest:
         for span in spans:
             spec = span.spec
             if span.lost:  # the shore cannot vouch for these ticks: stored as uncertain, without values
-                batch.telemetry.extend({"vehicle_id": v.id, "stream": spec.name, "tick": k, "time": k * spec.period,
+                batch.telemetry.extend({"vehicle_id": v.id, "stream": spec.name, "tick": k, "time": float(t),
                                         "values": [], "certain": False, "packet_id": packet_id, "verified": False}
-                                       for k in range(*span.lost))  # fmt: skip
+                                       for k, t in zip(range(*span.lost), span.lost_times, strict=True))  # fmt: skip
             if not len(span.ticks) and not span.lost:
                 continue
             carried.append(spec.name)
             # an absent channel is stored as absent (None), never as a made-up value
             rows = [[None if x != x else round(float(x), 6) for x in values] for values in span.values]
             batch.telemetry.extend({"vehicle_id": v.id, "stream": spec.name, "tick": int(k),
-                                    "time": int(k) * spec.period, "certain": True, "values": row,
+                                    "time": float(t), "certain": True, "values": row,
                                     "packet_id": packet_id, "verified": False}
-                                   for k, row in zip(span.ticks, rows, strict=True))  # fmt: skip
+                                   for k, t, row in zip(span.ticks, span.times, rows, strict=True))  # fmt: skip
             v.bytes_saved += max(0, int((span.values == span.values).sum()) * 2 - packets.PACKET_SIZE)
             events.append(("telemetry", {"vehicle": v.name, "stream": spec.name, "channels": list(spec.channels),
-                                         "first_time": span.first_tick * spec.period, "period": spec.period,
-                                         "ticks": [int(k) for k in span.ticks],
+                                         "period": spec.period, "times": [float(t) for t in span.times],
                                          "values": [[None if x is None else round(x, 4) for x in row] for row in rows],
                                          "lost": list(span.lost) if span.lost else None, "verified": False}))  # fmt: skip
         main = next((s for s in spans if s.spec.stream == pp.stream and len(s.ticks)), None)

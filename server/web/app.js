@@ -191,9 +191,8 @@ function connect() {
   source.addEventListener("telemetry", (e) => {
     const t = JSON.parse(e.data);
     if (t.stream !== state.channel.split(":")[0]) return;
-    // several samples may share a tick and ticks may be skipped: each sample's own tick, never its index
-    t.values.forEach((values, i) => state.series.push({ time: t.ticks ? t.ticks[i] * t.period : t.first_time + i * t.period,
-                                                        values, certain: true, verified: false }));
+    // several samples may share a tick and ticks may be skipped: each sample's own time, never its index
+    t.values.forEach((values, i) => state.series.push({ time: t.times[i], values, certain: true, verified: false }));
     renderPlot();
   });
   source.addEventListener("link", () => refreshLink());
