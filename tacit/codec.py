@@ -18,8 +18,8 @@ sample's time is known to within T / 2** (``time_precision``), whatever its jitt
 no bits. The phase keeps the grid's ticks where the sensor samples: on a grid half a tick off, each
 jittered sample would land in the tick before or after its own (two samples in one tick, then a tick
 without one: bits for nothing). START sends the first sample's phase; the vehicle follows the
-sensor's phase (a circular mean over about 8 samples) and, when it has moved 3/16 of a tick from the
-grid's (a jittered first sample, a clock that drifts against T), moves the grid with PHASE. Nothing is dropped: a tick may hold no sample (a dropped
+sensor's phase (a circular mean over about 8 samples) and, when a grid there would misplace fewer
+samples (a jittered first sample, a clock that drifts against T), moves the grid with PHASE (``_Grid``). Nothing is dropped: a tick may hold no sample (a dropped
 message, a blank row, a slower sensor), one, or several (a burst, duplicate times: each is coded, in
 order, with the same tick). A channel may be absent from a sample (NaN, a blank cell): the shore stores
 it as absent (NaN / None), never as a made-up value, and the predictors skip it.
@@ -103,9 +103,10 @@ TOKEN_PRIOR = [2, 24, 1, 2, 1, 1, 1]
 TICK_BITS = 24
 PHASE_BITS = 4  # the grid phase in sixteenths of a tick
 PHASES = 1 << PHASE_BITS
-PHASE_FOLLOW = 1 / 8  # the vehicle's estimate of a sensor's phase: a circular mean over about 8 samples
-PHASE_MOVE = 3  # sixteenths: the grid moves when the sensor's phase is this far from it ...
-PHASE_SURE = 0.5  # ... and the samples agree on it (mean resultant length; a random clock gives ~0)
+PHASE_FOLLOW = 1 / 8  # the vehicle follows a sensor's phase and misplacement rates over about 8 samples
+PHASE_GAIN = 0.15  # the grid moves to the followed phase when that would misplace 15 % fewer samples ...
+PHASE_SURE = 0.4  # ... and the samples agree on it (mean resultant length: 1 for a steady clock, 0.5 for
+# +-30 % uniform jitter, ~0.25 for random phases)
 RAW_Q = 1 << 40  # a residual of this many steps or more is sent as the value itself (RAW)
 FEED_LIMIT = 1e100  # the predictors see values clipped to +-this (both ends), so they stay finite
 
@@ -502,6 +503,33 @@ class _Sample:
 
 
 @dataclass
+class _Grid:
+    """Where the vehicle puts a stream's ticks. The first sample sets the phase; the vehicle follows the
+    sensor's phase (a forgetting circular mean) and how often each grid misplaces a sample (puts two
+    consecutive samples a different number of ticks apart than their times are periods apart), and
+    moves the grid only when the followed phase misplaces ``PHASE_GAIN`` fewer: a steady clock that
+    sits near a tick boundary or drifts is followed; a loose one (intervals from half to one and a half
+    periods) misplaces as many samples on any grid, and does not pay for PHASE tokens chasing it."""
+
+    followed: complex  # the sensor's phase, as a phasor (``StreamSpec.phase_of``) averaged
+    phase: int  # the grid's, sixteenths of a tick
+    last: float  # the previous sample's time
+    misplaced: tuple[float, float] = (0.0, 0.0)  # forgetting rates: on this grid, on the followed phase's
+
+    def follow(self, spec: StreamSpec, time: float) -> None:
+        self.followed += PHASE_FOLLOW * (spec.phase_of(time) - self.followed)
+        candidate = round(_sixteenths(self.followed)) % PHASES
+        apart = round((time - self.last) / spec.period)
+        rates = [
+            rate + PHASE_FOLLOW * ((spec.tick(time, grid) - spec.tick(self.last, grid) != apart) - rate)
+            for rate, grid in zip(self.misplaced, (self.phase, candidate), strict=True)
+        ]
+        if candidate != self.phase and rates[0] - rates[1] >= PHASE_GAIN and abs(self.followed) >= PHASE_SURE:
+            self.phase, rates[0] = candidate, rates[1]
+        self.misplaced, self.last = (rates[0], rates[1]), time
+
+
+@dataclass
 class EncodedPacket:
     """A priority packet and what it covers (for logs, latency and the link's bookkeeping)."""
 
@@ -599,8 +627,7 @@ class PacketEncoder:
         self._lost: list[int | None] = [None] * len(self.specs)
         self._serial = [0] * len(self.specs)
         self._grid = [0] * len(self.specs)  # the phase of the last processed sample's grid
-        self._phase = [0] * len(self.specs)  # the phase of the grid new samples go on (``_tick``)
-        self._follow: list[complex | None] = [None] * len(self.specs)  # each sensor's phase, followed
+        self._grids: list[_Grid | None] = [None] * len(self.specs)  # the grids new samples go on
         self.last_q: list[int | None] = []  # the last pushed sample's quantised residuals (None: absent)
         self.split = 0  # samples too large for an empty packet, sent as parts (channels) in one tick
         self.refused = 0  # samples that fit no packet even alone from the initial state (never seen)
@@ -627,7 +654,13 @@ class PacketEncoder:
             return False
         index = self._tick(stream, time)
         sample = _Sample(
-            time, index, row, urgent, self._serial[stream], flagged=urgent, phase=self._phase[stream]
+            time,
+            index,
+            row,
+            urgent,
+            self._serial[stream],
+            flagged=urgent,
+            phase=self._grids[stream].phase,  # type: ignore[union-attr]
         )
         self._serial[stream] += 1
         self._process(stream, sample)
@@ -640,18 +673,14 @@ class PacketEncoder:
         return True
 
     def _tick(self, stream: int, time: float) -> int:
-        """The tick of a sample taken at ``time``, on a grid that follows the sensor's phase: the first
-        sample sets it, later ones move it when the sensor's mean phase has gone ``PHASE_MOVE`` away."""
-        spec, here, followed = self.specs[stream], self.specs[stream].phase_of(time), self._follow[stream]
-        if followed is None:
-            self._follow[stream] = here
-            self._phase[stream] = round(_sixteenths(here)) % PHASES
+        """The tick of a sample taken at ``time``, on its stream's grid (``_Grid``)."""
+        spec, grid = self.specs[stream], self._grids[stream]
+        if grid is None:
+            here = spec.phase_of(time)
+            grid = self._grids[stream] = _Grid(here, round(_sixteenths(here)) % PHASES, time)
         else:
-            followed = self._follow[stream] = followed + PHASE_FOLLOW * (here - followed)
-            off = (_sixteenths(followed) - self._phase[stream] + PHASES / 2) % PHASES - PHASES / 2
-            if abs(off) >= PHASE_MOVE and abs(followed) >= PHASE_SURE:
-                self._phase[stream] = round(_sixteenths(followed)) % PHASES
-        return spec.tick(time, self._phase[stream])
+            grid.follow(spec, time)
+        return spec.tick(time, grid.phase)
 
     def _process(self, stream: int, sample: _Sample, draft: bool = True) -> None:
         spec, predictor = self.specs[stream], self.predictors[stream]
@@ -1016,6 +1045,14 @@ class PacketDecoder:
         self.snapshots.pop(_next_id(base_id), None)  # the dict's order: least recently decoded first
         self.snapshots[_next_id(base_id)] = _Chain(_next_id(base_id), positions)
         return spans
+
+    def mark(self) -> dict[int, _Chain]:
+        """The states held now, for ``undo`` (cheap: a state is never changed once decoded)."""
+        return dict(self.snapshots)
+
+    def undo(self, mark: dict[int, _Chain]) -> None:
+        """Forget what was decoded since ``mark`` (a caller's transaction that did not commit)."""
+        self.snapshots = dict(mark)
 
     # --- persistence: the shore keeps its chain across restarts -------------------------------------
 

@@ -22,6 +22,7 @@ asked, in one SYNC control packet (``needs_restart``, sent by the link engine), 
 
 from __future__ import annotations
 
+import base64
 import logging
 import math
 import threading
@@ -47,7 +48,8 @@ log = logging.getLogger("tacit.server.ingest")
 Events = list[tuple[str, dict]]
 RECENT_SEQS = 64  # priority packet hashes kept per vehicle for the check-points to come
 SAVED_SEEN = 64  # duplicate-window entries saved across a restart (retransmissions come within polls)
-REPLAY_PACKETS = 2000  # stored priority packets decoded again at start to rebuild the decoders
+SAVED_CHAINS = 4  # decoder states saved per vehicle: the vehicle continues from its last delivered packet,
+# almost always the newest; one based on a state not kept raises UnknownBase and the vehicle restarts
 
 
 @dataclass
@@ -74,9 +76,13 @@ class VehicleState:
     producers: dict[int, int] = field(default_factory=dict)  # chain state id -> the packet row that left it
     forged: int = 0
     verified: int = 0
+    decoder_saved: str | None = None  # ``decoder``'s state as saved (base64), None: changed since
 
     def saved(self) -> dict[str, Any]:
+        if self.decoder_saved is None:
+            self.decoder_saved = base64.b64encode(self.decoder.to_bytes(SAVED_CHAINS)).decode()
         return {"seen": [p.hex() for p in self.seen.recent[-SAVED_SEEN:]], "checkpoint": self.checkpoint,
+                "decoder": self.decoder_saved,
                 "checkpoint_time": self.checkpoint_time, "needs_restart": self.needs_restart,
                 "producers": {str(k): v for k, v in self.producers.items()},
                 "recent": {str(seq): [[h.hex(), pid] for h, pid in items] for seq, items in self.recent.items()}}  # fmt: skip
@@ -85,14 +91,22 @@ class VehicleState:
         """Everything a batch changes in memory, to be put back if its transaction does not commit
         (a retried batch must decode and de-duplicate exactly as the first try would have)."""
         return (list(self.seen.recent), {k: list(v) for k, v in self.recent.items()}, self.checkpoint,
-                self.checkpoint_time, self.needs_restart, dict(self.producers), self.decoder.to_bytes())  # fmt: skip
+                self.checkpoint_time, self.needs_restart, dict(self.producers), self.decoder.mark(),
+                self.decoder_saved)  # fmt: skip
 
     def rollback(self, memento: tuple[Any, ...]) -> None:
-        seen, recent, self.checkpoint, self.checkpoint_time, self.needs_restart, self.producers, decoder = (
-            memento
-        )
-        self.seen.recent, self.recent = seen, recent
-        self.decoder.load(decoder)
+        (
+            seen,
+            recent,
+            self.checkpoint,
+            self.checkpoint_time,
+            self.needs_restart,
+            self.producers,
+            decoder,
+            saved,
+        ) = memento
+        self.seen.recent, self.recent, self.decoder_saved = seen, recent, saved
+        self.decoder.undo(decoder)
 
     def restore(self, data: dict[str, Any]) -> None:
         self.seen.recent = [bytes.fromhex(p) for p in data.get("seen", [])]
@@ -153,32 +167,33 @@ class Ingest:
                     del self.vehicles[address]
 
     def _resume(self, s: Session, v: Vehicle) -> VehicleState:
-        """A vehicle's state as the last run left it: saved link state, decoders rebuilt by decoding the
-        last stored priority packets again, in the order they arrived."""
-        decoder = PacketDecoder(list(self.streams.values()))
-        state = VehicleState(saved_id(v), v.name, v.address, decoder)
+        """A vehicle's state as the last run left it: the link state and decoder states saved with the
+        last batch of frames stored (in the same transaction, so they match the stored packets)."""
+        state = VehicleState(saved_id(v), v.name, v.address, PacketDecoder(list(self.streams.values())))
         saved = s.get(LinkState, v.id)
         if saved is not None:
             try:
                 state.restore(saved.state)
             except (KeyError, TypeError, ValueError) as exc:
                 log.error("vehicle %s: saved link state unreadable (%s): starting afresh", v.name, exc)
+            self._load_decoder(state, saved.state.get("decoder"))
         self._last_checkpoint(s, state)
-        query = (select(Packet.body, Packet.at).where(Packet.vehicle_id == v.id, Packet.type == "priority",
-                                                      Packet.auth != "forged")
-                 .order_by(col(Packet.id).desc()).limit(REPLAY_PACKETS))  # fmt: skip
-        rows = list(reversed(s.exec(query).all()))
-        decoded = 0
-        for body, at in rows:
-            try:
-                decoder.decode(bytes.fromhex(body["payload"]), at)
-                decoded += 1
-            except (CodecError, KeyError, ValueError):
-                pass
-        if rows:
-            log.info("vehicle %s: decoders rebuilt from %d stored priority packet(s) (%d decoded)", v.name,
-                     len(rows), decoded)  # fmt: skip
         return state
+
+    @staticmethod
+    def _load_decoder(v: VehicleState, saved: str | None) -> None:
+        """The decoder states saved for ``v``; without them the vehicle's next packet raises UnknownBase and
+        the vehicle is asked to restart its chains (nothing stored is lost, its next samples wait for it)."""
+        if saved is None:
+            return
+        try:
+            v.decoder.load(base64.b64decode(saved, validate=True))
+        except (CodecError, ValueError) as exc:
+            log.warning("vehicle %s: saved decoder state not usable (%s): it will be asked to restart its "
+                        "chains", v.name, exc)  # fmt: skip
+            return
+        v.decoder_saved = saved
+        log.info("vehicle %s: decoder states restored (%d)", v.name, len(v.decoder.snapshots))
 
     def _last_checkpoint(self, s: Session, v: VehicleState) -> None:
         """After a restart: the last verified check-point stored (the pose the limits check against, and
@@ -440,6 +455,7 @@ class Ingest:
             spans = v.decoder.decode(pp.payload, at)
         except CodecError as exc:
             return self._undecodable(batch, v, pp, body, at, exc)
+        v.decoder_saved = None
         base, own = chain_ids(pp.payload)
         body["origin"] = v.producers.get(base) if base else None  # the packet whose state this one built on
         v.producers = {own: packet_id} if not base else {**v.producers, own: packet_id}
