@@ -108,6 +108,12 @@ def parse_times(cells: list[str], column: str, unit: str | None = None) -> tuple
 TIME_NAMES = ("t_unix_s", "time", "timestamp", "datetime", "date_time", "date", "t", "timeus", "time_us")
 
 
+def _clock(name: str) -> bool:
+    """A column named as a time (a log's other clocks: MAVLink's time_boot_ms, time_usec, TimeUS)."""
+    lower = name.lower()
+    return lower in TIME_NAMES or any(w in lower for w in ("time", "date", "stamp"))
+
+
 def load_csv(path: Path, columns: list[str] | None, time_column: str | None, period: float | None,
              time_unit: str | None = None, progress: bool = False) -> Series:  # fmt: skip
     """One row per sample. Blank, NaN and ``missing`` cells are absent values. Text columns are skipped
@@ -123,15 +129,16 @@ def load_csv(path: Path, columns: list[str] | None, time_column: str | None, per
         raise ValueError(f"{path.name}: empty file")
     if time_column is None:
         time_column = next((h for h in header if h.lower() in TIME_NAMES), None) or next(
-            (h for h in header if any(w in h.lower() for w in ("time", "date"))), None
+            (h for h in header if _clock(h)), None
         )
-    wanted = columns or [h for h in header if h != time_column]
+    wanted = columns or [h for h in header if h != time_column and not _clock(h)]
     missing = [c for c in [*wanted, *([time_column] if time_column else [])] if c not in header]
     if missing:
         raise ValueError(f"{path.name}: no column(s) {missing}; the file has {header}")
     if not rows:
         raise ValueError(f"{path.name}: no rows")
-    notes: list[str] = []
+    notes = [f"skipped column {h!r}: another clock, not a measurement (name it in --columns to compress it)"
+             for h in header if not columns and h != time_column and _clock(h)]  # fmt: skip
     width = len(header)
     for i, r in enumerate(rows):
         if len(r) < width:

@@ -94,3 +94,16 @@ def test_epoch_milliseconds_are_detected(tmp_path: Path) -> None:
     result = evaluate(str(path), "--eps", "0.5", "--json")
     assert result.returncode == 0, result.stderr
     assert "UNIX time in ms" in result.stderr and json.loads(result.stdout)["period_s"] == 0.5
+
+
+def test_a_logs_other_clocks_are_not_compressed_as_data(shared_data: Path) -> None:
+    """The extracts carry t_unix_s and the autopilot's own clock (time_usec): only the IMU is data."""
+    result = evaluate(
+        str(shared_data / "ardusub" / "small_raw_imu.csv"), "--eps", "0.5", "--relative", "--json"
+    )
+    assert result.returncode == 0, result.stderr
+    assert "skipped column 'time_usec': another clock" in result.stderr
+    assert "time_usec" not in json.loads(result.stdout)["channels"]
+    named = evaluate(str(shared_data / "ardusub" / "small_raw_imu.csv"), "--columns", "time_usec,xacc",
+                     "--eps", "0.5", "--relative", "--json")  # fmt: skip
+    assert named.returncode == 0 and json.loads(named.stdout)["channels"] == ["time_usec", "xacc"]
