@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import gzip
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC
@@ -116,9 +117,11 @@ def _clock(name: str) -> bool:
 
 def load_csv(path: Path, columns: list[str] | None, time_column: str | None, period: float | None,
              time_unit: str | None = None, progress: bool = False) -> Series:  # fmt: skip
-    """One row per sample. Blank, NaN and ``missing`` cells are absent values. Text columns are skipped
-    (with a note) unless asked for by name, when they are refused, naming the column and row."""
-    with path.open(newline="", encoding="utf-8-sig") as handle:
+    """One row per sample (a ``.gz`` file is read as gzip). Blank, NaN and ``missing`` cells are absent
+    values. Text columns are skipped (with a note) unless asked for by name, when they are refused, naming
+    the column and row."""
+    opener = gzip.open if path.suffix.lower() == ".gz" else open
+    with opener(path, "rt", newline="", encoding="utf-8-sig") as handle:
         lines = (line for line in handle if not line.startswith("#"))
         reader = csv.reader(lines)
         header = [h.strip() for h in next(reader, [])]
