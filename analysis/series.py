@@ -223,9 +223,9 @@ def measured_samples(folder: Path, kind: str, fields: Sequence[str], scale: floa
 
 def error_ratios(values: Sequence[float | None], samples: Sequence[Sequence[float]],
                  eps: Sequence[float]) -> list[float]:  # fmt: skip
-    """|reconstruction - measured| / eps per channel, against the sample of its tick that the
-    reconstruction is of (a tick may hold several samples: the one that fits best); absent channels
-    are skipped."""
+    """|reconstruction - measured| / eps per channel, against the one of ``samples`` (those taken within
+    half a tick of the reconstruction's time: ``Measured.near``) that fits best; absent channels are
+    skipped."""
 
     def ratios(sample: Sequence[float]) -> list[float]:
         return [abs(v - m) / e for v, m, e in zip(values, sample, eps, strict=True) if v is not None]

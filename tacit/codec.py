@@ -516,7 +516,8 @@ class _Grid:
     last: float  # the previous sample's time
     misplaced: tuple[float, float] = (0.0, 0.0)  # forgetting rates: on this grid, on the followed phase's
 
-    def follow(self, spec: StreamSpec, time: float) -> None:
+    def follow(self, spec: StreamSpec, time: float) -> int | None:
+        """Take a sample's time into account; the phase the grid should move to (None: stay)."""
         self.followed += PHASE_FOLLOW * (spec.phase_of(time) - self.followed)
         candidate = round(_sixteenths(self.followed)) % PHASES
         apart = round((time - self.last) / spec.period)
@@ -524,9 +525,12 @@ class _Grid:
             rate + PHASE_FOLLOW * ((spec.tick(time, grid) - spec.tick(self.last, grid) != apart) - rate)
             for rate, grid in zip(self.misplaced, (self.phase, candidate), strict=True)
         ]
-        if candidate != self.phase and rates[0] - rates[1] >= PHASE_GAIN and abs(self.followed) >= PHASE_SURE:
-            self.phase, rates[0] = candidate, rates[1]
         self.misplaced, self.last = (rates[0], rates[1]), time
+        better = rates[0] - rates[1] >= PHASE_GAIN and abs(self.followed) >= PHASE_SURE
+        return candidate if candidate != self.phase and better else None
+
+    def move(self, phase: int) -> None:
+        self.phase, self.misplaced = phase, (self.misplaced[1], self.misplaced[1])
 
 
 @dataclass
@@ -626,7 +630,7 @@ class PacketEncoder:
         self._cursor: list[int | None] = [None] * len(self.specs)  # of the last processed sample
         self._lost: list[int | None] = [None] * len(self.specs)
         self._serial = [0] * len(self.specs)
-        self._grid = [0] * len(self.specs)  # the phase of the last processed sample's grid
+        self._phase = [0] * len(self.specs)  # the phase of the last processed sample's grid
         self._grids: list[_Grid | None] = [None] * len(self.specs)  # the grids new samples go on
         self.last_q: list[int | None] = []  # the last pushed sample's quantised residuals (None: absent)
         self.split = 0  # samples too large for an empty packet, sent as parts (channels) in one tick
@@ -678,15 +682,19 @@ class PacketEncoder:
         if grid is None:
             here = spec.phase_of(time)
             grid = self._grids[stream] = _Grid(here, round(_sixteenths(here)) % PHASES, time)
-        else:
-            grid.follow(spec, time)
+        elif (phase := grid.follow(spec, time)) is not None:
+            cursor = self._cursor[stream]
+            # not on a sample the new grid would date at a tick after its own (the cursor re-expressed
+            # on the new grid may be up to half a tick later than the latest sample)
+            if cursor is None or spec.tick(time, phase) >= _regrid(cursor, self._phase[stream], phase):
+                grid.move(phase)
         return spec.tick(time, grid.phase)
 
     def _process(self, stream: int, sample: _Sample, draft: bool = True) -> None:
         spec, predictor = self.specs[stream], self.predictors[stream]
         cursor = self._cursor[stream]
-        if cursor is not None and sample.phase != self._grid[stream]:
-            cursor = _regrid(cursor, self._grid[stream], sample.phase)
+        if cursor is not None and sample.phase != self._phase[stream]:
+            cursor = _regrid(cursor, self._phase[stream], sample.phase)
         if cursor is not None and sample.index < cursor:
             sample.index = cursor  # out of order by less than a tick's rounding: dated with the latest tick
         sample.state_before = predictor.state()
@@ -717,7 +725,7 @@ class PacketEncoder:
                 reconstruction[c] = prediction[c] + (correction + q) * spec.step[c]
                 z[c] = correction + q
         predictor.update(reconstruction, z, raw)
-        self._cursor[stream], self._grid[stream] = sample.index, sample.phase
+        self._cursor[stream], self._phase[stream] = sample.index, sample.phase
         self._queues[stream].append(sample)
         if draft:
             self._add_to_draft(stream)
@@ -784,7 +792,7 @@ class PacketEncoder:
         self._queues = [[] for _ in self.specs]
         for s, position in enumerate(base.streams):
             self.predictors[s].restore(position.predictor)
-            self._cursor[s], self._grid[s] = position.cursor, position.phase
+            self._cursor[s], self._phase[s] = position.cursor, position.phase
             if position.cursor is not None and self._lost[s]:
                 self._cursor[s] = position.cursor + self._lost[s]  # type: ignore[operator]
                 self.predictors[s].skip(self._lost[s])  # type: ignore[arg-type]
@@ -910,7 +918,10 @@ class PacketEncoder:
         for s, position in enumerate(self.delivered.streams):
             end = chain.streams[s].cursor
             if carried[s] and position.cursor is not None and end is not None:
-                self._lost[s] = end - position.cursor
+                # the lost packet's end on the delivered packet's grid (the exact inverse of ``_regrid``:
+                # the lost packet may have moved the grid)
+                end -= (position.phase - chain.streams[s].phase + PHASES // 2) // PHASES
+                self._lost[s] = max(0, end - position.cursor)
             else:
                 self._lost[s] = None
         self._rebase(self.delivered)
@@ -1092,12 +1103,20 @@ class PacketDecoder:
                 if not ok:
                     raise CodecError("saved decoder state is malformed")
                 positions = [
-                    _Position(_load(p), _Coder.load(c), k, int(f) % PHASES) for p, c, k, f in streams
+                    _Position(_load(p), _Coder.load(c), _cursor(k), _phase(f)) for p, c, k, f in streams
                 ]
                 snapshots[chain_id] = _Chain(chain_id, positions)
         except CodecError:
             raise
-        except (ValueError, KeyError, IndexError, TypeError, zlib.error) as exc:
+        except (
+            ValueError,
+            KeyError,
+            IndexError,
+            TypeError,
+            OverflowError,
+            RecursionError,
+            zlib.error,
+        ) as exc:
             raise CodecError(f"saved decoder state is malformed ({exc})") from None
         self.snapshots = snapshots
 
@@ -1186,6 +1205,18 @@ class StreamDecoder(PacketDecoder):
 
     def decode(self, payload: bytes, received_at: float) -> DecodedSpan:  # type: ignore[override]
         return super().decode(payload, received_at)[0]
+
+
+def _cursor(value: object) -> int | None:
+    if value is None or (isinstance(value, int) and not isinstance(value, bool)):
+        return value
+    raise ValueError(f"cursor {value!r}")
+
+
+def _phase(value: object) -> int:
+    if isinstance(value, int) and not isinstance(value, bool) and 0 <= value < PHASES:
+        return value
+    raise ValueError(f"phase {value!r}")
 
 
 def _dump(state: object) -> object:

@@ -3,7 +3,9 @@ values stay absent, losses are marked, and decoding raises nothing but CodecErro
 
 from __future__ import annotations
 
+import json
 import random
+import zlib
 
 import numpy as np
 import pytest
@@ -180,6 +182,25 @@ def test_jitter_and_a_drifting_clock_cost_no_bits(shared_data) -> None:
         assert sum(p.code_bits for p in run.packets) <= 1.02 * bits
 
 
+@pytest.mark.parametrize("seed", range(12))
+def test_packets_lost_while_the_grid_moves_keep_both_ends_in_step(seed: int) -> None:
+    """Regression (found by review): a packet that moved the grid (PHASE) and was lost made the vehicle
+    count the lost ticks across two grids (-1 once), and the shore then decoded wrong values silently;
+    a grid moved on a sample it would date a tick late. Drifting, jittered clocks, near-duplicate
+    times, one packet per sample, 30 % of packets lost: every sample within eps and within half a tick."""
+    rng = np.random.default_rng(seed)
+    n = 200
+    drift = 1 + rng.choice([0.003, -0.003, 0.01, -0.01, 0.03, -0.03])
+    times = T0 + (np.arange(n) * drift + rng.uniform(-0.45, 0.45, n)) * PERIOD
+    twins = rng.random(n) < 0.3
+    times = np.sort(np.concatenate([times, times[twins] + rng.uniform(0, 0.05, twins.sum()) * PERIOD]))
+    values = np.sin(np.arange(len(times)) / 5)[:, None] * 10
+    lose = {int(i) for i in np.flatnonzero(rng.random(len(times)) < 0.3)}
+    run = Run(spec(1, 0.3), lose=lose, max_latency=0.0).feed(times, values)
+    run.check()
+    assert len(run.shore) > len(times) // 2
+
+
 def test_packet_based_on_an_unknown_state_or_another_format_is_refused() -> None:
     s = spec(2, 1.0)
     enc = StreamEncoder(s)
@@ -336,12 +357,12 @@ def test_any_loss_pattern_leaves_the_shore_exact_or_marked(seed: int, lose: set[
     s = spec(3, 0.7, method)
     run = Run(s, lose=lose, max_latency=latency).feed(times, values)
     run.check()
-    marked = {k for span in run.spans if span.lost for k in range(*span.lost)}
+    marked = np.concatenate([span.lost_times for span in run.spans] + [np.zeros(0)])
     delivered = sorted(run.shore)
     for serial in set(range(len(run.truth))) - set(run.shore):
         # missing on the shore: declared lost by a later packet, or before anything arrived, or after
-        tick = s.tick(run.truth[serial][0])
-        assert tick in marked or not delivered or serial < delivered[0] or serial > delivered[-1]
+        declared = len(marked) and np.abs(marked - run.truth[serial][0]).min() <= s.time_precision + 1e-6
+        assert declared or not delivered or serial < delivered[0] or serial > delivered[-1]
 
 
 def test_urgency_of_a_second_sample_in_a_tick_counts() -> None:
@@ -435,3 +456,8 @@ def test_unknown_base_restart_and_saved_decoder_state() -> None:
     with pytest.raises(CodecError, match="other streams"):
         StreamDecoder(spec(3, 0.6)).load(saved)
     assert len(PacketDecoder.from_bytes([s], saved).snapshots) == 2
+    doc = json.loads(zlib.decompress(saved))
+    for phase in (19, "7", float("inf"), True):  # a saved state must hold a grid phase 0..15
+        doc["chains"][0][1][0][3] = phase
+        with pytest.raises(CodecError, match="malformed"):
+            StreamDecoder(s).load(zlib.compress(json.dumps(doc).encode()))

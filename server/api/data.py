@@ -93,8 +93,9 @@ def _export(shore: Shore, vehicle_id: int, stream: str, since: float | None, unt
 
 
 EXPORT_DOC = """Reconstructed samples of one vehicle's stream (``imu`` or ``env``), oldest first: ``time`` (UNIX s),
-``tick``, ``certain`` (false: a lost span the shore cannot vouch for), one column per channel; an absent
-sample is empty. ``since`` / ``until`` (UNIX s) select a time window, e.g. a mission's."""
+``tick`` (the codec's tick number; ``time`` is what dates a sample, within half the stream's period:
+the tick grid follows the sensor's clock), ``certain`` (false: a lost span the shore cannot vouch
+for), one column per channel; an absent sample is empty. ``since`` / ``until`` (UNIX s) select a time window, e.g. a mission's."""
 
 
 @router.get("/telemetry.csv", dependencies=[Depends(require_read)], response_class=StreamingResponse,

@@ -14,10 +14,11 @@ packet whose seq a verified check-point vouched for with other bytes is marked `
 
 Restarts. What the shore knows of each vehicle's link (the duplicate window, the hashes of recent
 priority packets, the last check-point, whether the sample chains must restart) is saved in
-``linkstate`` with every batch; the stream decoders are rebuilt at start by decoding the stored
-priority packets again (the codec is deterministic). If a packet still cannot be decoded because its
-base state was never stored (the shore was down while the vehicle's modem was ACKed), the vehicle is
-asked, in one SYNC control packet (``needs_restart``, sent by the link engine), to restart its chains.
+``linkstate`` with every batch, and so are the stream decoders' last states (``SAVED_CHAINS``), in
+the same transaction as the packets they decoded. If a packet cannot be decoded because its base
+state was never stored (the shore was down while the vehicle's modem was ACKed), the packet is stored
+undecoded and the vehicle is asked, in one SYNC control packet (``needs_restart``, sent by the link
+engine), to restart its chains; the samples of the packets it sent before that SYNC stay undecoded.
 """
 
 from __future__ import annotations
@@ -182,8 +183,8 @@ class Ingest:
 
     @staticmethod
     def _load_decoder(v: VehicleState, saved: str | None) -> None:
-        """The decoder states saved for ``v``; without them the vehicle's next packet raises UnknownBase and
-        the vehicle is asked to restart its chains (nothing stored is lost, its next samples wait for it)."""
+        """The decoder states saved for ``v``; without them the vehicle's next packet raises UnknownBase (it
+        is stored undecoded) and the vehicle is asked to restart its chains."""
         if saved is None:
             return
         try:
