@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import gzip
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC
@@ -110,9 +111,12 @@ TIME_NAMES = ("t_unix_s", "time", "timestamp", "datetime", "date_time", "date", 
 
 
 def _clock(name: str) -> bool:
-    """A column named as a time (a log's other clocks: MAVLink's time_boot_ms, time_usec, TimeUS)."""
-    lower = name.lower()
-    return lower in TIME_NAMES or any(w in lower for w in ("time", "date", "stamp"))
+    """A column named as a time (a log's other clocks: MAVLink's time_boot_ms, time_usec, TimeUS), by its
+    words: ``sample_time`` is one, ``runtime_h`` and ``update_count`` are not."""
+    words = re.split(r"[^a-z0-9]+", re.sub(r"(?<=[a-z0-9])(?=[A-Z])", "_", name).lower())  # camelCase too
+    return name.lower() in TIME_NAMES or any(
+        w in ("time", "date", "datetime", "timestamp", "stamp") for w in words
+    )
 
 
 def load_csv(path: Path, columns: list[str] | None, time_column: str | None, period: float | None,

@@ -107,3 +107,18 @@ def test_a_logs_other_clocks_are_not_compressed_as_data(shared_data: Path) -> No
     named = evaluate(str(shared_data / "ardusub" / "small_raw_imu.csv"), "--columns", "time_usec,xacc",
                      "--eps", "0.5", "--relative", "--json")  # fmt: skip
     assert named.returncode == 0 and json.loads(named.stdout)["channels"] == ["time_usec", "xacc"]
+
+
+def test_clock_columns_are_told_by_their_words(tmp_path: Path) -> None:
+    from analysis.series import load
+
+    path = tmp_path / "log.csv"
+    path.write_text("SampleTime,time_boot_ms,runtime_h,update_count,x\n"
+                    + "".join(f"{1_600_000_000 + i},{1000 * i},{i / 3600},{i},{i % 5}\n" for i in range(20)))  # fmt: skip
+    series = load(path)
+    assert series.names == (
+        "runtime_h",
+        "update_count",
+        "x",
+    )  # measurements, though "time" and "date" are in them
+    assert any("time_boot_ms" in note for note in series.notes) and series.times[1] - series.times[0] == 1.0

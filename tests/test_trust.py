@@ -238,6 +238,26 @@ def test_a_batch_that_fails_to_commit_leaves_memory_as_it_was(shore) -> None:
     assert len(rows(db, Packet, type="priority")) == 1 and decoded_matches_truth(db, vehicle) > 0
 
 
+def test_a_failing_subscriber_does_not_set_memory_back_behind_the_database(shore) -> None:
+    """Regression (review): an event subscriber that raised after the commit rolled the decoder back, so
+    the next packet's base was unknown and the vehicle had to restart its chains."""
+    db, start = shore
+    ingest, vehicle = start(), Vehicle_()
+
+    class Failing(EventBus):
+        def publish(self, kind: str, **data: object) -> None:
+            raise RuntimeError("subscriber failed")
+
+    ingest.bus = Failing()
+    vehicle.measure(10)
+    with pytest.raises(RuntimeError, match="subscriber failed"):
+        send(ingest, vehicle.priority())
+    ingest.bus = EventBus()
+    vehicle.measure(10)
+    send(ingest, vehicle.priority())
+    assert not ingest.vehicles[ADDRESS].needs_restart and decoded_matches_truth(db, vehicle) == 20
+
+
 def test_a_restarted_shore_decodes_again(shore) -> None:
     db, start = shore
     ingest, vehicle = start(), Vehicle_()

@@ -219,13 +219,17 @@ class Ingest:
         with self._lock:
             mementos = {v.address: v.memento() for f in frames if (v := self.vehicles.get(f.src))}
             try:
-                return self._commit_batch(frames)
+                pending = self._commit_batch(frames)
             except BaseException:
                 for address, memento in mementos.items():
                     self.vehicles[address].rollback(memento)
                 raise
+            # after the commit: a subscriber that fails must not roll memory back behind the database
+            for kind, data in pending:
+                self.bus.publish(kind, **data)
+        return [{"kind": kind, **data} for kind, data in pending]
 
-    def _commit_batch(self, frames: list[IncomingFrame]) -> list[dict]:
+    def _commit_batch(self, frames: list[IncomingFrame]) -> Events:
         pending: Events = []
         with writing(self.db) as s:
             batch = _Batch()
@@ -238,9 +242,7 @@ class Ingest:
             for v in touched.values():  # in the same transaction as the packets it describes
                 self._save(s, v)
             s.commit()
-        for kind, data in pending:
-            self.bus.publish(kind, **data)
-        return [{"kind": kind, **data} for kind, data in pending]
+        return pending
 
     def _save(self, s: Session, v: VehicleState) -> None:
         row = s.get(LinkState, v.id)
@@ -312,7 +314,7 @@ class Ingest:
             while len(v.recent) > RECENT_SEQS:  # drop the seq furthest behind this one
                 del v.recent[max(v.recent, key=lambda q: (packet.seq - q) % 256)]
             events = self._priority(batch, v, packet, body, at, packet_id)
-            if body.get("stream_name"):
+            if body.get("stream_name") or body.get("error"):  # what decoding found (or why it could not)
                 s.execute(update(Packet).where(Packet.id == packet_id).values(body=body))
         log.info("vehicle %s: %s packet seq %d stored", v.name, body["type"], packet.seq)
         summary = {"vehicle": v.name, "address": v.address, "type": body["type"], "seq": packet.seq,
@@ -385,8 +387,8 @@ class Ingest:
             if len(trusted) < len(good) and not v.needs_restart:
                 v.needs_restart = True  # its chain ran through a packet nobody vouched for: start clean
                 log.warning("vehicle %s: %d genuine packet(s) were decoded on a state no check-point vouched "
-                            "for: their data stay unverified; asking for a chain restart", v.name,
-                            len(good) - len(trusted))  # fmt: skip
+                            "for, or could not be decoded on it: their data stay unverified; asking for a "
+                            "chain restart", v.name, len(good) - len(trusted))  # fmt: skip
         if bad:
             s.execute(update(Packet).where(col(Packet.id).in_(bad)).values(auth="forged"))
             self.stats["forged"] += len(bad)
@@ -398,12 +400,16 @@ class Ingest:
         """Of packets whose bytes a check-point just vouched for, those whose data can be trusted too: the
         MAC covers a packet's bytes, not the decoder state it was decoded on, so a packet's data are
         verified only if the packet its state came from (its origin) was verified and trusted as well. A
-        forged packet slipped into the chain leaves what was decoded after it unverified."""
+        forged packet slipped into the chain leaves what was decoded after it unverified. A genuine packet
+        that could not be decoded (its state was a forged one's, read as garbage) is not trusted either:
+        the shore's chain is broken there, and the vehicle must restart it."""
         rows = {p.id: p for p in s.exec(select(Packet).where(col(Packet.id).in_(good))).all()}
         trusted: list[int] = []
         for packet_id in sorted(rows, key=lambda i: i or 0):  # arrival order: an origin comes first
             row = rows[packet_id]
             origin = row.body.get("origin")
+            if row.body.get("error"):
+                continue
             if origin is None or origin in trusted or self._was_trusted(s, origin):
                 trusted.append(saved_id(row))
                 row.body = {**row.body, "trusted": True}
