@@ -138,14 +138,15 @@ def load_csv(path: Path, columns: list[str] | None, time_column: str | None, per
         time_column = next((h for h in header if h.lower() in TIME_NAMES), None) or next(
             (h for h in header if _clock(h)), None
         )
-    wanted = columns or [h for h in header if h != time_column and not _clock(h)]
+    clocks = [] if columns else [h for h in header if h != time_column and _clock(h)]  # not measurements
+    wanted = columns or [h for h in header if h != time_column and h not in clocks]
     missing = [c for c in [*wanted, *([time_column] if time_column else [])] if c not in header]
     if missing:
         raise ValueError(f"{path.name}: no column(s) {missing}; the file has {header}")
     if not rows:
         raise ValueError(f"{path.name}: no rows")
     notes = [f"skipped column {h!r}: another clock, not a measurement (name it in --columns to compress it)"
-             for h in header if not columns and h != time_column and _clock(h)]  # fmt: skip
+             for h in clocks]  # fmt: skip
     width = len(header)
     for i, r in enumerate(rows):
         if len(r) < width:

@@ -272,8 +272,9 @@ class StreamSpec:
         return complex(np.exp(2j * np.pi * (time / self.period % 1.0)))
 
 
-def _sixteenths(phasor: complex) -> float:
-    return float(np.angle(phasor) / (2 * np.pi) % 1.0 * PHASES)
+def _nearest_phase(phasor: complex) -> int:
+    """The grid phase (sixteenths of a tick) nearest a phasor's angle."""
+    return round(float(np.angle(phasor)) / (2 * np.pi) % 1.0 * PHASES) % PHASES
 
 
 def _regrid(cursor: int, phase: int, new: int) -> int:
@@ -350,8 +351,7 @@ class _Coder:
         for i in range(width - 1):
             enc.encode_symbol(self.counts[min(i, len(self.counts) - 1)], 0)
         enc.encode_symbol(self.counts[min(width - 1, len(self.counts) - 1)], 1)
-        for i in range(width - 2, -1, -1):
-            enc.encode_bit((m >> i) & 1)
+        _encode_bits(enc, m, width - 1)  # below the leading 1
 
     def decode_count(self, dec: Decoder) -> int:
         width = 1
@@ -359,10 +359,7 @@ class _Coder:
             width += 1
             if width > 48:
                 raise CodecError("count too long")
-        m = 1
-        for _ in range(width - 1):
-            m = (m << 1) | dec.decode_bit()
-        return m - 1
+        return ((1 << (width - 1)) | _decode_bits(dec, width - 1)) - 1
 
     # samples
 
@@ -375,17 +372,13 @@ class _Coder:
             for c, here in enumerate(present):
                 enc.encode_symbol(self.present[c][self.previous_present[c]], int(here))
                 self.previous_present[c] = int(here)
-        moved = 0
         for c, value in enumerate(q):
             if value is None:
                 continue
-            model = self.q[c][_q_context(self.previous_q[c], moved)]
-            moved |= value != 0
+            model = self.q[c][_q_context(self.previous_q[c])]
             if isinstance(value, _Raw):
                 enc.encode_symbol(model, RAW)
-                word = int.from_bytes(struct.pack(">d", value.value), "big")
-                for i in range(63, -1, -1):
-                    enc.encode_bit((word >> i) & 1)
+                _encode_bits(enc, int.from_bytes(struct.pack(">d", value.value), "big"), 64)
             elif -SMALL <= value <= SMALL:
                 enc.encode_symbol(model, value + SMALL)
             else:
@@ -404,18 +397,14 @@ class _Coder:
                 self.previous_present[c] = here
                 present[c] = bool(here)
         out: list[int | None] = [None] * channels
-        moved = 0
         for c in range(channels):
             if not present[c]:
                 continue
-            symbol = dec.decode_symbol(self.q[c][_q_context(self.previous_q[c], moved)])
+            symbol = dec.decode_symbol(self.q[c][_q_context(self.previous_q[c])])
             if symbol < ESC_NEG:
                 value = symbol - SMALL
             elif symbol == RAW:
-                word = 0
-                for _ in range(64):
-                    word = (word << 1) | dec.decode_bit()
-                raw = struct.unpack(">d", word.to_bytes(8, "big"))[0]
+                raw = struct.unpack(">d", _decode_bits(dec, 64).to_bytes(8, "big"))[0]
                 if not np.isfinite(raw):
                     raise CodecError("a raw value that is not a finite number")
                 value = _Raw(raw)
@@ -423,7 +412,6 @@ class _Coder:
                 magnitude = _decode_exp_golomb(dec) + SMALL + 1
                 value = magnitude if symbol == ESC_POS else -magnitude
             out[c] = value
-            moved |= value != 0
             self.previous_q[c] = value
         return out
 
@@ -432,10 +420,22 @@ Q_CONTEXTS = 3
 Q_INCREMENT = 24
 
 
-def _q_context(previous: int, moved: int) -> int:
+def _q_context(previous: int) -> int:
     """The q model's context: min(|the channel's previous q|, 2). (Adding whether an earlier channel of
     the same sample was a surprise was tried: on the ArduSub IMU its learning cost outweighs it.)"""
     return min(abs(previous), 2)
+
+
+def _encode_bits(enc: Encoder, value: int, bits: int) -> None:
+    for i in range(bits - 1, -1, -1):
+        enc.encode_bit((value >> i) & 1)
+
+
+def _decode_bits(dec: Decoder, bits: int) -> int:
+    value = 0
+    for _ in range(bits):
+        value = (value << 1) | dec.decode_bit()
+    return value
 
 
 def _encode_exp_golomb(enc: Encoder, n: int) -> None:
@@ -443,8 +443,7 @@ def _encode_exp_golomb(enc: Encoder, n: int) -> None:
     width = m.bit_length()
     for _ in range(width - 1):
         enc.encode_bit(0)
-    for i in range(width - 1, -1, -1):
-        enc.encode_bit((m >> i) & 1)
+    _encode_bits(enc, m, width)
 
 
 def _decode_exp_golomb(dec: Decoder) -> int:
@@ -453,10 +452,7 @@ def _decode_exp_golomb(dec: Decoder) -> int:
         zeros += 1
         if zeros > 64:
             raise CodecError("escaped magnitude too long")
-    m = 1
-    for _ in range(zeros):
-        m = (m << 1) | dec.decode_bit()
-    return m - 1
+    return ((1 << zeros) | _decode_bits(dec, zeros)) - 1
 
 
 # --- the chain of states both ends hold -------------------------------------------------------------
@@ -516,10 +512,16 @@ class _Grid:
     last: float  # the previous sample's time
     misplaced: tuple[float, float] = (0.0, 0.0)  # forgetting rates: on this grid, on the followed phase's
 
+    @classmethod
+    def start(cls, spec: StreamSpec, time: float) -> _Grid:
+        """The grid a stream's first sample, taken at ``time``, sets."""
+        here = spec.phase_of(time)
+        return cls(here, _nearest_phase(here), time)
+
     def follow(self, spec: StreamSpec, time: float) -> int | None:
         """Take a sample's time into account; the phase the grid should move to (None: stay)."""
         self.followed += PHASE_FOLLOW * (spec.phase_of(time) - self.followed)
-        candidate = round(_sixteenths(self.followed)) % PHASES
+        candidate = _nearest_phase(self.followed)
         apart = round((time - self.last) / spec.period)
         rates = [
             rate + PHASE_FOLLOW * ((spec.tick(time, grid) - spec.tick(self.last, grid) != apart) - rate)
@@ -550,18 +552,6 @@ class EncodedPacket:
     surprises: dict[str, list[int]] = field(
         default_factory=dict
     )  # per stream and channel: values not predicted
-
-
-def _encode_bits(enc: Encoder, value: int, bits: int) -> None:
-    for i in range(bits - 1, -1, -1):
-        enc.encode_bit((value >> i) & 1)
-
-
-def _decode_bits(dec: Decoder, bits: int) -> int:
-    value = 0
-    for _ in range(bits):
-        value = (value << 1) | dec.decode_bit()
-    return value
 
 
 def _code_sample(
@@ -680,8 +670,7 @@ class PacketEncoder:
         """The tick of a sample taken at ``time``, on its stream's grid (``_Grid``)."""
         spec, grid = self.specs[stream], self._grids[stream]
         if grid is None:
-            here = spec.phase_of(time)
-            grid = self._grids[stream] = _Grid(here, round(_sixteenths(here)) % PHASES, time)
+            grid = self._grids[stream] = _Grid.start(spec, time)
         elif (phase := grid.follow(spec, time)) is not None:
             cursor = self._cursor[stream]
             # not on a sample the new grid would date at a tick after its own (the cursor re-expressed
@@ -993,8 +982,8 @@ class DecodedSpan:
     ticks: np.ndarray  # the tick of each sample (its time: ``times``, within period / 2)
     values: np.ndarray  # samples x channels, the shore's reconstruction (within eps); NaN = absent
     lost: tuple[int, int] | None  # [start, end) ticks in a lost packet (the shore cannot vouch for them)
-    phases: np.ndarray | None = None  # each sample's grid phase, sixteenths of a tick (None: all 0)
-    lost_phase: int = 0  # the grid the lost ticks are on
+    phases: np.ndarray  # each sample's grid phase, sixteenths of a tick
+    lost_phase: int  # the grid the lost ticks are on
 
     @property
     def first_tick(self) -> int:
@@ -1003,8 +992,7 @@ class DecodedSpan:
     @property
     def times(self) -> np.ndarray:
         """Each sample's time as the shore dates it (seconds; within period / 2 of when it was taken)."""
-        phases = np.zeros(len(self.ticks)) if self.phases is None else self.phases
-        return (self.ticks + phases / PHASES) * self.spec.period
+        return (self.ticks + self.phases / PHASES) * self.spec.period
 
     @property
     def lost_times(self) -> np.ndarray:
@@ -1192,7 +1180,9 @@ class PacketDecoder:
             if len(rows) > CODE_BITS * 64:
                 raise CodecError("more samples than a packet can hold")
         values = np.array(rows) if rows else np.zeros((0, len(spec.channels)))
-        span = DecodedSpan(spec, np.array(ticks, dtype=np.int64), values, lost, np.array(phases), base.phase)
+        span = DecodedSpan(
+            spec, np.array(ticks, dtype=np.int64), values, lost, np.array(phases, dtype=np.int64), base.phase
+        )
         return span, _Position(predictor.state(), coder, cursor, phase)
 
 

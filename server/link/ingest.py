@@ -189,7 +189,7 @@ class Ingest:
             return
         try:
             v.decoder.load(base64.b64decode(saved, validate=True))
-        except (CodecError, ValueError) as exc:
+        except ValueError as exc:  # a CodecError, or not base64
             log.warning("vehicle %s: saved decoder state not usable (%s): it will be asked to restart its "
                         "chains", v.name, exc)  # fmt: skip
             return
@@ -407,9 +407,9 @@ class Ingest:
         trusted: list[int] = []
         for packet_id in sorted(rows, key=lambda i: i or 0):  # arrival order: an origin comes first
             row = rows[packet_id]
-            origin = row.body.get("origin")
             if row.body.get("error"):
                 continue
+            origin = row.body.get("origin")
             if origin is None or origin in trusted or self._was_trusted(s, origin):
                 trusted.append(saved_id(row))
                 row.body = {**row.body, "trusted": True}
@@ -477,15 +477,16 @@ class Ingest:
             if not len(span.ticks) and not span.lost:
                 continue
             carried.append(spec.name)
+            times = [float(t) for t in span.times]
             # an absent channel is stored as absent (None), never as a made-up value
             rows = [[None if x != x else round(float(x), 6) for x in values] for values in span.values]
             batch.telemetry.extend({"vehicle_id": v.id, "stream": spec.name, "tick": int(k),
-                                    "time": float(t), "certain": True, "values": row,
+                                    "time": t, "certain": True, "values": row,
                                     "packet_id": packet_id, "verified": False}
-                                   for k, t, row in zip(span.ticks, span.times, rows, strict=True))  # fmt: skip
+                                   for k, t, row in zip(span.ticks, times, rows, strict=True))  # fmt: skip
             v.bytes_saved += max(0, int((span.values == span.values).sum()) * 2 - packets.PACKET_SIZE)
             events.append(("telemetry", {"vehicle": v.name, "stream": spec.name, "channels": list(spec.channels),
-                                         "period": spec.period, "times": [float(t) for t in span.times],
+                                         "period": spec.period, "times": times,
                                          "values": [[None if x is None else round(x, 4) for x in row] for row in rows],
                                          "lost": list(span.lost) if span.lost else None, "verified": False}))  # fmt: skip
         main = next((s for s in spans if s.spec.stream == pp.stream and len(s.ticks)), None)
