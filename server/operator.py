@@ -26,8 +26,6 @@ from tacit.limits import Limits
 from tacit.navigation import move_target
 from tacit.packets import PACKET_SIZE, ControlPacket
 
-_WIRE = {f.name: f for f in ControlPacket.FIELDS}
-
 #: The channels' units (RAW_IMU: mG, mrad/s, mGauss; environment: degC, m, mg/L).
 UNITS = {"xacc": "mG", "yacc": "mG", "zacc": "mG", "xgyro": "mrad/s", "ygyro": "mrad/s", "zgyro": "mrad/s",
          "xmag": "mGauss", "ymag": "mGauss", "zmag": "mGauss", "temperature": "°C", "depth": "m",
@@ -66,7 +64,7 @@ ANGLE_MODES = ("relative", "bearing")
 
 
 def _field(name: str, label: str, lo: float, hi: float, hint: str, required: bool = True) -> dict:
-    wire = _WIRE[name]
+    wire = ControlPacket.field(name)
     step = wire.resolution
     return {"name": name, "label": label, "unit": wire.unit or "", "min": round(lo, 6), "max": round(hi, 6),
             "step": step, "required": required, "hint": hint}  # fmt: skip
@@ -74,9 +72,13 @@ def _field(name: str, label: str, lo: float, hi: float, hint: str, required: boo
 
 def command_form(limits: Limits | None = None) -> dict:
     """The commands and their fields for one vehicle (``limits``) or for the packet alone (None)."""
-    lim = limits or Limits(max_depth=_WIRE["depth"].hi, max_distance=_WIRE["distance"].hi,
-                           max_speed=_WIRE["speed"].hi)  # fmt: skip
-    dist, depth, speed = _WIRE["distance"], _WIRE["depth"], _WIRE["speed"]
+    lim = limits or Limits(max_depth=ControlPacket.field("depth").hi, max_distance=ControlPacket.field("distance").hi,
+                           max_speed=ControlPacket.field("speed").hi)  # fmt: skip
+    dist, depth, speed = (
+        ControlPacket.field("distance"),
+        ControlPacket.field("depth"),
+        ControlPacket.field("speed"),
+    )
     max_depth = min(lim.max_depth, depth.hi)
     fields = {
         "distance": _field("distance", "Distance", dist.lo, min(lim.max_distance, dist.hi),

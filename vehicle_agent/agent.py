@@ -206,7 +206,6 @@ class Agent:
             self.state.settled = [*self.state.settled, [previous[0], final.name]][-16:]
         self.plume.threshold = self.fsm.status.params.get("plume_threshold", self.plume.threshold)
         log.info("control seq %d %s: %s %s", packet.seq, packet.command.name, status.name, reason.name)
-        self.state.replay = self.link.receiver.window.to_dict()
         self._persist()  # the replay window is on disk before anything acts on the command
 
     def _on_sync(self, packet: ControlPacket) -> None:
@@ -223,7 +222,6 @@ class Agent:
         if packet.param_id & SYNC_RESTART_CHAINS:
             log.warning("shore asked to restart the sample chains (it lost their state)")
             self.compressor.restart_chains()
-        self.state.heartbeat = list(self.link.receiver.sync.last)
         self._persist()
 
     def _on_delivered(self, packet: bytes):
@@ -361,6 +359,8 @@ class Agent:
         self.state.yaw = self.mav.telemetry.yaw
         self.state.time = self.mav.telemetry.time if self.mav.telemetry.time else self.state.time
         self.state.outbox = [[urgent, data.hex()] for urgent, data in self.link.pending()]
+        self.state.replay = self.link.receiver.window.to_dict()  # a SYNC may have moved its floor
+        self.state.heartbeat = list(self.link.receiver.sync.last)
         self.state.save(self.state_path)
         self._dirty = False
 
