@@ -139,6 +139,9 @@ def _summary(db, data: Path, started: float) -> dict:
     from server.models import Packet, Telemetry
 
     spec = default_streams()[Stream.KINEMATIC]
+    # the log stamps a message when the agent's logger wrote it, not when the agent sampled it, and a
+    # replay runs the dive faster than real time: a few ms of delay is a large part of the IMU's 0.25 s
+    # tick, so a reconstruction is compared with the samples logged within a whole tick of it
     measured = measured_samples(data / "tlogs", "RAW_IMU", IMU_CHANNELS)
     with Session(db) as s:
         packets = s.exec(select(Packet).where(Packet.at >= started)).all()
@@ -146,7 +149,7 @@ def _summary(db, data: Path, started: float) -> dict:
     ratios = [
         ratio
         for r in rows
-        if (near := measured.near(r.time, spec.time_precision))
+        if (near := measured.near(r.time, spec.period))
         for ratio in error_ratios(r.values, near, spec.eps)
     ]
     imu = [
