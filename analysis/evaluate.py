@@ -5,8 +5,19 @@ urgent, or when the oldest pending sample reaches ``--max-latency`` (at that exa
 decodes each delivered packet when it leaves. ``--loss`` drops packets (seeded) to show that the shore
 marks what it lost and never shows it as certain. Link bits count whole 32-byte packets (256 bits),
 header included. Baselines, side by side: send-all (every sample as 16 bits, 14 per packet) and
-send-on-delta (a sample when it moves more than eps from the last one sent, 4 bytes each: a 2-byte
-time/channel word and a 2-byte value, 7 per packet).
+send-on-delta, framed on the same link:
+
+- a channel's value is sent when it differs from the last value sent by more than eps; the shore holds
+  the last value sent (so every sample is within eps, and nothing says a quiet value is still quiet);
+- each value sent is a 4-byte message (a 2-byte time delta and channel word, a 2-byte value: 7 in a
+  packet), or, where smaller, a row's values are one message (time word, a bit per channel, 2 bytes per
+  value: 3 of 9 channels take 10 bytes, not 12);
+- messages are packed as densely as they fit in the same frames as the codec's (32 bytes: the 2-byte
+  priority header and a 30-byte payload); a packet leaves when full, or when its oldest message has
+  waited ``--max-latency``.
+
+The codec gives more than that: with ``--max-silence`` it also confirms predictable samples within that
+bound, packets send-on-delta never sends; ``--max-silence none`` compares the two at the same guarantee.
 """
 
 from __future__ import annotations
@@ -25,7 +36,7 @@ from tqdm import tqdm
 
 from analysis.series import Series, load
 from tacit.codec import StreamDecoder, StreamEncoder, StreamSpec
-from tacit.packets import PACKET_SIZE, Stream
+from tacit.packets import PACKET_SIZE, PAYLOAD_SIZE, Stream
 from tacit.predict import METHODS
 
 PACKET_BITS = PACKET_SIZE * 8
@@ -70,9 +81,16 @@ def entropy_bits(symbols: list[int]) -> float:
     return float(-(counts * np.log2(p)).sum())
 
 
-def run_codec(series: Series, spec: StreamSpec, max_latency: float, loss: float = 0.0, seed: int = 1,
-              urgent_threshold: float | None = None, max_silence: float = 60.0,
-              progress: bool = False) -> tuple[Result, Reconstruction]:  # fmt: skip
+def run_codec(
+    series: Series,
+    spec: StreamSpec,
+    max_latency: float,
+    loss: float = 0.0,
+    seed: int = 1,
+    urgent_threshold: float | None = None,
+    max_silence: float | None = 60.0,
+    progress: bool = False,
+) -> tuple[Result, Reconstruction]:
     encoder, decoder = StreamEncoder(spec, max_latency, urgent_threshold, max_silence), StreamDecoder(spec)
     rng = random.Random(seed)
     truth = series.values
@@ -104,6 +122,7 @@ def run_codec(series: Series, spec: StreamSpec, max_latency: float, loss: float 
             shore[row_of[serial]] = np.where(np.isnan(row), held, row)
             shore_time[row_of[serial]] = at
 
+    # on a terminal only (a log would keep every refresh), cleared before the caller prints
     bar = tqdm(
         total=rows, desc="encoding", unit=" rows", disable=None if progress else True, leave=False, delay=2.0
     )
@@ -121,14 +140,14 @@ def run_codec(series: Series, spec: StreamSpec, max_latency: float, loss: float 
         cpu += time.perf_counter() - start
         while encoder.ready(t):
             send(t)
-        if i % 1000 == 0:
-            bar.update(min(1000, rows - bar.n))
+        if i % 1000 == 999:
+            bar.update(i + 1 - bar.n)
+    bar.update(rows - bar.n)
     bar.close()
-    while encoder.pending and (deadline := encoder.deadline()) is not None:
-        due = max(deadline, float(series.times[-1]))
-        if not encoder.ready(due):
-            break
-        send(due)
+    end = float(series.times[-1]) if rows else 0.0
+    while encoder.pending:  # the run's end: what is left leaves at its deadline, or now if it has none
+        deadline = encoder.deadline()
+        send(end if deadline is None else max(deadline, end))
     present = ~np.isnan(truth)
     held = present & ~np.isnan(shore)
     eps = np.broadcast_to(np.asarray(spec.eps), truth.shape)
@@ -137,21 +156,32 @@ def run_codec(series: Series, spec: StreamSpec, max_latency: float, loss: float 
     dated = ~np.isnan(shore_time)
     time_errors = np.abs(shore_time[dated] - series.times[dated])
     ideal = sum(entropy_bits(s) for s in symbols) / max(1, samples)
-    result = Result(samples, packets, packets * PACKET_BITS, packets * PACKET_BITS / max(1, samples),
-                    float(ratios.max()) if ratios.size else 0.0,
-                    float(np.sqrt(np.mean(ratios**2))) if ratios.size else 0.0,
-                    float(max(latencies)) if latencies else 0.0,
-                    float(max(confirmations)) if confirmations else 0.0, int((present & ~held).sum()),
-                    us_per_tick=cpu / max(1, len(row_of)) * 1e6, samples_absent=int((~present).sum()),
-                    samples_not_represented=int((present & ~held).sum()), time_precision_s=spec.time_precision,
-                    max_time_error_s=float(time_errors.max()) if time_errors.size else 0.0,
-                    ideal_bits_per_sample=ideal, code_bits_per_sample=sum(code_bits) / max(1, samples))  # fmt: skip
+    result = Result(
+        samples,
+        packets,
+        packets * PACKET_BITS,
+        packets * PACKET_BITS / max(1, samples),
+        float(ratios.max()) if ratios.size else 0.0,
+        float(np.sqrt(np.mean(ratios**2))) if ratios.size else 0.0,
+        float(max(latencies)) if latencies else 0.0,
+        float(max(confirmations)) if confirmations else 0.0,
+        int((present & ~held).sum()),
+        us_per_tick=cpu / max(1, len(row_of)) * 1e6,
+        samples_absent=int((~present).sum()),
+        samples_not_represented=int((present & ~held).sum()),
+        time_precision_s=spec.time_precision,
+        max_time_error_s=float(time_errors.max()) if time_errors.size else 0.0,
+        ideal_bits_per_sample=ideal,
+        code_bits_per_sample=sum(code_bits) / max(1, samples),
+    )
     return result, Reconstruction(series.times, truth, shore, sent)
 
 
 def pack(items: list[tuple[float, int]], capacity_bits: int, max_latency: float) -> tuple[int, float]:
-    """Packets needed for (time, bits) items sent in order, each packet leaving when the next item does
-    not fit or when its oldest item is ``max_latency`` old; returns (packets, largest latency)."""
+    """Packets needed for (time, bits) messages sent in order, with the link's rule: a message waits at
+    most ``max_latency`` (its packet leaves then), and a packet leaves when full (the next message, or any
+    as small as the smallest, does not fit). Returns (packets, largest wait)."""
+    smallest = min((bits for _, bits in items), default=0)
     packets, worst, used = 0, 0.0, 0
     batch: list[float] = []
 
@@ -168,6 +198,8 @@ def pack(items: list[tuple[float, int]], capacity_bits: int, max_latency: float)
             flush(t)
         batch.append(t)
         used += bits
+        if used + smallest > capacity_bits:
+            flush(t)
     if batch:
         flush(batch[0] + max_latency)
     return packets, worst
@@ -182,9 +214,24 @@ def send_all(series: Series, spec: StreamSpec, max_latency: float) -> Result:
     return Result(samples, packets, packets * PACKET_BITS, packets * PACKET_BITS / samples, 0.0, 0.0, latency)
 
 
+SOD_WORD_BYTES = 2  # a send-on-delta message's time delta (and, per value, which channel)
+SOD_VALUE_BYTES = 2  # each value it carries: the sensor's 16-bit reading
+
+
+def sod_messages(moved: int, channels: int) -> list[int]:
+    """The sizes in bytes of the send-on-delta messages for one row whose ``moved`` values are sent: a
+    message per value (a 2-byte time/channel word, the 2-byte value: 4 bytes), or, when smaller, one for
+    the row (a 2-byte time word, a channel mask of a bit per channel, 2 bytes per value)."""
+    single = SOD_WORD_BYTES + SOD_VALUE_BYTES
+    row = SOD_WORD_BYTES + -(-channels // 8) + SOD_VALUE_BYTES * moved
+    return [row] if row < single * moved and row <= PAYLOAD_SIZE else [single] * moved
+
+
 def send_on_delta(series: Series, spec: StreamSpec, max_latency: float) -> Result:
-    """A value when it moves more than eps from the last one sent (4 bytes each, 7 per packet); absent
-    values are neither sent nor scored."""
+    """The baseline on the same link: a channel's value is sent when it differs from the last value sent
+    by more than eps (the shore holds the last value sent), as ``sod_messages`` (one channel: 4 bytes),
+    packed as densely as they fit in the codec's 30-byte payloads, each packet leaving when full or when
+    its oldest message has waited ``max_latency``. Absent values are neither sent nor scored."""
     truth = series.values
     eps = np.asarray(spec.eps)
     last = np.full(truth.shape[1], np.nan)
@@ -194,12 +241,19 @@ def send_on_delta(series: Series, spec: StreamSpec, max_latency: float) -> Resul
         present = ~np.isnan(row)
         moved = present & (np.isnan(last) | (np.abs(row - last) > eps))
         last[moved] = row[moved]
-        items.extend((t, 32) for _ in range(int(moved.sum())))
+        items.extend((t, 8 * size) for size in sod_messages(int(moved.sum()), len(row)))
         errors[i] = np.where(present, np.abs(row - last) / eps, 0.0)
     samples = max(1, int((~np.isnan(truth)).sum()))
-    packets, latency = pack(items, 7 * 32, max_latency)
-    return Result(samples, packets, packets * PACKET_BITS, packets * PACKET_BITS / samples,
-                  float(errors.max()), float(np.sqrt(np.mean(errors**2))), latency)  # fmt: skip
+    packets, latency = pack(items, PAYLOAD_SIZE * 8, max_latency)
+    return Result(
+        samples,
+        packets,
+        packets * PACKET_BITS,
+        packets * PACKET_BITS / samples,
+        float(errors.max()),
+        float(np.sqrt(np.mean(errors**2))),
+        latency,
+    )
 
 
 def parse_eps(text: str, names: tuple[str, ...]) -> list[float]:
@@ -274,27 +328,45 @@ def plot(path: str, series: Series, spec: StreamSpec, rec: Reconstruction) -> No
     plt.close(fig)
 
 
+def _silence(text: str) -> float | None:
+    return None if text.strip().lower() == "none" else float(text)
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", help="a CSV file (one row per sample) or a MAVLink .tlog")
-    parser.add_argument("--columns", help="comma-separated channels (CSV columns, or MESSAGE.field for a tlog; "
-                        "default: every column, or RAW_IMU's nine for a tlog)")  # fmt: skip
-    parser.add_argument("--time-column", help="CSV time column: ISO-8601, or UNIX s/ms/us/ns (detected) "
-                        "(default: a column named t_unix_s, time, timestamp, datetime or date)")  # fmt: skip
+    parser.add_argument(
+        "--columns",
+        help="comma-separated channels (CSV columns, or MESSAGE.field for a tlog; "
+        "default: every column, or RAW_IMU's nine for a tlog)",
+    )
+    parser.add_argument(
+        "--time-column",
+        help="CSV time column: ISO-8601, or UNIX s/ms/us/ns (detected) "
+        "(default: a column named t_unix_s, time, timestamp, datetime or date)",
+    )
     parser.add_argument("--period", type=float, help="sample period in s (default: median interval)")
-    parser.add_argument("--eps", required=True, help="error bound, in channel units (or x std): one number, "
-                        "one per channel (0.1,0.5,...), or name=value pairs with an optional default")  # fmt: skip
+    parser.add_argument(
+        "--eps",
+        required=True,
+        help="error bound, in channel units (or x std): one number, "
+        "one per channel (0.1,0.5,...), or name=value pairs with an optional default",
+    )
     parser.add_argument("--relative", action="store_true", help="eps is a multiple of each channel's std")
     parser.add_argument(
         "--max-latency", type=float, default=10.0, help="seconds an unpredictable sample may wait (10)"
     )
     parser.add_argument(
         "--max-silence",
-        type=float,
+        type=_silence,
         default=60.0,
-        help="seconds a predictable sample may wait to be confirmed (60)",
+        help="seconds a predictable sample may wait to be confirmed (60); 'none': no packet leaves only to "
+        "confirm (send-on-delta's guarantee)",
     )
-    parser.add_argument("--time-unit", choices=("s", "ms", "us", "ns"),
-                        help="unit of a numeric time column (default: detected from its magnitude)")  # fmt: skip
+    parser.add_argument(
+        "--time-unit",
+        choices=("s", "ms", "us", "ns"),
+        help="unit of a numeric time column (default: detected from its magnitude)",
+    )
     parser.add_argument("--method", choices=METHODS, default="kalman", help="predictor (default kalman)")
     parser.add_argument("--loss", type=float, default=0.0, help="fraction of packets lost (seeded)")
     parser.add_argument(
@@ -313,15 +385,31 @@ def evaluate(args: argparse.Namespace) -> tuple[dict[str, Any], Series, StreamSp
     )
     for note in series.notes:
         print(f"tacit eval-compression: {note}", file=sys.stderr)
+    rows, channels = series.values.shape
+    print(
+        f"tacit eval-compression: read {rows} rows of {channels} channels: "
+        f"{rows * channels - series.absent} samples, {series.absent} absent",
+        file=sys.stderr,
+    )
     spec = make_spec(series, args.eps, args.relative, args.method, args.period)
-    result, rec = run_codec(series, spec, args.max_latency, args.loss, args.seed, args.urgent_threshold,
-                            args.max_silence, progress)  # fmt: skip
+    result, rec = run_codec(
+        series,
+        spec,
+        args.max_latency,
+        args.loss,
+        args.seed,
+        args.urgent_threshold,
+        args.max_silence,
+        progress,
+    )
     baselines = {"send-all": send_all, "send-on-delta": send_on_delta}
     report: dict[str, object] = {
         **asdict(result),
         "method": args.method,
         "channels": list(spec.channels),
-        "eps": list(spec.eps),
+        "rows": len(series.times),
+        "eps": list(spec.eps),  # per channel, in channel units (with --relative: --eps x the channel's std)
+        "eps_relative": bool(args.relative),
         "period_s": spec.period,
         "notes": list(series.notes),
         "baselines": {
@@ -351,6 +439,12 @@ def _table(report: dict[str, Any]) -> str:
     for name, row in rows:
         cells = "".join(f"{row[k]:>17.3f}" if isinstance(row[k], float) else f"{row[k]:>17}" for k in keys)
         lines.append(f"{name:<18}{cells}")
+    bounds = ", ".join(
+        f"{name}={eps:.4g}" for name, eps in zip(report["channels"], report["eps"], strict=True)
+    )
+    lines.append(
+        f"eps (error bound): {bounds}" + (" (--eps x each channel's std)" if report["eps_relative"] else "")
+    )
     if report.get("unbounded_samples"):
         lines.append(f"lost (marked unbounded on shore): {report['unbounded_samples']} samples")
     lines.append(

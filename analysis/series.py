@@ -15,8 +15,9 @@ from tqdm import tqdm
 
 from analysis import tlog
 
-DEFAULT_TLOG_COLUMNS = tuple(f"RAW_IMU.{f}" for f in
-                             ("xacc", "yacc", "zacc", "xgyro", "ygyro", "zgyro", "xmag", "ymag", "zmag"))  # fmt: skip
+DEFAULT_TLOG_COLUMNS = tuple(
+    f"RAW_IMU.{f}" for f in ("xacc", "yacc", "zacc", "xgyro", "ygyro", "zgyro", "xmag", "ymag", "zmag")
+)
 
 
 MISSING = {"", "nan", "na", "n/a", "null", "none", "missing", "-", "--", "?"}
@@ -44,8 +45,14 @@ class Series:
         return int(np.isnan(self.values).sum())
 
 
-def load(path: str | Path, columns: list[str] | None = None, time_column: str | None = None,
-         period: float | None = None, time_unit: str | None = None, progress: bool = False) -> Series:  # fmt: skip
+def load(
+    path: str | Path,
+    columns: list[str] | None = None,
+    time_column: str | None = None,
+    period: float | None = None,
+    time_unit: str | None = None,
+    progress: bool = False,
+) -> Series:
     path = Path(path)
     if path.suffix.lower() == ".tlog":
         return load_tlog(path, columns or list(DEFAULT_TLOG_COLUMNS))
@@ -119,8 +126,14 @@ def _clock(name: str) -> bool:
     )
 
 
-def load_csv(path: Path, columns: list[str] | None, time_column: str | None, period: float | None,
-             time_unit: str | None = None, progress: bool = False) -> Series:  # fmt: skip
+def load_csv(
+    path: Path,
+    columns: list[str] | None,
+    time_column: str | None,
+    period: float | None,
+    time_unit: str | None = None,
+    progress: bool = False,
+) -> Series:
     """One row per sample (a ``.gz`` file is read as gzip). Blank, NaN and ``missing`` cells are absent
     values. Text columns are skipped (with a note) unless asked for by name, when they are refused, naming
     the column and row."""
@@ -129,9 +142,16 @@ def load_csv(path: Path, columns: list[str] | None, time_column: str | None, per
         lines = (line for line in handle if not line.startswith("#"))
         reader = csv.reader(lines)
         header = [h.strip() for h in next(reader, [])]
-        rows = list(
-            tqdm(reader, desc=f"reading {path.name}", unit=" rows", disable=not progress, leave=False)
+        # on a terminal only, after a second (a log would keep the bar's first "0 rows"), then cleared
+        bar = tqdm(
+            reader,
+            desc=f"reading {path.name}",
+            unit=" rows",
+            disable=None if progress else True,
+            leave=False,
+            delay=1.0,
         )
+        rows = list(bar)
     if not header:
         raise ValueError(f"{path.name}: empty file")
     if time_column is None:
@@ -145,8 +165,10 @@ def load_csv(path: Path, columns: list[str] | None, time_column: str | None, per
         raise ValueError(f"{path.name}: no column(s) {missing}; the file has {header}")
     if not rows:
         raise ValueError(f"{path.name}: no rows")
-    notes = [f"skipped column {h!r}: another clock, not a measurement (name it in --columns to compress it)"
-             for h in clocks]  # fmt: skip
+    notes = [
+        f"skipped column {h!r}: another clock, not a measurement (name it in --columns to compress it)"
+        for h in clocks
+    ]
     width = len(header)
     for i, r in enumerate(rows):
         if len(r) < width:
@@ -226,8 +248,9 @@ def measured_samples(folder: Path, kind: str, fields: Sequence[str], scale: floa
     return Measured(np.array(times)[order], np.array(rows).reshape(len(rows), len(fields))[order])
 
 
-def error_ratios(values: Sequence[float | None], samples: Sequence[Sequence[float]],
-                 eps: Sequence[float]) -> list[float]:  # fmt: skip
+def error_ratios(
+    values: Sequence[float | None], samples: Sequence[Sequence[float]], eps: Sequence[float]
+) -> list[float]:
     """|reconstruction - measured| / eps per channel, against the one of ``samples`` (those taken within
     half a tick of the reconstruction's time: ``Measured.near``) that fits best; absent channels are
     skipped."""

@@ -1,27 +1,35 @@
-"""Compression on every real log in ../shared/data/ardusub: bits per sample on the link, error, latency.
+"""Compression on every real log in tests/data/ardusub: bits per sample on the link, error, latency.
 
 IMU (RAW_IMU's nine channels, or the dataflash IMU's six) at 0.25 and 0.5 standard deviation per
 channel; water temperature (Bar30, SCALED_PRESSURE2) at 0.05 and 0.1 degC. Unpredictable samples leave within 10 s; predictable ones are confirmed within 60 s.
 Also the vehicle side's CPU cost per tick.
 
 Run: .venv/bin/python bench/bench_compression.py [--data DIR] [--method kalman] [--json]
+
+``--sweep``: every series at latency bounds of 10 s, 60 s, 600 s, 1 h and 1 day, the codec beside
+send-on-delta framed on the same link (``analysis.evaluate.send_on_delta``) at the same eps and latency
+and the same guarantee (the codec with no silence bound: nothing confirms a quiet value), a check that the
+codec costs at most one packet more, and what confirming predictable samples within max(60 s, latency)
+adds. It fails (exit status 1) if it did not measure what it claims: a sample off by more than eps or not
+held on the shore, a latency over its bound, or link bits that are not whole packets.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
-from analysis.evaluate import evaluate, make_spec, run_codec, send_on_delta
+from analysis.evaluate import PACKET_BITS, Result, evaluate, make_spec, run_codec, send_on_delta
 from analysis.series import Series, load
 from tacit.codec import StreamDecoder, StreamEncoder
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "ardusub"
+DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "ardusub"
 IMU = "xacc,yacc,zacc,xgyro,ygyro,zgyro,xmag,ymag,zmag"
 TLOG_IMU = ",".join(f"RAW_IMU.{c}" for c in IMU.split(","))
 CASES = [
@@ -57,6 +65,77 @@ PUBLIC_CASES = [
 ]  # fmt: skip
 
 
+SWEEP_LATENCIES = [(10.0, "10 s"), (60.0, "60 s"), (600.0, "600 s"), (3600.0, "1 h"), (86400.0, "1 day")]
+COUNTS_PER_SECOND = {"handheld_ximu_256hz_imu.csv": 390.0}  # a counter's clock: latencies in its unit
+
+
+def sweep_cases(data: Path) -> list[tuple[str, Series, float, bool, float]]:
+    """Every series of the tables once per eps: (label, series, eps, relative, time units per second)."""
+    cases = []
+    for name, columns, eps, relative, label in CASES:
+        dataflash = name.endswith("BIN_imu0.csv")
+        series = load(
+            data / name,
+            columns.split(","),
+            "TimeUS" if dataflash else None,
+            None,
+            "us" if dataflash else None,
+        )
+        cases.append((f"{name} {label}", series, eps, relative, 1.0))
+    seen = set()
+    for name, listed, time_column, eps, relative, _, label in PUBLIC_CASES:
+        if (name, eps) not in seen:  # a series at another latency is the same series
+            seen.add((name, eps))
+            series = load(PUBLIC / name, listed, time_column)
+            cases.append((label.rsplit(" (", 1)[0], series, eps, relative, COUNTS_PER_SECOND.get(name, 1.0)))
+    return cases
+
+
+def measured(results: dict[str, Result], latency: float) -> list[str]:
+    """What the sweep claims of each run but did not measure: each a sentence (none: all held)."""
+    wrong = []
+    samples = {r.samples for r in results.values()}
+    for name, r in results.items():
+        if r.max_error_ratio > 1 + 1e-9:
+            wrong.append(f"{name}: a sample {r.max_error_ratio:.3f} eps off")
+        if r.max_latency_s > latency * (1 + 1e-9):
+            wrong.append(f"{name}: a sample waited {r.max_latency_s:.4g} > {latency:.4g}")
+        if r.link_bits != r.packets * PACKET_BITS or len(samples) != 1 or r.samples_not_represented:
+            wrong.append(f"{name}: packets, bits or samples not all counted")
+    return wrong
+
+
+def sweep_table(data: Path, method: str) -> bool:
+    """The latency sweep; False if a measurement did not hold what it claims."""
+    print("\ncodec vs send-on-delta framed on the same link, same eps, latency and guarantee:")
+    head = (
+        f"{'series':<46} {'latency':>7} {'samples':>8} {'codec pkt':>9} {'codec b/s':>9} {'SoD pkt':>8} "
+        f"{'SoD b/s':>8} {'codec <= SoD + 1 pkt':>20} {'+ confirm b/s':>13}"
+    )
+    print(head)
+    print("-" * len(head))
+    faults = []
+    for label, series, eps, relative, unit in tqdm(
+        sweep_cases(data), desc="sweep", unit="series", leave=False
+    ):
+        spec = make_spec(series, eps, relative, method, None)
+        for seconds, name in SWEEP_LATENCIES:
+            latency = seconds * unit
+            codec, _ = run_codec(series, spec, latency, max_silence=None)
+            confirmed, _ = run_codec(series, spec, latency, max_silence=max(60.0 * unit, latency))
+            sod = send_on_delta(series, spec, latency)
+            runs = {"codec": codec, "codec confirming": confirmed, "send-on-delta": sod}
+            faults += [f"{label} at {name}: {w}" for w in measured(runs, latency)]
+            check = "ok" if codec.packets <= sod.packets + 1 else f"WORSE by {codec.packets - sod.packets}"
+            print(
+                f"{label:<46} {name:>7} {codec.samples:>8} {codec.packets:>9} {codec.bits_per_sample:>9.3f} "
+                f"{sod.packets:>8} {sod.bits_per_sample:>8.3f} {check:>20} {confirmed.bits_per_sample:>13.3f}"
+            )
+    for fault in faults:
+        print(f"NOT MEASURED AS CLAIMED: {fault}", file=sys.stderr)
+    return not faults
+
+
 def degraded(series: Series, seed: int = 2) -> Series:
     """5 % of samples removed at random and +-30 % of a period of timing jitter."""
     rng = np.random.default_rng(seed)
@@ -83,8 +162,10 @@ def decode_rate(series: Series, spec, max_latency: float) -> float:
 
 def robustness_table(data: Path) -> None:
     print("\nclean vs 5 % removed and +-30 % jitter (RAW_IMU 0.5 sd, latency 10 s), and public data:")
-    head = (f"{'case':<46} {'bits/sample':>11} {'code only':>9} {'send-on-delta':>13} {'ideal':>6} {'x ideal':>7} "
-            f"{'max err/eps':>11} {'absent':>6} {'not repr':>8} {'time prec s':>11} {'pkt/s decoded':>13}")  # fmt: skip
+    head = (
+        f"{'case':<46} {'bits/sample':>11} {'code only':>9} {'send-on-delta':>13} {'ideal':>6} {'x ideal':>7} "
+        f"{'max err/eps':>11} {'absent':>6} {'not repr':>8} {'time prec s':>11} {'pkt/s decoded':>13}"
+    )
     print(head)
     print("-" * len(head))
     cases = []
@@ -105,10 +186,12 @@ def robustness_table(data: Path) -> None:
         result, _ = run_codec(series, spec, latency, max_silence=max(60.0, latency))
         sod = send_on_delta(series, spec, latency).bits_per_sample
         ideal = result.ideal_bits_per_sample
-        print(f"{label:<46} {result.bits_per_sample:>11.3f} {result.code_bits_per_sample:>9.3f} {sod:>13.3f} {ideal:>6.3f} "
-              f"{result.bits_per_sample / max(ideal, 1e-9):>7.2f} {result.max_error_ratio:>11.3f} "
-              f"{result.samples_absent:>6} {result.samples_not_represented:>8} {result.time_precision_s:>11.3f} "
-              f"{decode_rate(series, spec, latency):>13.0f}")  # fmt: skip
+        print(
+            f"{label:<46} {result.bits_per_sample:>11.3f} {result.code_bits_per_sample:>9.3f} {sod:>13.3f} {ideal:>6.3f} "
+            f"{result.bits_per_sample / max(ideal, 1e-9):>7.2f} {result.max_error_ratio:>11.3f} "
+            f"{result.samples_absent:>6} {result.samples_not_represented:>8} {result.time_precision_s:>11.3f} "
+            f"{decode_rate(series, spec, latency):>13.0f}"
+        )
 
 
 def main() -> None:
@@ -119,17 +202,32 @@ def main() -> None:
     parser.add_argument("--method", default="kalman", help="predictor (kalman, kalman-cv, mean, hold)")
     parser.add_argument("--json", action="store_true", help="one JSON object per case")
     parser.add_argument("--only-robustness", action="store_true", help="only the clean/degraded/public table")
+    parser.add_argument("--sweep", action="store_true", help="only the latency sweep against send-on-delta")
     options = parser.parse_args()
+    if options.sweep:
+        sys.exit(0 if sweep_table(options.data, options.method) else 1)
     if options.only_robustness:
         robustness_table(options.data)
         return
     rows = []
     for name, columns, eps, relative, label in tqdm(CASES, desc="logs", unit="case"):
         dataflash = name.endswith("BIN_imu0.csv")
-        args = argparse.Namespace(file=str(options.data / name), columns=columns, period=None, eps=eps,
-                                  time_column="TimeUS" if dataflash else None, time_unit="us" if dataflash else "s",
-                                  relative=relative, max_latency=10.0, max_silence=60.0, method=options.method,
-                                  loss=0.0, seed=1, urgent_threshold=None, progress=False)  # fmt: skip
+        args = argparse.Namespace(
+            file=str(options.data / name),
+            columns=columns,
+            period=None,
+            eps=eps,
+            time_column="TimeUS" if dataflash else None,
+            time_unit="us" if dataflash else "s",
+            relative=relative,
+            max_latency=10.0,
+            max_silence=60.0,
+            method=options.method,
+            loss=0.0,
+            seed=1,
+            urgent_threshold=None,
+            progress=False,
+        )
         report, *_ = evaluate(args)
         rows.append((name, label, report))
     if options.json:
@@ -141,8 +239,10 @@ def main() -> None:
     print("-" * len(head))
     for name, label, r in rows:
         sod = r["baselines"]["send-on-delta"]["bits_per_sample"]
-        print(f"{name:<32} {label:<22} {r['samples']:>8} {r['packets']:>8} {r['bits_per_sample']:>12.3f} "
-              f"{sod:>14.3f} {r['max_error_ratio']:>12.3f} {r['max_latency_s']:>10.1f} {r['max_confirmation_s']:>10.1f} {r['us_per_tick']:>8.0f}")  # fmt: skip
+        print(
+            f"{name:<32} {label:<22} {r['samples']:>8} {r['packets']:>8} {r['bits_per_sample']:>12.3f} "
+            f"{sod:>14.3f} {r['max_error_ratio']:>12.3f} {r['max_latency_s']:>10.1f} {r['max_confirmation_s']:>10.1f} {r['us_per_tick']:>8.0f}"
+        )
     robustness_table(options.data)
 
 

@@ -11,6 +11,7 @@ from collections.abc import Callable
 
 from tacit import auth, nmea, packets
 from tacit.packets import (
+    PAYLOAD_SIZE,
     CheckpointPacket,
     Command,
     ControlPacket,
@@ -44,10 +45,12 @@ def main() -> None:
     control_frame = auth.sign(control, KEY, 2)
     checkpoint = CheckpointPacket(seq=1, time=1_800_000_000, state=MissionState.PREPROGRAMMED, depth=3.5)
     checkpoint_frame = checkpoint.encode()
-    priority_frame = PriorityPacket(1, Priority.IMPORTANT, Stream.KINEMATIC, bytes(30)).encode()
+    priority_frame = PriorityPacket(1, Priority.IMPORTANT, Stream.KINEMATIC, bytes(PAYLOAD_SIZE)).encode()
     rxd = nmea.RxData(2, 1, False, 1, checkpoint_frame).line()
-    cst = ("$CACST,0,223413.0000,0,1440,25,0175,0166,75,01,01,01,03,1,007,006,0,3,3,0,146,03,04,"
-           "-100,-1,000,-1.2,45,10000,2000")  # fmt: skip
+    cst = (
+        "$CACST,0,223413.0000,0,1440,25,0175,0166,75,01,01,01,03,1,007,006,0,3,3,0,146,03,04,"
+        "-100,-1,000,-1.2,45,10000,2000"
+    )
     cst += "*" + nmea.checksum(cst[1:])
     rows = [
         ("control sign (encode + HMAC)", lambda: auth.sign(control, KEY, 2), "packets/s"),

@@ -106,8 +106,10 @@ def square_mission(minutes: float) -> None:
     samples_per_s = sum(len(s.channels) / s.period for s in streams.values())  # in simulated time
     every_sample = samples_per_s * 16 / 256 * 3600
     print(f"protocol: {packets / simulated_hours:,.0f} packets/hour (priority + check-point, all streams)")
-    print(f"sending every sample (16 bits, rate 0): {every_sample:,.0f} packets/hour -> "
-          f"{every_sample * 256 / 3600:,.0f} bit/s, {every_sample * 256 / 3600 / 80:.1f}x rate 0's 80 bit/s")  # fmt: skip
+    print(
+        f"sending every sample (16 bits, rate 0): {every_sample:,.0f} packets/hour -> "
+        f"{every_sample * 256 / 3600:,.0f} bit/s, {every_sample * 256 / 3600 / 80:.1f}x rate 0's 80 bit/s"
+    )
     print(f"environmental stream, largest |reconstruction - measured| / eps where certain: {error:.3f}")
 
 
@@ -115,8 +117,12 @@ def env_error(folder: Path, rows: list[dict]) -> float:
     """Compare the shore's reconstruction with the vehicle's own tlog, sample by sample."""
     spec = default_streams()[Stream.ENVIRONMENTAL]
     measured = measured_samples(folder / "tlogs", "SCALED_PRESSURE2", ["temperature"], scale=0.01)
-    errors = [ratio for r in rows if r["certain"] and (near := measured.near(r["time"], spec.time_precision))
-              for ratio in error_ratios(r["values"][:1], near, spec.eps[:1])]  # fmt: skip
+    errors = [
+        ratio
+        for r in rows
+        if r["certain"] and (near := measured.near(r["time"], spec.time_precision))
+        for ratio in error_ratios(r["values"][:1], near, spec.eps[:1])
+    ]
     return max(errors) if errors else float("nan")
 
 

@@ -51,8 +51,14 @@ def row(area: str, target: str, cases: str, bad: str, test: str) -> None:
 T = TypeVar("T")
 
 
-def fuzz(name: str, cases: int, make: Callable[[random.Random], T], call: Callable[[T], object],
-         expected: type[Exception], test: str) -> None:  # fmt: skip
+def fuzz(
+    name: str,
+    cases: int,
+    make: Callable[[random.Random], T],
+    call: Callable[[T], object],
+    expected: type[Exception],
+    test: str,
+) -> None:
     rng, crashes = random.Random(1), 0
     for _ in tqdm(range(cases), desc=name, leave=False):
         try:
@@ -74,27 +80,70 @@ def mutate(rng: random.Random, data: bytes) -> bytes:
     return bytes(out)
 
 
-VALID_LINES = [s.encode() for s in ("$CACYC,0,1,2,0,1,1*58", "$CAMPR,2,1,0.0101*7C", "$CAREV,000052,AUV,0.93.0.09*07",
-                                    nmea.RxData(2, 1, True, 1, bytes(32)).line())]  # fmt: skip
+VALID_LINES = [
+    s.encode()
+    for s in (
+        "$CACYC,0,1,2,0,1,1*58",
+        "$CAMPR,2,1,0.0101*7C",
+        "$CAREV,000052,AUV,0.93.0.09*07",
+        nmea.RxData(2, 1, True, 1, bytes(32)).line(),
+    )
+]
 VALID_FRAME = CheckpointPacket(
     seq=3, time=1_800_000_000, state=MissionState.PREPROGRAMMED, depth=2.0
 ).encode()
 
 
 def fuzzing(cases: int) -> None:
-    fuzz("NMEA reader (random bytes)", cases, lambda r: r.randbytes(r.randint(0, 120)), nmea.parse, nmea.NmeaError,
-         "test_nmea: random_bytes, mutated_sentences")  # fmt: skip
-    fuzz("NMEA reader (mutated sentences)", cases, lambda r: mutate(r, r.choice(VALID_LINES)), nmea.parse,
-         nmea.NmeaError, "test_nmea: mutated_sentences")  # fmt: skip
-    fuzz("NMEA reader (overlong and non-finite numbers)", cases, numeric_fields, parse_bounded, nmea.NmeaError,
-         "test_nmea: overlong_and_non_finite, fuzzed_numeric_fields")  # fmt: skip
-    fuzz("packet decoder (random frames)", cases, lambda r: r.randbytes(r.choice((31, 32, 32, 33))), packets.decode,
-         packets.PacketError, "test_packets: random_bytes")  # fmt: skip
-    fuzz("packet decoder (bit-flipped)", cases, lambda r: mutate(r, VALID_FRAME)[:32], packets.decode,
-         packets.PacketError, "test_packets: bit_flipped")  # fmt: skip
+    fuzz(
+        "NMEA reader (random bytes)",
+        cases,
+        lambda r: r.randbytes(r.randint(0, 120)),
+        nmea.parse,
+        nmea.NmeaError,
+        "test_nmea: random_bytes, mutated_sentences",
+    )
+    fuzz(
+        "NMEA reader (mutated sentences)",
+        cases,
+        lambda r: mutate(r, r.choice(VALID_LINES)),
+        nmea.parse,
+        nmea.NmeaError,
+        "test_nmea: mutated_sentences",
+    )
+    fuzz(
+        "NMEA reader (overlong and non-finite numbers)",
+        cases,
+        numeric_fields,
+        parse_bounded,
+        nmea.NmeaError,
+        "test_nmea: overlong_and_non_finite, fuzzed_numeric_fields",
+    )
+    fuzz(
+        "packet decoder (random frames)",
+        cases,
+        lambda r: r.randbytes(r.choice((31, 32, 32, 33))),
+        packets.decode,
+        packets.PacketError,
+        "test_packets: random_bytes",
+    )
+    fuzz(
+        "packet decoder (bit-flipped)",
+        cases,
+        lambda r: mutate(r, VALID_FRAME)[:32],
+        packets.decode,
+        packets.PacketError,
+        "test_packets: bit_flipped",
+    )
     spec = default_streams()[next(iter(default_streams()))]
-    fuzz("sample decoder (random payloads)", cases // 10, lambda r: r.randbytes(30),
-         lambda p: StreamDecoder(spec).decode(p, time.time()), CodecError, "test_codec: garbage_is_a_codec_error")  # fmt: skip
+    fuzz(
+        "sample decoder (random payloads)",
+        cases // 10,
+        lambda r: r.randbytes(30),
+        lambda p: StreamDecoder(spec).decode(p, time.time()),
+        CodecError,
+        "test_codec: garbage_is_a_codec_error",
+    )
     row(
         "fuzz",
         "modem driver (garbage on a live pty)",
@@ -159,8 +208,13 @@ def driver_garbage(lines: int) -> tuple[str, str]:
     return f"{lines:,} lines", "0" if alive else "1 (driver stopped answering)"
 
 
-def attacks(cases: int, command: Command = Command.HOLD, prefix: str = "", stale: bool = True,
-            test: str = "test_auth; test_agent_system: forged_and_replayed") -> None:  # fmt: skip
+def attacks(
+    cases: int,
+    command: Command = Command.HOLD,
+    prefix: str = "",
+    stale: bool = True,
+    test: str = "test_auth; test_agent_system: forged_and_replayed",
+) -> None:
     """Forged, bit-flipped, replayed (and stale) control packets of ``command`` against the vehicle's gate."""
     key, address, now = bytes(range(32)), 2, time.time()
     gate = auth.ControlReceiver(key, address)
@@ -178,7 +232,8 @@ def attacks(cases: int, command: Command = Command.HOLD, prefix: str = "", stale
     }  # fmt: skip
     if stale:
         kinds["out of window (stale)"] = lambda i: auth.sign(
-            ControlPacket(command, seq=2 * 10**6 + i, time=int(now) - 3600), key, address)  # fmt: skip
+            ControlPacket(command, seq=2 * 10**6 + i, time=int(now) - 3600), key, address
+        )
     for name, make in kinds.items():
         accepted = 0
         for i in range(cases):
@@ -205,10 +260,13 @@ def shore_attacks(cases: int) -> None:
 
     from sqlmodel import Session, select
 
-    from server.db import make_engine, migrate
-    from server.events import EventBus
-    from server.link.ingest import IncomingFrame, Ingest
-    from server.models import Packet, Vehicle
+    from server.core.config import Settings
+    from server.core.db import make_engine, migrate
+    from server.core.events import Bus as EventBus
+    from server.link.ingest import Ingest
+    from server.link.state import IncomingFrame
+    from server.telemetry.models import Packet
+    from server.vehicles.models import Vehicle
 
     url = f"sqlite:///{tempfile.mkdtemp(prefix='tacit-attacks-')}/tacit.db"
     migrate(url)
@@ -217,7 +275,7 @@ def shore_attacks(cases: int) -> None:
     with Session(db) as s:
         s.add(Vehicle(name="rov1", address=address, key_hex=key.hex()))
         s.commit()
-    ingest = Ingest(db, EventBus(), default_streams())
+    ingest = Ingest(db, EventBus(), default_streams(), Settings())
     ingest.load_vehicles()
     rng, t0 = random.Random(5), int(time.time())
 
@@ -233,7 +291,7 @@ def shore_attacks(cases: int) -> None:
         "check-point forged (a stranger's key)": lambda i: checkpoint(i, rng.randbytes(32), t0 + i),
         "check-point bit-flipped (1-3 bits)": lambda i: flip(rng, checkpoint(i, key, t0 + 1 + i)),
         "check-point replayed (older than the last)": lambda i: checkpoint(i, key, t0 - 1 - i),
-        "priority packet forged (any 30 bytes)": lambda i: bytes([0xA0 | rng.randrange(16), i % 256]) + rng.randbytes(30),
+        "priority packet forged (any 30 bytes)": lambda i: bytes([0xE0 | rng.randrange(16), i % 256]) + rng.randbytes(30),
     }  # fmt: skip
     for name, make in kinds.items():
         before = ingest.stats["verified"]
@@ -252,18 +310,37 @@ def shore_attacks(cases: int) -> None:
 
 
 def api(examples: int) -> None:
-    result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "tests/test_schemathesis.py"],
-                            cwd=ROOT, capture_output=True, text=True, env={**os.environ, "TACIT_API_EXAMPLES": str(examples)})  # fmt: skip
+    result = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "tests/test_schemathesis.py"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        env={**os.environ, "TACIT_API_EXAMPLES": str(examples)},
+    )
     passed = int(m.group(1)) if (m := re.search(r"(\d+) passed", result.stdout)) else 0
     failed = int(m.group(1)) if (m := re.search(r"(\d+) failed", result.stdout)) else 0
-    row("api", "schemathesis, every operation", f"{passed + failed} ops x {examples}", f"{failed} failed",
-        "test_schemathesis")  # fmt: skip
-    result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "tests/test_bad_input.py"],
-                            cwd=ROOT, capture_output=True, text=True)  # fmt: skip
+    row(
+        "api",
+        "schemathesis, every operation",
+        f"{passed + failed} ops x {examples}",
+        f"{failed} failed",
+        "test_schemathesis",
+    )
+    result = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "tests/test_bad_input.py"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+    )
     passed = int(m.group(1)) if (m := re.search(r"(\d+) passed", result.stdout)) else 0
     failed = int(m.group(1)) if (m := re.search(r"(\d+) failed", result.stdout)) else 0
-    row("api", "NaN/Infinity/1e999 in every float, 100 kB keys, partial PUT", f"{passed + failed} tests "
-        "(150 property examples)", f"{failed} failed", "test_bad_input")  # fmt: skip
+    row(
+        "api",
+        "NaN/Infinity/1e999 in every float, 100 kB keys, partial PUT",
+        f"{passed + failed} tests (150 property examples)",
+        f"{failed} failed",
+        "test_bad_input",
+    )
 
 
 def faults() -> None:
@@ -277,8 +354,13 @@ def faults() -> None:
     finally:
         rig.close()
     failed = sum(1 for status, _ in results if status == "failed")
-    row("faults", "50 % frame loss, 8 commands", "8", f"{failed} undelivered, {sum(n - 1 for n in executed.values())} "
-        "executed twice", "bench_link delivery; test_channel: extra_loss")  # fmt: skip
+    row(
+        "faults",
+        "50 % frame loss, 8 commands",
+        "8",
+        f"{failed} undelivered, {sum(n - 1 for n in executed.values())} executed twice",
+        "bench_link delivery; test_channel: extra_loss",
+    )
 
     for victim in ("server", "agent"):
         kill_mid_mission(victim)
@@ -299,8 +381,12 @@ def faults() -> None:
 
 def suite_row(area: str, target: str, test: str) -> None:
     """A fault whose injection lives in a test: run it and report its outcome."""
-    result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", test], cwd=ROOT,
-                            capture_output=True, text=True)  # fmt: skip
+    result = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", test],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+    )
     row(area, target, "1", "0" if result.returncode == 0 else "1 (test failed)", test.split("::")[-1])
 
 
@@ -324,8 +410,11 @@ def kill_mid_mission(victim: str) -> None:
         else:
             rig.kill_agent()
             rig.start_agent()
-        wait_for(lambda: http.get(f"/commands/{queued['id']}").json()["status"] in ("executing", "executed"), 120,
-                 what="queued command executed")  # fmt: skip
+        wait_for(
+            lambda: http.get(f"/commands/{queued['id']}").json()["status"] in ("executing", "executed"),
+            120,
+            what="queued command executed",
+        )
         after = {p["id"] for p in http.get("/packets", params={"limit": 1000}).json()["items"]}
         twice = sum(n - 1 for n in rig.executed_per_seq().values())
 
@@ -336,9 +425,14 @@ def kill_mid_mission(victim: str) -> None:
         wait_for(lambda: any("error" not in p["body"] for p in after_restart()), 120, what="a packet decoded")
         late = after_restart()
         decoded = sum(1 for p in late if "error" not in p["body"])
-        row("faults", f"{victim} SIGKILLed mid-mission", "1", f"{len(before - after)} packets lost, {twice} executed "
+        row(
+            "faults",
+            f"{victim} SIGKILLed mid-mission",
+            "1",
+            f"{len(before - after)} packets lost, {twice} executed "
             f"twice, {decoded}/{len(late)} priority packets decoded after restart",
-            "test_faults" if victim == "server" else "test_agent_system: survives_an_agent_restart")  # fmt: skip
+            "test_faults" if victim == "server" else "test_agent_system: survives_an_agent_restart",
+        )
     finally:
         rig.close()
 
@@ -360,8 +454,10 @@ def main() -> None:
     api(options.api_examples)
     if not options.no_faults:
         faults()
-    widths = [max(len(r[i]) for r in [("area", "target", "cases", "bad outcomes", "test in the suite"), *rows])
-              for i in range(5)]  # fmt: skip
+    widths = [
+        max(len(r[i]) for r in [("area", "target", "cases", "bad outcomes", "test in the suite"), *rows])
+        for i in range(5)
+    ]
     for r in [("area", "target", "cases", "bad outcomes", "test in the suite"), *rows]:
         print("  ".join(cell.ljust(w) for cell, w in zip(r, widths, strict=True)))
 

@@ -21,43 +21,82 @@ from multiprocessing.queues import Queue
 import httpx
 import numpy as np
 import uvicorn
+from sqlmodel import Session, select
 from tqdm import tqdm
 
 from server.app import create_app
-from server.link.ingest import IncomingFrame
-from server.settings import Settings
+from server.core.config import Settings
+from server.core.db import make_engine
+from server.link.state import IncomingFrame
+from server.telemetry.models import Packet, PacketTrust
+from tacit import auth
 from tacit.codec import PacketEncoder
-from tacit.packets import CheckpointPacket, MissionState
+from tacit.packets import CheckpointPacket, MissionState, cover_bitmap, with_seq
 from tacit.streams import default_streams
 
 TOKEN = "bench-token"
+ADDRESS = 2
 
 
-def frames(count: int, priority_share: float) -> list[bytes]:
-    """Check-points and real codec output (a noisy IMU stream), in the order a vehicle sends them."""
+def frames(count: int, priority_share: float, key: bytes) -> tuple[list[bytes], int]:
+    """Check-points and real codec output (a noisy IMU stream), in the order a vehicle sends them and
+    signed as the agent signs them: each check-point covers the priority packets sent since the last one
+    (a check-point is due before 12 are uncovered, as on the vehicle). Returns the frames and how many are
+    check-points."""
     streams = list(default_streams().values())  # the server decodes every stream of a packet
     spec = streams[0]
     encoder = PacketEncoder(streams, max_latency=1.0)
     rng = np.random.default_rng(1)
     out: list[bytes] = []
+    uncovered: list[tuple[int, bytes]] = []  # (seq, hash) of priority packets no check-point covered yet
+    checkpoints = 0
     t0 = time.time() - 3600
     tick = 0
     bar = tqdm(total=count, desc="encoding frames", unit="frame")
-    while len(out) < count:
-        if rng.random() < priority_share:
+    while len(out) < count or uncovered:  # the last frame is a check-point: every packet is vouched for
+        seq = len(out) % 256
+        if rng.random() < priority_share and len(uncovered) < 12 and len(out) < count - 1:
             while not encoder.ready(t0 + tick * spec.period):
                 encoder.push(0, t0 + tick * spec.period, rng.normal(0, 10, len(spec.channels)))
                 tick += 1
             encoded = encoder.take()
             encoder.resolve(True)
-            out.append(encoded.packet.encode())
+            frame = auth.tag_priority(with_seq(encoded.packet, seq), key, ADDRESS)
+            uncovered.append((seq, auth.packet_hash(frame)))
         else:
-            cp = CheckpointPacket(seq=len(out) % 256, time=int(t0) + len(out), state=MissionState.PREPROGRAMMED,
-                                  depth=float(len(out) % 100), temperature=20.0)  # fmt: skip
-            out.append(cp.encode())
+            cp = CheckpointPacket(
+                seq=seq,
+                time=int(t0) + len(out),
+                state=MissionState.PREPROGRAMMED,
+                depth=float(len(out) % 100),
+                temperature=20.0,
+                covered=cover_bitmap(seq, [q for q, _ in uncovered]),
+            )
+            frame = auth.sign_checkpoint(cp, key, 1, ADDRESS, [h for _, h in uncovered])
+            uncovered, checkpoints = [], checkpoints + 1
+        out.append(frame)
         bar.update()
     bar.close()
-    return out
+    return out, checkpoints
+
+
+def check_measured(ingest_stats: dict[str, int], checkpoints: int, url: str) -> None:
+    """The figure is of the accepted path only: every check-point verified, no packet refused, every
+    priority packet vouched for; anything else stops the benchmark with the counts."""
+    refused = {k: ingest_stats[k] for k in ("forged", "replayed", "unverifiable", "rejected")}
+    engine = make_engine(url)
+    with Session(engine) as s:
+        pending = len(
+            s.exec(
+                select(Packet.id).where(Packet.type == "priority", Packet.auth != PacketTrust.VERIFIED)
+            ).all()
+        )
+    engine.dispose()
+    if any(refused.values()) or ingest_stats["verified"] != checkpoints or pending:
+        raise SystemExit(
+            f"bench_server: not the accepted path: {refused}, {ingest_stats['verified']} of "
+            f"{checkpoints} check-points verified, {pending} priority packets not verified"
+        )
 
 
 def serve(app, port: int) -> uvicorn.Server:
@@ -78,8 +117,12 @@ def client_process(port: int, stop, results) -> None:
 def sse_process(port: int, stop, results) -> None:
     """A browser on the live event stream: counts the events it receives."""
     events = 0
-    with httpx.Client(base_url=f"http://127.0.0.1:{port}", headers={"Authorization": f"Bearer {TOKEN}"},
-                      timeout=None) as http, http.stream("GET", "/api/v1/events") as stream:  # fmt: skip
+    with (
+        httpx.Client(
+            base_url=f"http://127.0.0.1:{port}", headers={"Authorization": f"Bearer {TOKEN}"}, timeout=None
+        ) as http,
+        http.stream("GET", "/api/v1/events") as stream,
+    ):
         for line in stream.iter_lines():
             events += line.startswith("event:")
             if stop.is_set():
@@ -117,18 +160,22 @@ def main() -> None:
     http = httpx.Client(
         base_url=f"http://127.0.0.1:{options.port}", headers={"Authorization": f"Bearer {TOKEN}"}
     )
-    http.post("/api/v1/vehicles", json={"name": "bench", "address": 2}).raise_for_status()
-    incoming = [
-        IncomingFrame(2, 1, f, 0, 30.0, 33.0, None) for f in frames(options.frames, options.priority_share)
-    ]
+    created = http.post("/api/v1/vehicles", json={"name": "bench", "address": ADDRESS})
+    created.raise_for_status()
+    made, checkpoints = frames(options.frames, options.priority_share, bytes.fromhex(created.json()["key"]))
+    incoming = [IncomingFrame(ADDRESS, 1, f, 0, 30.0, 33.0, None) for f in made]
 
     stop = multiprocessing.Event()
     results: Queue[list[float]] = multiprocessing.Queue()
-    clients = [multiprocessing.Process(target=client_process, args=(options.port, stop, results))
-               for _ in range(options.clients)]  # fmt: skip
+    clients = [
+        multiprocessing.Process(target=client_process, args=(options.port, stop, results))
+        for _ in range(options.clients)
+    ]
     sse_results: Queue[int] = multiprocessing.Queue()
-    browsers = [multiprocessing.Process(target=sse_process, args=(options.port, stop, sse_results))
-                for _ in range(options.sse_clients)]  # fmt: skip
+    browsers = [
+        multiprocessing.Process(target=sse_process, args=(options.port, stop, sse_results))
+        for _ in range(options.sse_clients)
+    ]
     for c in clients + browsers:
         c.start()
     time.sleep(1.0)
@@ -145,17 +192,26 @@ def main() -> None:
     for c in clients + browsers:
         c.join(timeout=10)
     server.should_exit = True
-    print(f"\ndatabase: {url.split(':')[0]}   frames: {len(incoming)} ({options.priority_share:.0%} priority), "
-          f"{options.batch} per commit")  # fmt: skip
-    print(f"ingest: {len(incoming) / elapsed:,.0f} packets/s decoded, stored and published "
-          f"({ingest.stats['packets']} stored, {ingest.stats['duplicates']} duplicates)")  # fmt: skip
+    check_measured(ingest.stats, checkpoints, url)
+    print(
+        f"\ndatabase: {url.split(':')[0]}   frames: {len(incoming)} ({options.priority_share:.0%} priority), "
+        f"{options.batch} per commit"
+    )
+    print(
+        f"ingest: {len(incoming) / elapsed:,.0f} packets/s decoded, stored and published "
+        f"({ingest.stats['packets']} stored, {ingest.stats['duplicates']} duplicates)"
+    )
     if received:
-        print(f"event stream: {len(browsers)} browsers received {min(received):,} to {max(received):,} events each "
-              f"({app.state.shore.bus.published:,} published)")  # fmt: skip
+        print(
+            f"event stream: {len(browsers)} browsers received {min(received):,} to {max(received):,} events each "
+            f"({app.state.shore.bus.published:,} published)"
+        )
     if len(under_load) >= 2:
         q = statistics.quantiles(under_load, n=100)
-        print(f"API under that load ({options.clients} clients, {len(under_load)} requests): "
-              f"p50 {q[49] * 1000:.1f} ms  p95 {q[94] * 1000:.1f} ms  p99 {q[98] * 1000:.1f} ms")  # fmt: skip
+        print(
+            f"API under that load ({options.clients} clients, {len(under_load)} requests): "
+            f"p50 {q[49] * 1000:.1f} ms  p95 {q[94] * 1000:.1f} ms  p99 {q[98] * 1000:.1f} ms"
+        )
 
 
 if __name__ == "__main__":

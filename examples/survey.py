@@ -50,8 +50,14 @@ def lawnmower(lines: int, length: float, spacing: float, depth: float) -> list[d
     """The commands of the pattern: absolute bearings, so a line does not depend on the heading."""
     steps = [{"command": "goto_depth", "depth": depth}]
     for line in range(lines):
-        steps.append({"command": "move", "distance": length, "angle": 0.0 if line % 2 == 0 else 180.0,
-                      "absolute_angle": True})  # fmt: skip
+        steps.append(
+            {
+                "command": "move",
+                "distance": length,
+                "angle": 0.0 if line % 2 == 0 else 180.0,
+                "absolute_angle": True,
+            }
+        )
         if line < lines - 1:
             steps.append({"command": "move", "distance": spacing, "angle": 90.0, "absolute_angle": True})
     return steps
@@ -102,8 +108,15 @@ def run_step(http: httpx.Client, vehicle: int, step: Step, timeout: float, retri
     return step
 
 
-def survey(http: httpx.Client, vehicle: int, steps: list[dict], timeout: float = 600.0, retries: int = 1,
-           poll: float = 0.5, progress: Callable[[Step], object] = print) -> list[Step]:  # fmt: skip
+def survey(
+    http: httpx.Client,
+    vehicle: int,
+    steps: list[dict],
+    timeout: float = 600.0,
+    retries: int = 1,
+    poll: float = 0.5,
+    progress: Callable[[Step], object] = print,
+) -> list[Step]:
     """Run the commands one after the other; stop at the first that is not executed (``SurveyError``)."""
     done: list[Step] = []
     for body in steps:
@@ -153,8 +166,15 @@ def main(argv: list[str] | None = None) -> int:
     headers = {"Authorization": f"Bearer {args.token}"}
     with httpx.Client(base_url=args.url, headers=headers, timeout=30) as http:
         try:
-            survey(http, args.vehicle, lawnmower(args.lines, args.length, args.spacing, args.depth), args.timeout,
-                   args.retries, args.poll, progress)  # fmt: skip
+            survey(
+                http,
+                args.vehicle,
+                lawnmower(args.lines, args.length, args.spacing, args.depth),
+                args.timeout,
+                args.retries,
+                args.poll,
+                progress,
+            )
         except SurveyError as exc:
             print(f"survey stopped: {exc}", file=sys.stderr)
             return exc.exit_status

@@ -1,10 +1,11 @@
 """``tacit demo``: the whole system on simulators, wired together, running the paper's square mission.
 
-Processes: the simulator (two Micro-Modems on ptys joined by the acoustic channel, a BlueROV2 in a river
-with a warm plume next to the square) and the vehicle agent run as children; the server (API,
+Processes: the simulator (Micro-Modems on ptys joined by the acoustic channel, BlueROV2s in a river
+with a warm plume next to the square) and one vehicle agent per vehicle (``--vehicles N``, each running
+the square around its own home) run as children; the server (API,
 dashboard, 3D map, shore modem) runs in this process. Everything lives in ``--data-dir``: the SQLite
-database, the pty links, logs, the agent's state, and ``secrets.json`` (operator token and vehicle key,
-readable only by you). Ctrl-C or SIGTERM stops the agent, then the simulator, then the server, which
+database, the pty links, logs, the agents' state, and ``secrets.json`` (operator token and every vehicle's
+key, readable only by you). Ctrl-C or SIGTERM stops the agent, then the simulator, then the server, which
 closes the database cleanly.
 """
 
@@ -22,16 +23,37 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import quote
 
-from launch.stack import Stack, StackConfig, StackError, write_private
+from launch.stack import Member, Stack, StackConfig, StackError, write_private
+from tacit.private import open_private, private_dir
 
-PLUME_RIVER = {"surface_temp": 21.0, "thermocline_depth": 8.0, "thermocline_drop": 3.0, "front_angle_deg": 45.0,
-               "front_offset": 60.0, "front_width": 8.0, "front_step": 1.0, "plume_north": 24.0, "plume_east": 14.0,
-               "plume_depth": 2.0, "plume_sigma": 6.0, "plume_sigma_z": 3.0, "plume_excess": 3.0,
-               "patches": [[0.05, 0.05, -0.03, 0.4]]}  # fmt: skip
+PLUME_RIVER = {
+    "surface_temp": 21.0,
+    "thermocline_depth": 8.0,
+    "thermocline_drop": 3.0,
+    "front_angle_deg": 45.0,
+    "front_offset": 60.0,
+    "front_width": 8.0,
+    "front_step": 1.0,
+    "plume_north": 24.0,
+    "plume_east": 14.0,
+    "plume_depth": 2.0,
+    "plume_sigma": 6.0,
+    "plume_sigma_z": 3.0,
+    "plume_excess": 3.0,
+    "patches": [[0.05, 0.05, -0.03, 0.4]],
+}
 LAPS = 5  # one lap of the 20 m square takes about 90 s: five give a newcomer time to look around
-SQUARE = {"name": "square", "number": 1, "duration_s": 1800,
-          "waypoints": [{"north": 0, "east": 0, "depth": 2.0}]
-          + [{"north": n, "east": e, "depth": 2.0} for _ in range(LAPS) for n, e in ((20, 0), (20, 20), (0, 20), (0, 0))]}  # fmt: skip
+SQUARE = {
+    "name": "square",
+    "number": 1,
+    "duration_s": 1800,
+    "waypoints": [{"north": 0, "east": 0, "depth": 2.0}]
+    + [
+        {"north": n, "east": e, "depth": 2.0}
+        for _ in range(LAPS)
+        for n, e in ((20, 0), (20, 20), (0, 20), (0, 0))
+    ],
+}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -45,6 +67,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--mission", help="a mission JSON file (default: the paper's 20 m square at 2 m, 5 laps)"
     )
+    parser.add_argument("--vehicles", type=int, default=1, help="simulated vehicles sharing the channel")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--headless", action="store_true", help="do not open a browser")
     parser.add_argument(
@@ -52,16 +75,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _secrets(data: Path) -> dict[str, str]:
-    """The operator's token, an observer's (read-only) token and the vehicle's key, kept between runs."""
+def _secrets(data: Path, vehicles: int = 1) -> dict[str, Any]:
+    """The operator's token, an observer's (read-only) token and each vehicle's key (``keys``, first
+    vehicle first), kept between runs; a fleet larger than last time gets keys for the newcomers."""
     path = data / "secrets.json"
     values = json.loads(path.read_text()) if path.exists() else {}
-    wanted = {"token": lambda: secrets.token_urlsafe(24), "read_token": lambda: secrets.token_urlsafe(24),
-              "key": lambda: secrets.token_hex(32)}  # fmt: skip
-    if not all(name in values for name in wanted):
-        values = {name: values.get(name) or make() for name, make in wanted.items()}
-        write_private(path, json.dumps(values))
-    return values
+    keys = values.get("keys") or [values[k] for k in ("key",) if k in values]  # an older file: one "key"
+    wanted = {
+        "token": values.get("token") or secrets.token_urlsafe(24),
+        "read_token": values.get("read_token") or secrets.token_urlsafe(24),
+        "keys": keys + [secrets.token_hex(32) for _ in range(vehicles - len(keys))],
+    }
+    if wanted != values:
+        write_private(path, json.dumps(wanted))
+    return wanted
 
 
 def _log_to(path: Path) -> None:
@@ -69,15 +96,15 @@ def _log_to(path: Path) -> None:
     root = logging.getLogger()
     for handler in root.handlers:
         handler.setLevel(logging.WARNING)
-    file_handler = logging.FileHandler(path)
+    file_handler = logging.StreamHandler(open_private(path))
     file_handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
     root.addHandler(file_handler)
     root.setLevel(logging.INFO)
 
 
 def run(args: argparse.Namespace) -> int:
-    if not 0 <= args.extra_loss <= 1 or args.time_scale <= 0:
-        print("tacit demo: --extra-loss is 0..1 and --time-scale positive", file=sys.stderr)
+    if not 0 <= args.extra_loss <= 1 or args.time_scale <= 0 or not 1 <= args.vehicles <= 20:
+        print("tacit demo: --extra-loss is 0..1, --time-scale positive and --vehicles 1..20", file=sys.stderr)
         return 2
     try:
         mission = json.loads(Path(args.mission).read_text()) if args.mission else SQUARE
@@ -100,20 +127,37 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
     import uvicorn
 
     from server.app import create_app
-    from server.settings import Settings
+    from server.core.config import Settings
 
     free_port(args.host, args.port)
     data = Path(args.data_dir).resolve()
-    (data / "missions").mkdir(parents=True, exist_ok=True)
+    private_dir(private_dir(data, narrow=True) / "missions")
     _log_to(data / "server.log")
-    secret = _secrets(data)
+    secret = _secrets(data, args.vehicles)
     (data / "missions" / "mission.json").write_text(json.dumps(mission))
-    stack = Stack(StackConfig(data, range_m=args.range, time_scale=args.time_scale, extra_loss=args.extra_loss,
-                              seed=args.seed, environment=PLUME_RIVER, key=secret["key"],
-                              write_tokens=[secret["token"]], read_tokens=[secret["read_token"]]))  # fmt: skip
+    stack = Stack(
+        StackConfig(
+            data,
+            range_m=args.range,
+            time_scale=args.time_scale,
+            extra_loss=args.extra_loss,
+            seed=args.seed,
+            environment=PLUME_RIVER,
+            vehicles=args.vehicles,
+            keys=secret["keys"][: args.vehicles],
+            write_tokens=[secret["token"]],
+            read_tokens=[secret["read_token"]],
+        )
+    )
     sim_info = await asyncio.to_thread(stack.start_sim)
-    settings = Settings(**stack.server_settings(host=args.host, port=args.port, map_port=args.map_port,
-                                                poll_interval=2.0))  # fmt: skip
+    for member in stack.members:  # up before the server: a mission started at once finds its agent listening
+        stack.write_agent_config(
+            member.index, checkpoint_interval=20, missions=[{"file": "missions/mission.json"}]
+        )
+        stack.start_agent(member.index)
+    settings = Settings(
+        **stack.server_settings(host=args.host, port=args.port, map_port=args.map_port, poll_interval=2.0)
+    )
     app = create_app(settings)
     server = uvicorn.Server(uvicorn.Config(app, host=args.host, port=args.port, log_config=None))
     serving = asyncio.create_task(server.serve())
@@ -126,20 +170,24 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
         async with httpx.AsyncClient(
             base_url=api, headers={"Authorization": f"Bearer {secret['token']}"}
         ) as http:
-            vehicle_id = await _register(http, secret["key"])
-            mission_id = (await http.post(f"/api/v1/vehicles/{vehicle_id}/missions", json=mission)).json()[
-                "id"
-            ]
-            stack.write_agent_config(checkpoint_interval=20, missions=[{"file": "missions/mission.json"}])
-            stack.start_agent()
-            info = {"api_url": api + "/api/v1", "dashboard_url": api + "/", "map_url": f"http://{args.host}:{app.state.shore.map.port}",
-                    "token": secret["token"], "read_token": secret["read_token"],
-                    "sign_in_url": f"{api}/#token={quote(secret['token'])}",
-                    "observer_url": f"{api}/#token={quote(secret['read_token'])}",
-                    "time_scale": args.time_scale, "modems": sim_info["modems"], "vehicle": sim_info["vehicle"],
-                    "data_dir": str(data)}  # fmt: skip
+            missions = [await _mission(http, member, mission) for member in stack.members]
+            info = {
+                "api_url": api + "/api/v1",
+                "dashboard_url": api + "/",
+                "map_url": f"http://{args.host}:{app.state.map.port}",
+                "token": secret["token"],
+                "read_token": secret["read_token"],
+                "sign_in_url": f"{api}/#token={quote(secret['token'])}",
+                "observer_url": f"{api}/#token={quote(secret['read_token'])}",
+                "time_scale": args.time_scale,
+                "modems": sim_info["modems"],
+                "vehicle": sim_info["vehicle"],
+                "vehicles": [_described(m, sim_info) for m in stack.members],
+                "data_dir": str(data),
+            }
             _announce(info, args)
-            await http.post(f"/api/v1/missions/{mission_id}/start")
+            for mission_id in missions:
+                await http.post(f"/api/v1/missions/{mission_id}/start")
         interrupted = asyncio.Event()
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGINT, signal.SIGTERM):
@@ -171,16 +219,38 @@ async def shutdown(stack: Stack, server: Any, serving: asyncio.Task) -> None:
         pass
 
 
-async def _register(http: Any, key: str) -> int:
-    """The demo's vehicle: created, or found from an earlier run (and given the demo's key)."""
-    created = await http.post(
-        "/api/v1/vehicles", json={"name": "rov1", "address": 2, "key": key, "max_depth": 20.0}
-    )
+async def _register(http: Any, member: Member) -> int:
+    """A vehicle of the demo: created, or found from an earlier run by its address (and given its key)."""
+    created = await http.post("/api/v1/vehicles", json={**member.registration(), "max_depth": 20.0})
     if created.status_code == 201:
         return created.json()["id"]
-    existing = next(v for v in (await http.get("/api/v1/vehicles")).json() if v["address"] == 2)
-    await http.post(f"/api/v1/vehicles/{existing['id']}/key", json={"key": key})
+    existing = next(
+        (v for v in (await http.get("/api/v1/vehicles")).json() if v["address"] == member.address), None
+    )
+    if existing is None:  # refused for another reason (a name or key another vehicle has): say which
+        raise DemoError(f"vehicle {member.name} not registered: {created.json()['detail']}")
+    rotated = await http.post(f"/api/v1/vehicles/{existing['id']}/key", json={"key": member.key})
+    if rotated.status_code != 200:
+        raise DemoError(f"vehicle {member.name}: {rotated.json()['detail']}")
     return existing["id"]
+
+
+async def _mission(http: Any, member: Member, mission: dict[str, Any]) -> int:
+    """Register the vehicle and queue the mission for it; the mission's id. The plan's waypoints are
+    relative to each vehicle's home (``vehicle_agent.navigator``): every vehicle flies the same square
+    around its own start."""
+    vehicle_id = await _register(http, member)
+    queued = await http.post(f"/api/v1/vehicles/{vehicle_id}/missions", json=mission)
+    return int(queued.json()["id"])
+
+
+def _described(member: Member, sim_info: dict[str, Any]) -> dict[str, Any]:
+    return {
+        "name": member.name,
+        "address": member.address,
+        "home": list(member.home),
+        "mavlink": sim_info["vehicles"][member.index]["mavlink"],
+    }
 
 
 def _announce(info: dict[str, Any], args: argparse.Namespace) -> None:
@@ -192,13 +262,21 @@ def _announce(info: dict[str, Any], args: argparse.Namespace) -> None:
             if args.time_scale != 1
             else "Real time (--time-scale 4 to watch it faster).\n"
         )
-        print(f"\nTacit demo is running (data in {info['data_dir']}).\n"
-              f"  Dashboard, signed in as operator: {info['sign_in_url']}\n"
-              f"  Dashboard for an observer (read only): {info['observer_url']}\n"
-              f"  3D map:    {info['map_url']}  (its panel asks for a token: paste the operator token)\n"
-              f"  API:       {info['api_url']}  (docs: {info['dashboard_url']}docs)\n"
-              f"  Operator token: {info['token']}\n  Observer token: {info['read_token']}\n"
-              f"  (tokens also in {Path(info['data_dir']) / 'secrets.json'}; the part after # never reaches the server)\n"
-              f"{scale}The vehicle is starting the square mission. Ctrl-C stops everything.\n", flush=True)  # fmt: skip
+        print(
+            f"\nTacit demo is running (data in {info['data_dir']}).\n"
+            f"  Dashboard, signed in as operator: {info['sign_in_url']}\n"
+            f"  Dashboard for an observer (read only): {info['observer_url']}\n"
+            f"  3D map:    {info['map_url']}  (its panel asks for a token: paste the operator token)\n"
+            f"  API:       {info['api_url']}  (docs: {info['dashboard_url']}docs)\n"
+            f"  Operator token: {info['token']}\n  Observer token: {info['read_token']}\n"
+            f"  (tokens also in {Path(info['data_dir']) / 'secrets.json'}; the part after # never reaches the server)\n"
+            + "".join(
+                f"  Vehicle {v['name']}: modem address {v['address']}, home {v['home'][0]:g} m north "
+                f"{v['home'][1]:g} m east, MAVLink {v['mavlink'][0]}\n"
+                for v in info["vehicles"]
+            )
+            + f"{scale}Each vehicle is starting the square mission around its home. Ctrl-C stops everything.\n",
+            flush=True,
+        )
     if not args.headless:
         webbrowser.open(info["sign_in_url"])

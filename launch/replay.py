@@ -24,22 +24,30 @@ from analysis.series import error_ratios, measured_samples
 from launch.demo import DemoError, _log_to, _register, _secrets, free_port, shutdown
 from launch.stack import Stack, StackConfig
 from tacit.packets import Stream
+from tacit.private import private_dir
 from tacit.streams import IMU_CHANNELS, default_streams
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("tlog", help="a MAVLink .tlog from ArduSub (e.g. ../shared/data/ardusub/small.tlog)")
+    parser.add_argument("tlog", help="a MAVLink .tlog from ArduSub (e.g. tests/data/ardusub/small.tlog)")
     parser.add_argument("--time-scale", type=float, default=4.0, help="log seconds per wall second")
     parser.add_argument("--range", type=float, default=300.0, help="shore modem's distance (m)")
     parser.add_argument("--extra-loss", type=float, default=0.0, help="extra frame loss probability 0..1")
     parser.add_argument("--data-dir", default="data/replay", help="database, logs and the agent's tlog")
-    parser.add_argument("--port", type=int, default=8010,
-                        help="API and dashboard port: its URL and token are printed at once, to watch it live")  # fmt: skip
+    parser.add_argument(
+        "--port",
+        type=int,
+        default=8010,
+        help="API and dashboard port: its URL and token are printed at once, to watch it live",
+    )
     parser.add_argument(
         "--settle", type=float, default=25.0, help="seconds after the log ends for the last packets"
     )
-    parser.add_argument("--json", action="store_true",
-                        help="one JSON object per line: the live view's URLs and token at once, the summary last")  # fmt: skip
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help="one JSON object per line: the live view's URLs and token at once, the summary last",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -69,18 +77,27 @@ async def _replay(args: argparse.Namespace, duration: float) -> dict:
     import uvicorn
 
     from server.app import create_app
-    from server.settings import Settings
+    from server.core.config import Settings
 
     free_port("127.0.0.1", args.port)
     data = Path(args.data_dir).resolve()
-    data.mkdir(parents=True, exist_ok=True)
+    private_dir(data, narrow=True)
     _log_to(data / "server.log")
     secret = _secrets(data)
     for old in (data / "tlogs").glob("*.tlog"):
         old.unlink()
     (data / "agent-state.json").unlink(missing_ok=True)
-    stack = Stack(StackConfig(data, range_m=args.range, time_scale=args.time_scale, extra_loss=args.extra_loss,
-                              replay=args.tlog, key=secret["key"], write_tokens=[secret["token"]]))  # fmt: skip
+    stack = Stack(
+        StackConfig(
+            data,
+            range_m=args.range,
+            time_scale=args.time_scale,
+            extra_loss=args.extra_loss,
+            replay=args.tlog,
+            keys=secret["keys"][:1],
+            write_tokens=[secret["token"]],
+        )
+    )
     await asyncio.to_thread(stack.start_sim)
     app = create_app(Settings(**stack.server_settings(port=args.port, map_enabled=False)))
     server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=args.port, log_config=None))
@@ -95,17 +112,25 @@ async def _replay(args: argparse.Namespace, duration: float) -> dict:
         async with httpx.AsyncClient(
             base_url=api, headers={"Authorization": f"Bearer {secret['token']}"}
         ) as http:
-            await _register(http, secret["key"])
+            await _register(http, stack.members[0])
         # the agent runs on the wall clock (no time_scale): it stamps what it hears as a real vehicle would
         stack.write_agent_config(max_silence=20, time_scale=None)
         stack.start_agent()
-        live = {"dashboard_url": api + "/", "api_url": api + "/api/v1", "token": secret["token"],
-                "data_dir": str(data), "seconds": round(duration + args.settle, 1)}  # fmt: skip
+        live = {
+            "dashboard_url": api + "/",
+            "api_url": api + "/api/v1",
+            "token": secret["token"],
+            "data_dir": str(data),
+            "seconds": round(duration + args.settle, 1),
+        }
         if args.json:
             print(json.dumps(live), flush=True)
         else:
-            print(f"Replaying {args.tlog} ({live['seconds']} s). Watch it live:\n  Dashboard: {live['dashboard_url']}\n"
-                  f"  Operator token: {live['token']}\n", flush=True)  # fmt: skip
+            print(
+                f"Replaying {args.tlog} ({live['seconds']} s). Watch it live:\n  Dashboard: {live['dashboard_url']}\n"
+                f"  Operator token: {live['token']}\n",
+                flush=True,
+            )
         stats = app.state.shore.ingest.stats
         # the dive, then the last packets' latency and a poll or two
         await wait_with_progress(duration + args.settle, lambda: stats["packets"])
@@ -114,16 +139,27 @@ async def _replay(args: argparse.Namespace, duration: float) -> dict:
         await shutdown(stack, server, serving)
 
 
-async def wait_with_progress(seconds: float, packets: Callable[[], int], file: TextIO | None = None,
-                             disable: bool | None = None, step: float = 0.5) -> None:  # fmt: skip
+async def wait_with_progress(
+    seconds: float,
+    packets: Callable[[], int],
+    file: TextIO | None = None,
+    disable: bool | None = None,
+    step: float = 0.5,
+) -> None:
     """Wait ``seconds`` with a progress bar on stderr (seconds elapsed, packets stored so far); the bar
     is left out when stderr is not a terminal unless ``disable`` is False."""
     from tqdm import tqdm
 
     loop = asyncio.get_running_loop()
     end = loop.time() + seconds
-    with tqdm(total=round(seconds, 1), unit="s", desc="replay", file=file, disable=disable,
-              bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} s {postfix}") as bar:  # fmt: skip
+    with tqdm(
+        total=round(seconds, 1),
+        unit="s",
+        desc="replay",
+        file=file,
+        disable=disable,
+        bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} s {postfix}",
+    ) as bar:
         while (left := end - loop.time()) > 0:
             await asyncio.sleep(min(step, left))
             bar.n = round(min(seconds, seconds - (end - loop.time())), 1)
@@ -136,7 +172,7 @@ def _summary(db, data: Path, started: float) -> dict:
     """The shore's reconstruction against the vehicle's own log of what it measured."""
     from sqlmodel import Session, select
 
-    from server.models import Packet, Telemetry
+    from server.telemetry.models import Packet, Telemetry
 
     spec = default_streams()[Stream.KINEMATIC]
     # the log stamps a message when the agent's logger wrote it, not when the agent sampled it, and a

@@ -20,22 +20,52 @@ TOKEN = "bench"
 class Rig:
     """sim + serve + agent, each its own process, in a temporary folder."""
 
-    def __init__(self, distance: float, scale: float, extra_loss: float = 0.0, noise: float = 95.0,
-                 mission: bool = False, attempts: int = 4, agent: bool = True,
-                 environment: dict | None = None, agent_config: dict | None = None) -> None:  # fmt: skip
+    def __init__(
+        self,
+        distance: float,
+        scale: float,
+        extra_loss: float = 0.0,
+        noise: float = 95.0,
+        mission: bool = False,
+        attempts: int = 4,
+        agent: bool = True,
+        environment: dict | None = None,
+        agent_config: dict | None = None,
+        settle: float = 3.0,
+    ) -> None:
+        """``settle``: wall seconds to wait once the agent is up and connected (benchmarks time their first
+        command from there; tests need none)."""
         self.dir = Path(tempfile.mkdtemp(prefix="tacit-bench-"))
         self.scale = scale
-        self.stack = Stack(StackConfig(self.dir, range_m=distance, time_scale=scale, extra_loss=extra_loss,
-                                       noise_db=noise, seed=7, environment=environment, key=KEY,
-                                       write_tokens=[TOKEN]))  # fmt: skip
+        self.stack = Stack(
+            StackConfig(
+                self.dir,
+                range_m=distance,
+                time_scale=scale,
+                extra_loss=extra_loss,
+                noise_db=noise,
+                seed=7,
+                environment=environment,
+                keys=[KEY],
+                write_tokens=[TOKEN],
+            )
+        )
         self.stack.start_sim()
         self.mavlink = self.stack.mavlink
         self.port = 18600 + int(time.time() * 10) % 300
-        self.server_overrides = {"map_enabled": False, "poll_interval": 2 if mission else 30,
-                                 "ping_interval": 100000, "command_attempts": attempts, "confirm_timeout": 60}  # fmt: skip
+        self.server_overrides = {
+            "map_enabled": False,
+            "poll_interval": 2 if mission else 30,
+            "ping_interval": 100000,
+            "command_attempts": attempts,
+            "confirm_timeout": 60,
+        }
         self.stack.start_server(self.port, **self.server_overrides)
-        self.http = httpx.Client(base_url=f"http://127.0.0.1:{self.port}/api/v1",
-                                 headers={"Authorization": f"Bearer {TOKEN}"}, timeout=10)  # fmt: skip
+        self.http = httpx.Client(
+            base_url=f"http://127.0.0.1:{self.port}/api/v1",
+            headers={"Authorization": f"Bearer {TOKEN}"},
+            timeout=10,
+        )
         wait_for(lambda: self._ok("/health"), 30, what="the server")
         self.http.post(
             "/vehicles", json={"name": "rov1", "address": VEHICLE_ADDRESS, "key": KEY}
@@ -48,7 +78,9 @@ class Rig:
         else:  # a vehicle with nothing to say: the paper's silence, so the link is idle between commands
             self.quiet = VehicleSide(str(self.stack.pty("vehicle")), VEHICLE_ADDRESS, bytes.fromhex(KEY))
         wait_for(self._modem_ready, 30, what="the shore modem")
-        time.sleep(3.0)
+        if agent:
+            wait_for(self._agent_up, 30, what="the agent on its modem and MAVLink")
+        time.sleep(settle)
 
     def start_agent(self) -> None:
         self.stack.start_agent()
@@ -63,6 +95,10 @@ class Rig:
     def start_server(self) -> None:
         self.stack.start_server(self.port, **self.server_overrides)
         wait_for(self._modem_ready, 30, what="the shore modem")
+
+    def _agent_up(self) -> bool:
+        log = self.stack.log("agent.log")
+        return " up: modem " in log and "MAVLink connected" in log
 
     def _modem_ready(self) -> bool:
         return self._ok("/link") and self.http.get("/link").json()["modem"] == "ready"

@@ -26,11 +26,12 @@ from typing import IO, Any, TypeVar
 
 from launch.processes import stop
 from tacit.config import dump_toml
+from tacit.private import open_private, private_dir
 
 T = TypeVar("T")
 SHORE_ADDRESS = 1
-VEHICLE_ADDRESS = 2
-ATTACKER_ADDRESS = 3
+VEHICLE_ADDRESS = 2  # the first vehicle's; the others follow (3, 4, ...)
+SPACING_M = 30.0  # the fleet's homes, east of each other: the demo's 20 m squares do not overlap
 
 
 @dataclass
@@ -46,10 +47,63 @@ class StackConfig:
     environment: dict[str, Any] | None = None  # the simulated water (temperature field); None: default
     replay: str = ""  # a .tlog the simulated vehicle streams instead of simulating its own motion
     position_source: bool = False  # the simulated vehicle has a position fix (GPS at the surface, USBL)
-    attacker: bool = False  # a third modem in the water, for tests of forged traffic
-    key: str = ""  # the vehicle's key (hex)
+    attacker: bool = False  # one more modem in the water, for tests of forged traffic
+    vehicles: int = 1  # simulated BlueROV2s on the one channel, each with its own agent
+    keys: list[str] = field(default_factory=list)  # one per vehicle (hex); none: agents without keys
+    addresses: list[int] = field(default_factory=list)  # one per vehicle; none: 2, 3, ...
     write_tokens: list[str] = field(default_factory=list)
     read_tokens: list[str] = field(default_factory=list)
+
+    def members(self) -> list[Member]:
+        """The fleet, checked: one clear ``StackError`` if two vehicles would share an address or a key."""
+        if self.vehicles < 1:
+            raise StackError("a stack has at least one vehicle")
+        addresses = self.addresses or [VEHICLE_ADDRESS + i for i in range(self.vehicles)]
+        keys = self.keys or [""] * self.vehicles
+        if len(addresses) != self.vehicles or len(keys) != self.vehicles:
+            raise StackError(f"{self.vehicles} vehicle(s) need as many addresses and keys")
+        if SHORE_ADDRESS in addresses:
+            raise StackError(f"modem address {SHORE_ADDRESS} is the shore's, not a vehicle's")
+        _unique("modem address", addresses)
+        _unique("key", [k.lower() for k in keys if k])
+        return [Member(i, a, k) for i, (a, k) in enumerate(zip(addresses, keys, strict=True))]
+
+
+@dataclass(frozen=True)
+class Member:
+    """One simulated vehicle of the stack: its name, modem address, key, home and files. The first keeps
+    the names a one-vehicle stack always had (``agent.toml``, ``agent-state.json``, ``vehicle.pty``);
+    the others' carry their name (``agent-rov2.toml``, ...)."""
+
+    index: int
+    address: int
+    key: str
+
+    @property
+    def name(self) -> str:
+        return f"rov{self.index + 1}"
+
+    @property
+    def home(self) -> tuple[float, float]:
+        """Where it starts, north and east in the fleet's one frame (the simulator puts it there)."""
+        return 0.0, SPACING_M * self.index
+
+    def file(self, name: str) -> str:
+        """``name`` (``agent.log``) as this vehicle's (``agent-rov2.log``)."""
+        if self.index == 0:
+            return name
+        stem, dot, suffix = name.partition(".")
+        return f"{stem}-{self.name}{dot}{suffix}"
+
+    def registration(self) -> dict[str, Any]:
+        """The body of ``POST /api/v1/vehicles`` for it."""
+        return {"name": self.name, "address": self.address, **({"key": self.key} if self.key else {})}
+
+
+def _unique(what: str, values: list[Any]) -> None:
+    repeated = sorted({str(v) for v in values if values.count(v) > 1})
+    if repeated:
+        raise StackError(f"two vehicles with the same {what}: {', '.join(repeated)}")
 
 
 class Stack:
@@ -57,13 +111,12 @@ class Stack:
 
     def __init__(self, config: StackConfig) -> None:
         self.config = config
-        self.dir = Path(config.data_dir).resolve()
-        self.dir.mkdir(parents=True, exist_ok=True)
+        self.members = config.members()
+        self.dir = private_dir(Path(config.data_dir).resolve(), narrow=True)
         self.procs: list[subprocess.Popen[str]] = []
         self.sim_info: dict[str, Any] = {}
-        self.agent: subprocess.Popen[str] | None = None
+        self.agents: dict[int, subprocess.Popen[str]] = {}  # by vehicle index
         self.server: subprocess.Popen[str] | None = None
-        self.agent_config = self.dir / "agent.toml"
 
     # the simulator -------------------------------------------------------------------------------
     def start_sim(self) -> dict[str, Any]:
@@ -79,37 +132,73 @@ class Stack:
 
     def _sim_config(self) -> dict[str, Any]:
         c = self.config
-        modems = [
-            {"address": SHORE_ADDRESS, "name": "shore", "position": [-c.range_m, 0.0, 1.0],
-             "link": str(self.pty("shore"))},
-            {"address": VEHICLE_ADDRESS, "name": "vehicle", "attach": "rov1", "link": str(self.pty("vehicle"))},
-        ]  # fmt: skip
-        if c.attacker:
-            modems.append({"address": ATTACKER_ADDRESS, "name": "attacker", "position": [-100.0, 30.0, 1.0],
-                           "link": str(self.pty("attacker"))})  # fmt: skip
-        vehicle: dict[str, Any] = {"name": "rov1", "tcp_port": 0, "seed": c.seed,
-                                   "position_source": c.position_source}  # fmt: skip
-        if c.replay:
-            vehicle["replay"] = str(Path(c.replay).resolve())
+        modems: list[dict[str, Any]] = [
+            {
+                "address": SHORE_ADDRESS,
+                "name": "shore",
+                "position": [-c.range_m, 0.0, 1.0],
+                "link": str(self.pty("shore")),
+            }
+        ]
+        modems += [
+            {
+                "address": m.address,
+                "name": m.file("vehicle"),
+                "attach": m.name,
+                "link": str(self.pty(m.file("vehicle"))),
+            }
+            for m in self.members
+        ]
+        if c.attacker:  # the first address after the fleet's
+            modems.append(
+                {
+                    "address": max(m.address for m in self.members) + 1,
+                    "name": "attacker",
+                    "position": [-100.0, 30.0, 1.0],
+                    "link": str(self.pty("attacker")),
+                }
+            )
         channel: dict[str, Any] = {"extra_loss": c.extra_loss}
         if c.noise_db is not None:
             channel["noise_level_db"] = c.noise_db
-        sim: dict[str, Any] = {"seed": c.seed, "time_scale": c.time_scale, "channel": channel,
-                               "modems": modems, "vehicles": [vehicle]}  # fmt: skip
+        sim: dict[str, Any] = {
+            "seed": c.seed,
+            "time_scale": c.time_scale,
+            "channel": channel,
+            "modems": modems,
+            "vehicles": [self._sim_vehicle(m) for m in self.members],
+        }
         if c.environment is not None:
             env_file = self.dir / "environment.json"
             env_file.write_text(json.dumps(c.environment))
             sim["environment"] = {"file": str(env_file)}
         return sim
 
+    def _sim_vehicle(self, member: Member) -> dict[str, Any]:
+        c = self.config
+        vehicle: dict[str, Any] = {
+            "name": member.name,
+            "tcp_port": 0,
+            "seed": c.seed + member.index,
+            "position_source": c.position_source,
+            "start": [*member.home, 0.0],
+        }
+        if c.replay:
+            vehicle["replay"] = str(Path(c.replay).resolve())
+        return vehicle
+
     def pty(self, name: str) -> Path:
-        """Where the simulated modem ``name`` (shore, vehicle, attacker) has its serial port."""
+        """Where the simulated modem ``name`` (shore, vehicle, vehicle-rov2, attacker) has its serial port."""
         return self.dir / f"{name}.pty"
+
+    def mavlink_of(self, vehicle: int = 0) -> str:
+        """A simulated vehicle's MAVLink URL (its agent's ``mavlink_url``), by index."""
+        return str(self.sim_info["vehicles"][vehicle]["mavlink"][0])
 
     @property
     def mavlink(self) -> str:
-        """The simulated vehicle's MAVLink URL (the agent's ``mavlink_url``)."""
-        return str(self.sim_info["vehicle"]["mavlink"][0])
+        """The first simulated vehicle's MAVLink URL."""
+        return self.mavlink_of(0)
 
     # the server ------------------------------------------------------------------------------------
     def server_settings(self, **overrides: Any) -> dict[str, Any]:
@@ -130,22 +219,35 @@ class Stack:
         return self.server
 
     # the agent -------------------------------------------------------------------------------------
-    def write_agent_config(self, **values: Any) -> Path:
-        """The agent's TOML for this stack (``values`` add to or override the defaults); owner-only."""
-        c = self.config
+    def agent_config(self, vehicle: int = 0) -> Path:
+        """Where a vehicle's agent configuration is written."""
+        return self.dir / self.members[vehicle].file("agent.toml")
+
+    def write_agent_config(self, vehicle: int = 0, **values: Any) -> Path:
+        """A vehicle's agent TOML for this stack (``values`` add to or override the defaults; ``nav`` is
+        merged with its home); owner-only."""
+        m = self.members[vehicle]
         config: dict[str, Any] = {
-            "address": VEHICLE_ADDRESS, "key": c.key, "modem_url": str(self.pty("vehicle")),
-            "mavlink_url": self.mavlink, "state_file": str(self.dir / "agent-state.json"),
-            "tlog_dir": str(self.dir / "tlogs"), "time_scale": c.time_scale,
+            "address": m.address, "key": m.key, "modem_url": str(self.pty(m.file("vehicle"))),
+            "mavlink_url": self.mavlink_of(vehicle), "state_file": str(self.dir / m.file("agent-state.json")),
+            "tlog_dir": str(self.dir / m.file("tlogs")), "time_scale": self.config.time_scale,
         }  # fmt: skip
         config.update(values)
-        write_private(self.agent_config, dump_toml(config))
-        return self.agent_config
+        config["nav"] = {"home": list(m.home), **values.get("nav", {})}
+        path = self.agent_config(vehicle)
+        write_private(path, dump_toml(config))
+        return path
 
-    def start_agent(self) -> subprocess.Popen[str]:
-        """``tacit agent`` on the config last written (``write_agent_config``)."""
-        self.agent = self.spawn(["agent", "--config", str(self.agent_config)], "agent.log")
-        return self.agent
+    def start_agent(self, vehicle: int = 0) -> subprocess.Popen[str]:
+        """``tacit agent`` on the vehicle's config last written (``write_agent_config``)."""
+        log = self.members[vehicle].file("agent.log")
+        self.agents[vehicle] = self.spawn(["agent", "--config", str(self.agent_config(vehicle))], log)
+        return self.agents[vehicle]
+
+    @property
+    def agent(self) -> subprocess.Popen[str] | None:
+        """The first vehicle's agent process, if started."""
+        return self.agents.get(0)
 
     def kill(self, proc: subprocess.Popen[str] | None) -> None:
         """SIGKILL: no chance to close or save anything (a power cut, an OOM kill)."""
@@ -154,18 +256,25 @@ class Stack:
             proc.wait(timeout=10)
 
     # processes -------------------------------------------------------------------------------------
-    def spawn(self, args: list[str], log: str, capture: bool = False,
-              env: dict[str, str] | None = None) -> subprocess.Popen[str]:  # fmt: skip
-        """``tacit ARGS`` as a child; stderr (and stdout unless captured) appended to ``log``."""
-        out: IO[str] | int = subprocess.PIPE if capture else open(self.dir / log, "a")
-        proc = subprocess.Popen([sys.executable, "-m", "tacit.cli", "--log-level", "INFO", *args], stdout=out,
-                                stderr=open(self.dir / log, "a"), text=True,
-                                env={**os.environ, **(env or {}), "PYTHONUNBUFFERED": "1"})  # fmt: skip
+    def spawn(
+        self, args: list[str], log: str, capture: bool = False, env: dict[str, str] | None = None
+    ) -> subprocess.Popen[str]:
+        """``tacit ARGS`` as a child; stderr (and stdout unless captured) appended to ``log``. What the child
+        creates (its database, tlogs, modem logs) is owner-only as well (umask 077)."""
+        out: IO[str] | int = subprocess.PIPE if capture else open_private(self.dir / log)
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "tacit.cli", "--log-level", "INFO", *args],
+            stdout=out,
+            stderr=open_private(self.dir / log),
+            text=True,
+            umask=0o077,
+            env={**os.environ, **(env or {}), "PYTHONUNBUFFERED": "1"},
+        )
         self.procs.append(proc)
         return proc
 
     def log(self, name: str) -> str:
-        """The text of a child's log (``agent.log``, ``sim.log``, ``serve.log``)."""
+        """The text of a child's log (``agent.log``, ``agent-rov2.log``, ``sim.log``, ``serve.log``)."""
         path = self.dir / name
         return path.read_text() if path.exists() else ""
 
@@ -181,10 +290,8 @@ class StackError(RuntimeError):
 
 def write_private(path: Path, text: str) -> None:
     """Write ``text`` to a file only its owner can read (keys, tokens), created that way."""
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "w") as f:
+    with open_private(path, "w") as f:
         f.write(text)
-    os.chmod(path, 0o600)
 
 
 def wait_for(

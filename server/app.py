@@ -11,29 +11,31 @@ import asyncio
 import logging
 import socket
 import sys
-from collections.abc import AsyncIterator, Sequence
+from collections.abc import AsyncIterator, Awaitable, Callable
 from contextlib import asynccontextmanager
 from pathlib import Path
-from typing import Any
 
-from fastapi import Depends, FastAPI, HTTPException, Request
-from fastapi.exceptions import RequestValidationError
+from fastapi import FastAPI, Request, Response
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
-from sqlalchemy.exc import OperationalError
+from starlette.types import Receive, Scope, Send
 
-from server import operator
-from server.api import commands, data, missions, screens, vehicles
-from server.auth import require_read
-from server.db import make_engine, migrate
-from server.errors import ApiError
-from server.schemas import json_safe
-from server.settings import Settings, SettingsError
+from server.api import system
+from server.commands import endpoints as commands
+from server.core import errors
+from server.core.config import Settings, SettingsError
+from server.core.db import make_engine, migrate
+from server.link import endpoints as link
+from server.missions import endpoints as missions
+from server.operators import endpoints as operators
+from server.screens import endpoints as screens
 from server.shore import Shore
+from server.telemetry import endpoints as telemetry
+from server.vehicles import endpoints as vehicles
 
 log = logging.getLogger("tacit.server")
-WEB = Path(__file__).resolve().parent / "web"
+WEB = Path(__file__).resolve().parent / "web"  # top-level web/, shipped inside the package
 DOCS_ASSETS = "/docs-assets"
 
 DESCRIPTION = """
@@ -41,6 +43,15 @@ Tacit's shore control center. Writes (vehicles, commands, missions) need an oper
 reads an observer's or an operator's: click **Authorize** and paste the token, or send
 `Authorization: Bearer <token>`. Errors are JSON: `{"detail": ..., "field": ...}` names the field at fault.
 """
+#: Every page: never framed by another site, no guessed content types, nothing loaded from elsewhere.
+SECURITY_HEADERS = {
+    "X-Frame-Options": "DENY",
+    "X-Content-Type-Options": "nosniff",
+    "Referrer-Policy": "no-referrer",
+    "Content-Security-Policy": "default-src 'self'; script-src 'self'; style-src 'self' 'unsafe-inline'; "
+    "img-src 'self' data:; connect-src 'self'; frame-ancestors 'none'; base-uri 'none'; form-action 'self'",
+}
+DOCS_CSP = "default-src 'self'; script-src 'self' 'unsafe-inline'; style-src 'self' 'unsafe-inline'; img-src 'self' data:; frame-ancestors 'none'"  # Swagger UI starts from an inline script
 
 
 @asynccontextmanager
@@ -50,91 +61,65 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     await asyncio.to_thread(migrate, settings.database_url)
     shore.bus.bind(asyncio.get_running_loop())
     await shore.link.start()
+    operator_map = None
     if settings.map_enabled:
         from server.map.scene import OperatorMap  # viser is heavy: imported only when the map runs
 
-        shore.map = OperatorMap(shore, settings.host, settings.map_port)
-        shore.map.start()
+        operator_map = OperatorMap(shore.screens, shore.commands, shore.bus, settings, shore.operators.actor)
+        operator_map.start()
+        shore.screens.map_port = lambda: operator_map.port if operator_map else None
+        app.state.map = operator_map
     log.info("tacit server ready: API http://%s:%d/docs", settings.host, settings.port)
     try:
         yield
     finally:
-        if shore.map:
-            shore.map.stop()
+        if operator_map:
+            operator_map.stop()
         await shore.link.stop()
 
 
+class Pages(StaticFiles):
+    """The dashboard's files; any method but GET and HEAD on a path that is not a route is a 404 (a
+    mistyped API URL says "not found", not "method not allowed")."""
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] == "http" and scope["method"] not in ("GET", "HEAD"):
+            response = JSONResponse({"detail": f"no route {scope['path']}", "field": None}, status_code=404)
+            await response(scope, receive, send)
+            return
+        await super().__call__(scope, receive, send)
+
+
 def create_app(settings: Settings) -> FastAPI:
-    app = FastAPI(title="Tacit", version="1", description=DESCRIPTION, lifespan=lifespan, docs_url=None,
-                  redoc_url=None)  # fmt: skip
-    shore = Shore.build(settings, make_engine(settings.database_url))
-    app.state.shore = shore
+    app = FastAPI(
+        title="Tacit", version="1", description=DESCRIPTION, lifespan=lifespan, docs_url=None, redoc_url=None
+    )
+    app.state.shore = Shore.build(settings, make_engine(settings.database_url))
+    app.state.map = None
     if settings.cors_origins:
-        app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins, allow_methods=["*"],
-                           allow_headers=["Authorization", "Content-Type"])  # fmt: skip
-    for module in (vehicles, commands, missions, data, screens):
+        app.add_middleware(
+            CORSMiddleware,
+            allow_origins=settings.cors_origins,
+            allow_methods=["*"],
+            allow_headers=["Authorization", "Content-Type"],
+        )
+
+    @app.middleware("http")
+    async def security_headers(
+        request: Request, call_next: Callable[[Request], Awaitable[Response]]
+    ) -> Response:
+        response: Response = await call_next(request)
+        response.headers.update(SECURITY_HEADERS)
+        if request.url.path == "/docs":
+            response.headers["Content-Security-Policy"] = DOCS_CSP
+        return response
+
+    for module in (system, operators, vehicles, commands, missions, telemetry, link, screens):
         app.include_router(module.router)
-
-    @app.get("/api/v1/health", tags=["data"])
-    def health() -> dict:
-        return {"status": "ok", "modem": shore.link.status()["modem"]}
-
-    @app.get("/api/v1/whoami", tags=["data"])
-    def whoami(found: str = Depends(require_read)) -> dict:
-        """The caller's role: ``write`` (operator) or ``read`` (observer)."""
-        return {"role": found}
-
-    @app.get("/api/v1/config", tags=["data"])
-    def config() -> dict:
-        """What the browser needs (no secrets): the map's port, the streams' channels with units, what
-        the mission states mean, the commands' fields (packet ranges; per vehicle with its limits at
-        ``/vehicles/{id}/form``) and the simulated time scale (1 on a real deployment)."""
-        streams = {s.name: {"channels": list(s.channels), "eps": list(s.eps), "period": s.period,
-                            "units": [operator.UNITS.get(c, "") for c in s.channels]}
-                   for s in shore.ingest.streams.values()}  # fmt: skip
-        port = shore.map.port if shore.map else None
-        states = {k: {"label": label, "hint": hint} for k, (label, hint) in operator.STATES.items()}
-        return {
-            "map_port": port,
-            "streams": streams,
-            "states": states,
-            "form": operator.command_form(),
-            "time_scale": settings.time_scale,
-        }
-
-    @app.exception_handler(RequestValidationError)
-    async def invalid(_: Request, exc: RequestValidationError) -> JSONResponse:
-        first = exc.errors()[0] if exc.errors() else {"loc": ["body"], "msg": "invalid request"}
-        loc = [str(p) for p in first.get("loc", ["body"])]
-        field = "body" if first.get("type") == "json_invalid" else ".".join(loc[1:]) or loc[0]
-        return JSONResponse({"detail": first.get("msg", "invalid request"), "field": field,
-                             "errors": jsonable(exc.errors())}, status_code=422)  # fmt: skip
-
-    @app.exception_handler(ApiError)
-    async def refused(_: Request, exc: ApiError) -> JSONResponse:
-        return JSONResponse({"detail": exc.detail, "field": exc.field}, status_code=exc.status)
-
-    @app.exception_handler(OperationalError)
-    async def busy(_: Request, exc: OperationalError) -> JSONResponse:
-        """Another process held the database's write lock past the busy timeout: nothing was written.
-        Any other database failure is the server's own (500), logged with its cause."""
-        if "locked" not in str(exc.orig) and "busy" not in str(exc.orig):
-            log.error("database error: %s", exc.orig)
-            return JSONResponse(
-                {"detail": "database error; nothing was changed", "field": None}, status_code=500
-            )
-        log.warning("database busy: %s", exc.orig)
-        return JSONResponse({"detail": "the database is busy; nothing was changed, try again", "field": None},
-                            status_code=503, headers={"Retry-After": "1"})  # fmt: skip
-
-    @app.exception_handler(HTTPException)
-    async def http_error(_: Request, exc: HTTPException) -> JSONResponse:
-        body = exc.detail if isinstance(exc.detail, dict) else {"detail": exc.detail, "field": None}
-        return JSONResponse(body, status_code=exc.status_code, headers=exc.headers)
-
+    errors.install(app)
     _offline_docs(app)
     if WEB.is_dir():
-        app.mount("/", StaticFiles(directory=WEB, html=True), name="web")
+        app.mount("/", Pages(directory=WEB, html=True), name="web")
     return app
 
 
@@ -151,10 +136,13 @@ def _offline_docs(app: FastAPI) -> None:
 
     @app.get("/docs", include_in_schema=False)
     def docs() -> HTMLResponse:
-        return get_swagger_ui_html(openapi_url=app.openapi_url or "/openapi.json", title="Tacit API",
-                                   swagger_js_url=f"{DOCS_ASSETS}/swagger-ui-bundle.js",
-                                   swagger_css_url=f"{DOCS_ASSETS}/swagger-ui.css",
-                                   swagger_favicon_url=f"{DOCS_ASSETS}/favicon.png")  # fmt: skip
+        return get_swagger_ui_html(
+            openapi_url=app.openapi_url or "/openapi.json",
+            title="Tacit API",
+            swagger_js_url=f"{DOCS_ASSETS}/swagger-ui-bundle.js",
+            swagger_css_url=f"{DOCS_ASSETS}/swagger-ui.css",
+            swagger_favicon_url=f"{DOCS_ASSETS}/favicon.png",
+        )
 
 
 class PortBusy(OSError):
@@ -173,10 +161,6 @@ def check_port(host: str, port: int, option: str = "--port") -> None:
             raise PortBusy(
                 f"cannot listen on {host}:{port} ({exc.strerror}); choose another with {option}"
             ) from None
-
-
-def jsonable(errors: Sequence[Any]) -> list[Any]:
-    return json_safe(errors)  # a NaN or Infinity in the input is echoed as text, never a JSON encoder error
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -7,35 +7,58 @@ Routes get the parts through the typed dependencies of ``server.api.deps``; noth
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 from sqlalchemy import Engine
 
-from server.events import EventBus
+from server.commands.service import CommandDesk
+from server.core.config import Settings
+from server.core.events import Bus
+from server.core.security import Throttle
 from server.link.engine import LinkEngine
 from server.link.ingest import Ingest
-from server.services.commands import CommandDesk
-from server.settings import Settings
+from server.missions.service import Missions
+from server.operators.service import Operators
+from server.screens.service import Screens
+from server.telemetry.service import TelemetryReader
+from server.vehicles.service import Vehicles
 from tacit.streams import default_streams
-
-if TYPE_CHECKING:
-    from server.map.scene import OperatorMap
 
 
 @dataclass
 class Shore:
     settings: Settings
     db: Engine
-    bus: EventBus
+    bus: Bus
     ingest: Ingest
     link: LinkEngine
+    vehicles: Vehicles
     commands: CommandDesk
-    map: OperatorMap | None = None
+    missions: Missions
+    telemetry: TelemetryReader
+    screens: Screens
+    operators: Operators
+    sign_ins: Throttle  # the API's wrong tokens, by client address
 
     @classmethod
     def build(cls, settings: Settings, db: Engine) -> Shore:
-        bus = EventBus()
-        ingest = Ingest(db, bus, default_streams())
-        link = LinkEngine(settings, db, bus, ingest)
-        commands = CommandDesk(db, bus, ingest.pose, link.wake)
-        return cls(settings, db, bus, ingest, link, commands)
+        bus = Bus()
+        ingest = Ingest(db, bus, default_streams(), settings)
+        vehicles = Vehicles(db)
+        commands = CommandDesk(db, bus, ingest.pose, settings.max_queued_commands)
+        link = LinkEngine(settings, db, bus, ingest, commands, vehicles)
+        commands.wake = link.wake  # a queued command starts the next slot at once
+        operators = Operators(settings, db)
+        return cls(
+            settings,
+            db,
+            bus,
+            ingest,
+            link,
+            vehicles,
+            commands,
+            Missions(db, commands),
+            TelemetryReader(db, ingest.streams),
+            Screens(settings, db, link),
+            operators,
+            Throttle(settings, operators.actor),
+        )

@@ -1,4 +1,5 @@
-"""Acoustic channel physics for the simulator (REFERENCE §2).
+"""Acoustic channel physics for the simulator (spreading, Thorp absorption, noise, a logistic
+frame-error curve).
 
 - Propagation delay: range / c, with c = 1500 m/s (sea) or 1480 m/s (fresh water).
 - Transmission loss: TL = k 10 log10(r) + a(f) r / 1000 dB, with practical spreading k = 1.5 and Thorp's

@@ -1,4 +1,5 @@
-"""A BlueROV2 as ArduSub drives it: dynamics of a small ROV plus ArduSub's rules (REFERENCE §3).
+"""A BlueROV2 as ArduSub drives it: dynamics of a small ROV plus ArduSub's rules (GUIDED needs a
+position fix; MANUAL_CONTROL is taken only from SYSID_MYGCS).
 
 Dynamics (body frame, per axis): m_eff dv/dt = F_max * input - c_drag * v |v|; the water current adds
 to the ground velocity. With F_max = 40 N and c_drag = 17.8 N s^2/m^2 the top speed is 1.5 m/s, as a

@@ -130,9 +130,19 @@ class Channel:
         self.stats["collisions"] += collided
         self.stats["half_duplex"] += deaf
         self.stats["lost"] += frames_ok.count(False)
-        self.log.append({"time": round(end, 6), "kind": tx.kind.value, "from": tx.sender, "to": node.name,
-                         "range_m": round(distance, 2), "snr_db": round(snr, 1), "frames_ok": frames_ok,
-                         "collided": collided, "half_duplex": deaf})  # fmt: skip
+        self.log.append(
+            {
+                "time": round(end, 6),
+                "kind": tx.kind.value,
+                "from": tx.sender,
+                "to": node.name,
+                "range_m": round(distance, 2),
+                "snr_db": round(snr, 1),
+                "frames_ok": frames_ok,
+                "collided": collided,
+                "half_duplex": deaf,
+            }
+        )
         horizon = end - 120.0
         node.arrivals = [a for a in node.arrivals if a[1] > horizon]
         node.on_receive(Reception(tx, frames_ok, snr, distance, collided or deaf))

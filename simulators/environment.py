@@ -47,8 +47,15 @@ class Environment:
     def generate(cls, seed: int = 1, kind: str = "river") -> Environment:
         """A seeded environment: ``river`` (front and plume), ``lake`` (stratified, calm)."""
         rng = random.Random(seed)
-        patches = [(rng.uniform(0.02, 0.08), rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1),
-                    rng.uniform(0, 2 * math.pi)) for _ in range(3)]  # fmt: skip
+        patches = [
+            (
+                rng.uniform(0.02, 0.08),
+                rng.uniform(-0.1, 0.1),
+                rng.uniform(-0.1, 0.1),
+                rng.uniform(0, 2 * math.pi),
+            )
+            for _ in range(3)
+        ]
         if kind == "lake":
             return cls(front_step=0.0, plume_excess=0.0, thermocline_drop=6.0, patches=patches)
         if kind != "river":
@@ -89,8 +96,9 @@ class Environment:
         front = self.front_step * (1 + math.tanh(across / self.front_width)) / 2
         pn, pe = self.plume_centre(t)
         d2 = (north - pn) ** 2 + (east - pe) ** 2
-        plume = self.plume_excess * math.exp(-d2 / (2 * self.plume_sigma**2)
-                                             - (depth - self.plume_depth) ** 2 / (2 * self.plume_sigma_z**2))  # fmt: skip
+        plume = self.plume_excess * math.exp(
+            -d2 / (2 * self.plume_sigma**2) - (depth - self.plume_depth) ** 2 / (2 * self.plume_sigma_z**2)
+        )
         patch = sum(amp * math.sin(kn * north + ke * east + ph) for amp, kn, ke, ph in self.patches)
         return self.surface_temp - strat + front + plume + patch
 

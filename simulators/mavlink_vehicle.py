@@ -18,6 +18,7 @@ import logging
 import math
 import random
 from collections.abc import Callable
+from typing import cast
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -68,16 +69,22 @@ class Links:
             send(data)
 
     def feed(self, peer: object, data: bytes) -> None:
+        """Parse a peer's bytes and handle each message. Whatever a peer sends (garbage, a message the
+        handlers cannot take) is logged and dropped: it must never reach the vehicle's loop."""
         parser = self._parsers.setdefault(peer, mavlink.MAVLink(None))
         parser.robust_parsing = True
         try:
             messages = parser.parse_buffer(data) or []
-        except mavlink.MAVError as exc:
-            log.debug("bad MAVLink from %s: %s", peer, exc)
+        except Exception as exc:  # pymavlink raises more than MAVError on some garbage
+            log.warning("bad MAVLink from %s: %r", peer, exc)
             return
         for msg in messages:
-            if msg.get_type() != "BAD_DATA":
+            if msg.get_type() == "BAD_DATA":
+                continue
+            try:
                 self.on_message(msg)
+            except Exception as exc:
+                log.warning("dropped %s from %s: %r", msg.get_type(), peer, exc)
 
     async def serve_tcp(self, host: str, port: int) -> None:
         async def client(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
@@ -86,7 +93,7 @@ class Links:
             try:
                 while data := await reader.read(4096):
                     self.feed(peer, data)
-            except ConnectionError:
+            except (ConnectionError, asyncio.CancelledError):  # the peer left, or the simulator stops
                 pass
             finally:
                 self.senders.pop(peer, None)
@@ -102,8 +109,9 @@ class Links:
 
         class Protocol(asyncio.DatagramProtocol):
             def connection_made(self, transport: asyncio.BaseTransport) -> None:
-                assert isinstance(transport, asyncio.DatagramTransport)
-                self.transport = transport
+                # A datagram endpoint's transport; before Python 3.12 its class does not subclass
+                # DatagramTransport, so it is not checked with isinstance.
+                self.transport = cast(asyncio.DatagramTransport, transport)
                 if push_to is not None:
                     links.senders[("udpout", push_to)] = lambda data: self.transport.sendto(data, push_to)
 
@@ -129,9 +137,15 @@ class Links:
 class SimulatedVehicle:
     """The BlueROV2 model, its sensors in the environment, and its MAVLink conversation."""
 
-    def __init__(self, scheduler: Scheduler, environment: Environment, seed: int = 1,
-                 position_source: bool = False, origin: Origin | None = None,
-                 current: tuple[float, float] = (0.0, 0.0)) -> None:  # fmt: skip
+    def __init__(
+        self,
+        scheduler: Scheduler,
+        environment: Environment,
+        seed: int = 1,
+        position_source: bool = False,
+        origin: Origin | None = None,
+        current: tuple[float, float] = (0.0, 0.0),
+    ) -> None:
         self.scheduler = scheduler
         self.environment = environment
         self.origin = origin or Origin()
@@ -158,13 +172,13 @@ class SimulatedVehicle:
     def _tick(self) -> None:
         if not self._running:
             return
+        self.scheduler.call_later(1.0 / PHYSICS_HZ, self._tick)  # first: a failing tick is not the last
         self.rov.step(1.0 / PHYSICS_HZ)
         now = self.scheduler.now()
         for mid, interval in self.intervals.items():
             if interval > 0 and now >= self._next_due.get(mid, 0.0):
                 self._next_due[mid] = now + interval
                 self._send_telemetry(mid)
-        self.scheduler.call_later(1.0 / PHYSICS_HZ, self._tick)
 
     # --- outgoing ---------------------------------------------------------------------------------
 
@@ -194,8 +208,9 @@ class SimulatedVehicle:
         if self.rov.armed:
             base |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
         state = mavlink.MAV_STATE_ACTIVE if self.rov.armed else mavlink.MAV_STATE_STANDBY
-        return self.mav.heartbeat_encode(mavlink.MAV_TYPE_SUBMARINE, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
-                                         base, self.rov.mode, state)  # fmt: skip
+        return self.mav.heartbeat_encode(
+            mavlink.MAV_TYPE_SUBMARINE, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, base, self.rov.mode, state
+        )
 
     def _imu_values(self) -> tuple[list[int], list[int], list[int]]:
         r = self.rov
@@ -253,9 +268,18 @@ class SimulatedVehicle:
         lat, lon = self.origin.to_global(r.north + self.rng.gauss(0, 1.0), r.east + self.rng.gauss(0, 1.0))
         fix = mavlink.GPS_FIX_TYPE_3D_FIX if at_surface else mavlink.GPS_FIX_TYPE_NO_FIX
         sats = 12 if at_surface else 0
-        return self.mav.gps_raw_int_encode(self._boot_ms() * 1000, fix, int(lat * 1e7) if at_surface else 0,
-                                           int(lon * 1e7) if at_surface else 0, 0, 90 if at_surface else 65535,
-                                           65535, 0, 0, sats)  # fmt: skip
+        return self.mav.gps_raw_int_encode(
+            self._boot_ms() * 1000,
+            fix,
+            int(lat * 1e7) if at_surface else 0,
+            int(lon * 1e7) if at_surface else 0,
+            0,
+            90 if at_surface else 65535,
+            65535,
+            0,
+            0,
+            sats,
+        )
 
     def _local_position(self) -> mavlink.MAVLink_message | None:
         r = self.rov
@@ -381,8 +405,15 @@ class SimulatedVehicle:
 
     def _param_value(self, name: str) -> None:
         names = sorted(self.rov.params)
-        self.send(self.mav.param_value_encode(name.encode(), self.rov.params[name],
-                                              mavlink.MAV_PARAM_TYPE_REAL32, len(names), names.index(name)))  # fmt: skip
+        self.send(
+            self.mav.param_value_encode(
+                name.encode(),
+                self.rov.params[name],
+                mavlink.MAV_PARAM_TYPE_REAL32,
+                len(names),
+                names.index(name),
+            )
+        )
 
     _HANDLERS: dict[str, Callable[[SimulatedVehicle, mavlink.MAVLink_message], None]] = {
         "COMMAND_LONG": _on_command_long,
@@ -397,6 +428,11 @@ class SimulatedVehicle:
 
     def describe(self) -> dict[str, object]:
         r = self.rov
-        return {"north": round(r.north, 2), "east": round(r.east, 2), "depth": round(r.depth, 2),
-                "heading_deg": round(math.degrees(r.yaw) % 360, 1), "mode": MODE_NAMES.get(r.mode, r.mode),
-                "armed": r.armed}  # fmt: skip
+        return {
+            "north": round(r.north, 2),
+            "east": round(r.east, 2),
+            "depth": round(r.depth, 2),
+            "heading_deg": round(math.degrees(r.yaw) % 360, 1),
+            "mode": MODE_NAMES.get(r.mode, r.mode),
+            "armed": r.armed,
+        }

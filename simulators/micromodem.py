@@ -1,4 +1,4 @@
-"""A WHOI Micro-Modem emulator: the host NMEA dialect of REFERENCE §1 over the simulated channel.
+"""A WHOI Micro-Modem emulator: the Micro-Modem's host NMEA dialect over the simulated channel.
 
 Host side: ``$CCCFG``/``$CCCFQ`` (answered with ``$CACFG``), ``$CCCLK``, ``$CCCYC`` with the ``$CADRQ`` /
 ``$CCTXD`` exchange, ``$CCMPC`` pings, ``$CCMUC`` mini-packets, ``$CCMSC`` sleep/reboot; anything else
@@ -51,8 +51,14 @@ class _Ping:
 
 
 class MicroModemEmulator:
-    def __init__(self, name: str, address: int, channel: Channel, scheduler: Scheduler,
-                 position: Callable[[], tuple[float, float, float]]) -> None:  # fmt: skip
+    def __init__(
+        self,
+        name: str,
+        address: int,
+        channel: Channel,
+        scheduler: Scheduler,
+        position: Callable[[], tuple[float, float, float]],
+    ) -> None:
         self.name = name
         self.channel = channel
         self.scheduler = scheduler
@@ -131,8 +137,9 @@ class MicroModemEmulator:
 
     def _on_clock(self, clk: nmea.Clock) -> None:
         try:
-            wanted = dt.datetime(clk.year, clk.month, clk.day, clk.hour, clk.minute, clk.second,
-                                 tzinfo=dt.UTC).timestamp()  # fmt: skip
+            wanted = dt.datetime(
+                clk.year, clk.month, clk.day, clk.hour, clk.minute, clk.second, tzinfo=dt.UTC
+            ).timestamp()
         except ValueError as exc:
             return self._error("CLK", 3, str(exc))
         self.clock_offset = wanted - self._wall()
@@ -150,8 +157,9 @@ class MicroModemEmulator:
         cycle = _Outgoing(cyc.src, cyc.dest, cyc.rate, cyc.ack, max(1, cyc.nframes), send_init=cyc.rate != 0)
         self._cycle = cycle
         if cyc.rate == 0:  # FSK: the cycle-init goes out first, then the modem asks for data
-            self._transmit_cycle_init(cyc.src, cyc.dest, cyc.rate, cyc.ack, cycle.nframes,
-                                      then=lambda: self._request_frame(cycle))  # fmt: skip
+            self._transmit_cycle_init(
+                cyc.src, cyc.dest, cyc.rate, cyc.ack, cycle.nframes, then=lambda: self._request_frame(cycle)
+            )
         else:  # PSK: the cycle-init leads the data packet
             self._request_frame(cycle)
 
@@ -206,13 +214,20 @@ class MicroModemEmulator:
 
     def _transmit_cycle(self, cycle: _Outgoing) -> None:
         if cycle.send_init:
-            self._transmit_cycle_init(cycle.src, cycle.dest, cycle.rate, cycle.ack, len(cycle.frames),
-                                      then=lambda: self._transmit_data(cycle))  # fmt: skip
+            self._transmit_cycle_init(
+                cycle.src,
+                cycle.dest,
+                cycle.rate,
+                cycle.ack,
+                len(cycle.frames),
+                then=lambda: self._transmit_data(cycle),
+            )
         else:
             self._transmit_data(cycle)
 
-    def _transmit_cycle_init(self, src: int, dest: int, rate: int, ack: bool, nframes: int,
-                             then: Callable[[], None] | None = None) -> None:  # fmt: skip
+    def _transmit_cycle_init(
+        self, src: int, dest: int, rate: int, ack: bool, nframes: int, then: Callable[[], None] | None = None
+    ) -> None:
         info = {"src": src, "dest": dest, "rate": rate, "ack": ack, "nframes": nframes}
         airtime = rates.airtime_s(rates.CYCLE_INIT_BITS, 0)
         if src != self.address:  # we polled: the answer comes to us
@@ -235,9 +250,26 @@ class MicroModemEmulator:
         if self._cycle is cycle:
             self._cycle = None
         date = self._now_utc()
-        self._emit_if("XST", nmea.TxStats(date.strftime("%Y%m%d"), date.strftime("%H%M%S.%f")[:11], 0, 0, 0, 5000,
-                                          25000, cycle.rate, cycle.src, cycle.dest, cycle.ack, len(cycle.frames),
-                                          len(cycle.frames), 0 if cycle.rate == 0 else 1, nbytes))  # fmt: skip
+        self._emit_if(
+            "XST",
+            nmea.TxStats(
+                date.strftime("%Y%m%d"),
+                date.strftime("%H%M%S.%f")[:11],
+                0,
+                0,
+                0,
+                5000,
+                25000,
+                cycle.rate,
+                cycle.src,
+                cycle.dest,
+                cycle.ack,
+                len(cycle.frames),
+                len(cycle.frames),
+                0 if cycle.rate == 0 else 1,
+                nbytes,
+            ),
+        )
 
     def _send(
         self, tx: Transmission, report_bytes: int | None = None, then: Callable[[], None] | None = None
@@ -365,9 +397,37 @@ class MicroModemEmulator:
     ) -> nmea.RxStats:
         toa = self._now_utc().strftime("%H%M%S.%f")[:11]
         snr = round(snr, 1)
-        return nmea.RxStats(mode, toa, 0, 1440, 25, 175, 166, 75, 1, 1, 1, 3, rate, src, dest, 0,
-                            0 if rate == 0 else 3, nframes, nbad, int(snr + 120), snr, round(snr + 3, 1),
-                            snr, -1.0, 0, 0.0, 45, 25000, 5000)  # fmt: skip
+        return nmea.RxStats(
+            mode,
+            toa,
+            0,
+            1440,
+            25,
+            175,
+            166,
+            75,
+            1,
+            1,
+            1,
+            3,
+            rate,
+            src,
+            dest,
+            0,
+            0 if rate == 0 else 3,
+            nframes,
+            nbad,
+            int(snr + 120),
+            snr,
+            round(snr + 3, 1),
+            snr,
+            -1.0,
+            0,
+            0.0,
+            45,
+            25000,
+            5000,
+        )
 
     def _error(self, module: str, number: int, message: str) -> None:
         self.counters["errors"] += 1

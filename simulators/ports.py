@@ -39,8 +39,12 @@ class LineSplitter:
 
 
 class PtyPort:
-    def __init__(self, loop: asyncio.AbstractEventLoop, on_line: Callable[[bytes], None],
-                 link: str | Path | None = None) -> None:  # fmt: skip
+    def __init__(
+        self,
+        loop: asyncio.AbstractEventLoop,
+        on_line: Callable[[bytes], None],
+        link: str | Path | None = None,
+    ) -> None:
         self.loop = loop
         self.master, self._slave = os.openpty()
         tty.setraw(self._slave)  # no echo, no line discipline: bytes as a serial port carries them

@@ -92,9 +92,12 @@ class SimConfig:
 
     @classmethod
     def default(cls, distance: float = 500.0, seed: int = 1, time_scale: float = 1.0) -> SimConfig:
-        return cls(seed=seed, time_scale=time_scale,
-                   modems=[ModemSpec(1, "shore", (-distance, 0.0, 1.0)), ModemSpec(2, "vehicle", attach="rov1")],
-                   vehicles=[VehicleSpec("rov1", seed=seed)])  # fmt: skip
+        return cls(
+            seed=seed,
+            time_scale=time_scale,
+            modems=[ModemSpec(1, "shore", (-distance, 0.0, 1.0)), ModemSpec(2, "vehicle", attach="rov1")],
+            vehicles=[VehicleSpec("rov1", seed=seed)],
+        )
 
     @classmethod
     def load(cls, path: str | Path) -> SimConfig:
@@ -118,6 +121,8 @@ class SimConfig:
         if any(not 1 <= a <= 127 for a in addresses):
             raise ValueError("modem addresses are 1-127")
         names = {v.name for v in self.vehicles}
+        if len(names) != len(self.vehicles):
+            raise ValueError(f"vehicle names must be unique: {[v.name for v in self.vehicles]}")
         for m in self.modems:
             if m.attach and m.attach not in names:
                 raise ValueError(f"modem {m.address} is attached to unknown vehicle {m.attach!r}")
@@ -150,16 +155,24 @@ class SimWorld:
         self.scheduler = RealtimeScheduler(loop, cfg.time_scale)
         self.channel = Channel(self.scheduler, ChannelParameters(**{"seed": cfg.seed, **cfg.channel}))
         env_cfg = dict(cfg.environment)
-        self.environment = (Environment.load(env_cfg["file"]) if env_cfg.get("file")
-                            else Environment.generate(cfg.seed, env_cfg.get("kind", "river")))  # fmt: skip
+        self.environment = (
+            Environment.load(env_cfg["file"])
+            if env_cfg.get("file")
+            else Environment.generate(cfg.seed, env_cfg.get("kind", "river"))
+        )
         for vehicle_spec in cfg.vehicles:
             await self._start_vehicle(vehicle_spec)
         for modem_spec in cfg.modems:
             await self._start_modem(modem_spec)
 
     async def _start_vehicle(self, spec: VehicleSpec) -> None:
-        vehicle = SimulatedVehicle(self.scheduler, self.environment, seed=spec.seed,
-                                   position_source=spec.position_source, current=spec.current)  # fmt: skip
+        vehicle = SimulatedVehicle(
+            self.scheduler,
+            self.environment,
+            seed=spec.seed,
+            position_source=spec.position_source,
+            current=spec.current,
+        )
         vehicle.rov.north, vehicle.rov.east, vehicle.rov.depth = spec.start
         vehicle.rov.yaw = math.radians(spec.heading_deg)
         await vehicle.links.serve_tcp("127.0.0.1", spec.tcp_port)
@@ -183,8 +196,9 @@ class SimWorld:
         def position() -> tuple[float, float, float]:
             return (rov.north, rov.east, rov.depth) if rov is not None else (north, east, depth)
 
-        modem = MicroModemEmulator(spec.name or f"modem{spec.address}", spec.address, self.channel,
-                                   self.scheduler, position)  # fmt: skip
+        modem = MicroModemEmulator(
+            spec.name or f"modem{spec.address}", spec.address, self.channel, self.scheduler, position
+        )
         pty = PtyPort(asyncio.get_running_loop(), modem.handle_line, spec.link or None)
         ports: list[PtyPort | TcpPort] = [pty]
         if spec.tcp_port is not None:
@@ -219,8 +233,12 @@ class SimWorld:
             if vehicle.links.udp_port:
                 urls.append(f"udpout:127.0.0.1:{vehicle.links.udp_port}")
             vehicles.append({"name": name, "mavlink": urls, "replay": bool(name in self.replays)})
-        return {"modems": modems, "vehicles": vehicles, "vehicle": vehicles[0] if vehicles else None,
-                "time_scale": self.config.time_scale}  # fmt: skip
+        return {
+            "modems": modems,
+            "vehicles": vehicles,
+            "vehicle": vehicles[0] if vehicles else None,
+            "time_scale": self.config.time_scale,
+        }
 
     def report(self) -> dict[str, Any]:
         """What crossed the channel, per modem and in total."""

@@ -11,15 +11,24 @@ replayed to another sharing the key.
 
 Replays of commands are stopped by the sequence number (a sliding window remembers which of the last
 64 were seen, as IPsec does, so a retransmission that arrives late still counts once), by the time
-stamp (older or newer than ``max_age`` seconds against the vehicle's corrected clock is rejected) and,
-when the window was lost with the agent's state, by a time floor (nothing stamped before the agent
-started again). SYNC packets (the shore's heartbeat and clock) have their own counter: (time, seq)
-must grow, and their time may differ from the vehicle's clock by at most ``max_correction``.
+stamp (older or newer than ``max_age`` seconds against the vehicle's corrected clock is rejected) and
+by a time floor (nothing stamped before the SYNC that answered the vehicle's challenge, below).
+
+SYNC packets (the shore's heartbeat and clock) have their own counter, persisted by the shore per
+vehicle: it must grow, and a SYNC's time may differ from the vehicle's clock by at most
+``max_correction``. Ordering by counter rather than by time lets a shore clock that stepped ahead and
+was fixed be heard again at its next SYNC.
+
+A vehicle that lost its state (no SYNC counter: *unsynced*) accepts no command and no SYNC but one that
+echoes the MAC of a check-point it signed since it started (``SyncWindow.challenge``): a recorded SYNC
+cannot echo a MAC that did not exist when it was recorded. That SYNC sets the counter and the command
+window's floor (its time minus ``FLOOR_SLACK``); the floor never moves back afterwards.
 
 Vehicle -> shore. A check-point carries a 32-bit MAC over its 28 bytes, the vehicle's address and the
 SHA-256 of every priority packet it lists as covered (a 16-bit map of the seqs before it), so one
 32-bit tag vouches for the check-point and for up to 16 priority packets: a priority packet spends no
-bits on authentication, and its data is shown as unverified until a check-point covers it. Forgery
+bits on authentication beyond a one-byte tag (``priority_tag``) that weeds out forged twins before
+anything decodes them, and its data is shown as unverified until a check-point covers it. Forgery
 odds: 2^-32 per attempt. A forged frame is one rate-0 transmission (>= 3.2 s of airtime at 80 bit/s
 plus the cycle), so a transmitter sending nothing else makes at most ~27,000 attempts a day; the shore
 tries at most ``MAX_COMBINATIONS`` candidate sets per check-point (when two packets claim one seq), so
@@ -35,6 +44,7 @@ import hashlib
 import hmac
 import itertools
 import os
+from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
@@ -46,6 +56,7 @@ from tacit.packets import (
     ControlPacket,
     PacketError,
     PacketType,
+    PriorityPacket,
     decode_control,
     packet_type,
 )
@@ -54,7 +65,10 @@ KEY_SIZE = 32
 MAX_KEY_SIZE = 64
 _DOMAIN = b"tacit-control-v2"
 _CP_DOMAIN = b"tacit-checkpoint-v2"
+_TAG_DOMAIN = b"tacit-priority-v3"
 MAX_COMBINATIONS = 4
+CHALLENGES = 8  # the MACs of its latest check-points an unsynced vehicle takes an echo of
+FLOOR_SLACK = 5  # s: a command stamped this much before the answering SYNC's time still counts
 
 
 class AuthError(PacketError):
@@ -76,6 +90,10 @@ class Replayed(AuthError):
 
 class OutOfWindow(AuthError):
     pass
+
+
+class Unsynced(AuthError):
+    """Refused by a vehicle that lost its state, until a SYNC answers one of its check-points."""
 
 
 def new_key() -> bytes:
@@ -130,6 +148,27 @@ def verify(frame: bytes, key: bytes | Keys, address: int) -> ControlPacket:
     return decode_control(frame)
 
 
+def priority_tag(key: bytes, address: int, frame: bytes) -> int:
+    """The one-byte tag of a priority packet: a MAC of its bytes but the tag (byte 2) for the vehicle at
+    ``address``. It makes a forged twin of a genuine packet fail at once (255 times in 256), so the shore
+    never decodes it and the check-point's candidate set per seq is almost always the genuine packet."""
+    message = _TAG_DOMAIN + bytes([address & 0xFF]) + bytes(frame[:2]) + bytes(frame[3:])
+    return hmac.new(key, message, hashlib.sha256).digest()[0]
+
+
+def tag_priority(packet: PriorityPacket, key: bytes, address: int) -> bytes:
+    """The 32-byte frame of a priority packet, tagged for the vehicle at ``address``."""
+    frame = packet.encode()
+    return frame[:2] + bytes([priority_tag(key, address, frame)]) + frame[3:]
+
+
+def tag_matches(frame: bytes, keys: Keys, address: int) -> bool:
+    """Whether a priority packet's tag is right under one of the vehicle's keys."""
+    return any(
+        hmac.compare_digest(bytes([priority_tag(k, address, frame)]), frame[2:3]) for k in keys.values()
+    )
+
+
 def packet_hash(packet: bytes) -> bytes:
     """What a check-point's MAC covers of a priority packet."""
     return hashlib.sha256(bytes(packet)).digest()
@@ -141,8 +180,9 @@ def checkpoint_mac(key: bytes, address: int, signed: bytes, covered: Sequence[by
     return hmac.new(key, message, hashlib.sha256).digest()[:CHECKPOINT_MAC_SIZE]
 
 
-def sign_checkpoint(packet: CheckpointPacket, key: bytes, version: int, address: int,
-                    covered: Sequence[bytes]) -> bytes:  # fmt: skip
+def sign_checkpoint(
+    packet: CheckpointPacket, key: bytes, version: int, address: int, covered: Sequence[bytes]
+) -> bytes:
     """The 32-byte frame of a check-point whose ``covered`` map lists the priority packets with the
     given hashes (oldest first), signed with the key of ``version`` by the vehicle at ``address``."""
     packet = replace(packet, key_parity=version & 1, mac=bytes(CHECKPOINT_MAC_SIZE))
@@ -150,8 +190,9 @@ def sign_checkpoint(packet: CheckpointPacket, key: bytes, version: int, address:
     return signed + checkpoint_mac(key, address, signed, covered)
 
 
-def verify_checkpoint(packet: CheckpointPacket, keys: Keys, address: int,
-                      candidates: Sequence[Sequence[bytes]]) -> tuple[int, tuple[bytes, ...]]:  # fmt: skip
+def verify_checkpoint(
+    packet: CheckpointPacket, keys: Keys, address: int, candidates: Sequence[Sequence[bytes]]
+) -> tuple[int, tuple[bytes, ...]]:
     """Check a decoded check-point: ``candidates[i]`` are the hashes of the packets the shore holds for
     its i-th covered seq (usually one). Returns (key version, the hashes that matched); raises
     ``BadMac`` if none does, or if more than ``MAX_COMBINATIONS`` sets would have to be tried."""
@@ -213,30 +254,54 @@ class ReplayWindow:
 
     @classmethod
     def from_dict(cls, data: dict[str, int], max_age: float = 600.0) -> ReplayWindow:
-        return cls(max_age=max_age, highest=int(data["highest"]), seen=int(data["seen"]),
-                   floor=int(data.get("floor", 0)))  # fmt: skip
+        return cls(
+            max_age=max_age,
+            highest=int(data["highest"]),
+            seen=int(data["seen"]),
+            floor=int(data.get("floor", 0)),
+        )
 
 
 @dataclass
 class SyncWindow:
-    """Accepts SYNC packets whose (time, seq) grows, within ``max_correction`` s of the local clock."""
+    """Accepts SYNC packets whose counter (``seq``) grows, within ``max_correction`` s of the local clock;
+    while unsynced (``counter`` None: the state was lost), only one that echoes a challenge."""
 
     max_correction: float = 86400.0
-    last: tuple[int, int] = (0, 0)
+    counter: int | None = 0  # the last accepted SYNC's; None: unsynced
+    challenges: deque[bytes] = field(default_factory=lambda: deque(maxlen=CHALLENGES))
 
-    def accept(self, packet: ControlPacket, local_now: float) -> None:
+    @property
+    def unsynced(self) -> bool:
+        return self.counter is None
+
+    def challenge(self, checkpoint_mac: bytes) -> None:
+        """A check-point signed while unsynced: a SYNC echoing its MAC answers it."""
+        self.challenges.append(bytes(checkpoint_mac))
+
+    def accept(self, packet: ControlPacket, local_now: float) -> bool:
+        """Check and record a SYNC; True if it answered a challenge (the vehicle is synced from now)."""
+        if self.counter is None:
+            if not any(packet.echo) or packet.echo not in self.challenges:
+                raise Unsynced(f"SYNC {packet.seq} answers none of this start's check-points")
+            self.counter = packet.seq
+            self.challenges.clear()
+            return True
         if abs(packet.time - local_now) > self.max_correction:
-            raise OutOfWindow(f"SYNC stamped {packet.time - local_now:+.0f} s from the local clock "
-                              f"(at most {self.max_correction:.0f} s is corrected)")  # fmt: skip
-        if (packet.time, packet.seq) <= self.last:
-            raise Replayed(f"SYNC ({packet.time}, {packet.seq}) is not newer than {self.last}")
-        self.last = (packet.time, packet.seq)
+            raise OutOfWindow(
+                f"SYNC stamped {packet.time - local_now:+.0f} s from the local clock "
+                f"(at most {self.max_correction:.0f} s is corrected)"
+            )
+        if packet.seq <= self.counter:
+            raise Replayed(f"SYNC {packet.seq} is not newer than {self.counter}")
+        self.counter = packet.seq
+        return False
 
 
 @dataclass
 class ControlReceiver:
     """The vehicle's gate for control frames: MAC (under the key epoch it names), then the replay
-    window (commands) or the SYNC window (heartbeats), then the decoded packet.
+    window (commands; none while unsynced) or the SYNC window (heartbeats), then the decoded packet.
 
     ``accept`` takes the local clock and ``offset``, the correction learnt from the shore's SYNC time
     (commands are checked against local + offset; SYNC against the local clock within its limit)."""
@@ -249,7 +314,10 @@ class ControlReceiver:
     def accept(self, frame: bytes, now: float, offset: float = 0.0) -> ControlPacket:
         packet = verify(frame, self.key, self.address)
         if packet.command is Command.SYNC:
-            self.sync.accept(packet, now)
+            if self.sync.accept(packet, now):
+                self.window.floor = packet.time - FLOOR_SLACK  # nothing recorded before it passes
+        elif self.sync.unsynced:
+            raise Unsynced(f"control seq {packet.seq}: no SYNC has answered this vehicle's check-points")
         else:
             self.window.accept(packet.seq, packet.time, now + offset)
         return packet

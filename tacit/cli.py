@@ -16,20 +16,22 @@ import sys
 from typing import NamedTuple
 
 
-class Command(NamedTuple):
+class Subcommand(NamedTuple):
     module: str
     extra: str  # the install extra (pyproject.toml) that holds this command's runtime dependencies
     help: str
 
 
-COMMANDS: dict[str, Command] = {
-    "demo": Command("launch.demo", "demo", "Start the whole system on simulators and open the operator's screen"),
-    "serve": Command("server.app", "server", "Run the shore control center (API, dashboard, 3D map, shore modem)"),
-    "agent": Command("vehicle_agent.agent", "agent", "Run the vehicle agent between ArduSub and the vehicle's modem"),
-    "sim": Command("simulators.run", "sim", "Start simulated Micro-Modems, acoustic channel and BlueROV2"),
-    "replay": Command("launch.replay", "demo", "Run a real .tlog through the agent and the simulated link"),
-    "eval-compression": Command("analysis.evaluate", "analysis", "Measure the compressor on a CSV or .tlog file"),
-    "modem-log": Command("tacit.modemlog", "", "Decode a Micro-Modem NMEA log: sentences, frames, packets"),
+COMMANDS: dict[str, Subcommand] = {
+    "demo": Subcommand("launch.demo", "demo", "Start the whole system on simulators and open the operator's screen"),
+    "serve": Subcommand("server.app", "server", "Run the shore control center (API, dashboard, 3D map, shore modem)"),
+    "gateway": Subcommand("server.backhaul.gateway", "gateway", "Run a gateway: one shore modem relaying to the center over NATS"),
+    "center": Subcommand("server.backhaul.center", "center", "Run the center: gateways' frames from NATS into the store"),
+    "agent": Subcommand("vehicle_agent.agent", "agent", "Run the vehicle agent between ArduSub and the vehicle's modem"),
+    "sim": Subcommand("simulators.run", "sim", "Start simulated Micro-Modems, acoustic channel and BlueROV2"),
+    "replay": Subcommand("launch.replay", "demo", "Run a real .tlog through the agent and the simulated link"),
+    "eval-compression": Subcommand("analysis.evaluate", "analysis", "Measure the compressor on a CSV or .tlog file"),
+    "modem-log": Subcommand("tacit.modemlog", "", "Decode a Micro-Modem NMEA log: sentences, frames, packets"),
 }  # fmt: skip
 
 
@@ -66,8 +68,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog=f"tacit {options.command}", description=command.help)
     module.add_arguments(parser)
     args = parser.parse_args(argv[first + 1 :])
-    logging.basicConfig(level=options.log_level.upper(),
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")  # fmt: skip
+    logging.basicConfig(
+        level=options.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+    )
     logging.getLogger("alembic").setLevel(logging.WARNING)  # its plugin set-up chatter is not for operators
     try:
         return int(module.run(args) or 0)
@@ -112,8 +115,11 @@ def _missing(name: str, packages: list[str]) -> int:
     """One line naming the extra to install, instead of a traceback."""
     extra = COMMANDS[name].extra
     requirement = f"tacit[{extra}]" if extra else "tacit"
-    print(f"tacit {name}: needs {', '.join(packages)}, not installed; "
-          f"install with: pip install '{requirement}'", file=sys.stderr)  # fmt: skip
+    print(
+        f"tacit {name}: needs {', '.join(packages)}, not installed; "
+        f"install with: pip install '{requirement}'",
+        file=sys.stderr,
+    )
     return 2
 
 

@@ -31,8 +31,16 @@ class Limits:
     geofence_radius: float = 1000.0  # m from home
     max_speed: float = 1.0  # m/s
 
-    def check(self, command: Command, distance: float = 0.0, angle: float = 0.0, depth: float = 0.0,
-              speed: float = 0.0, absolute: bool = False, pose: Pose | None = None) -> Refusal | None:  # fmt: skip
+    def check(
+        self,
+        command: Command,
+        distance: float = 0.0,
+        angle: float = 0.0,
+        depth: float = 0.0,
+        speed: float = 0.0,
+        absolute: bool = False,
+        pose: Pose | None = None,
+    ) -> Refusal | None:
         """The refusal of a command (None: within limits). Without a pose, only what needs none."""
         if speed > self.max_speed:
             return Refusal(
@@ -44,15 +52,22 @@ class Limits:
             return self._depth(depth, "the target depth")
         return None
 
-    def _move(self, distance: float, angle: float, change: float, absolute: bool,
-              pose: Pose | None) -> Refusal | None:  # fmt: skip
+    def _move(
+        self, distance: float, angle: float, change: float, absolute: bool, pose: Pose | None
+    ) -> Refusal | None:
         if distance > self.max_distance:
-            return Refusal(Reason.OUT_OF_LIMITS, "distance",
-                           f"distance {distance} m exceeds the vehicle's {self.max_distance} m per move")  # fmt: skip
+            return Refusal(
+                Reason.OUT_OF_LIMITS,
+                "distance",
+                f"distance {distance} m exceeds the vehicle's {self.max_distance} m per move",
+            )
         if pose is None:
             if abs(change) > self.max_depth:
-                return Refusal(Reason.OUT_OF_LIMITS, "depth",
-                               f"depth change {change} m exceeds the vehicle's {self.max_depth} m")  # fmt: skip
+                return Refusal(
+                    Reason.OUT_OF_LIMITS,
+                    "depth",
+                    f"depth change {change} m exceeds the vehicle's {self.max_depth} m",
+                )
             return None
         north, east = navigation.move_target(pose.north, pose.east, pose.heading, distance, angle, absolute)
         return self.check_target(north, east, pose.depth + change)
@@ -61,8 +76,12 @@ class Limits:
         """Whether a point may be steered to: inside the geofence, between the surface and max depth."""
         refused = self._depth(depth, "the target depth")
         if refused is None and math.hypot(north, east) > self.geofence_radius:
-            return Refusal(Reason.GEOFENCE, "distance", f"the target is {math.hypot(north, east):.0f} m from home, "
-                           f"outside the {self.geofence_radius:.0f} m geofence")  # fmt: skip
+            return Refusal(
+                Reason.GEOFENCE,
+                "distance",
+                f"the target is {math.hypot(north, east):.0f} m from home, "
+                f"outside the {self.geofence_radius:.0f} m geofence",
+            )
         return refused
 
     def _depth(self, depth: float, what: str) -> Refusal | None:

@@ -23,14 +23,16 @@ def course(heading: float, angle: float, absolute: bool) -> float:
     return (angle if absolute else heading + angle) % 360.0
 
 
-def move_target(north: float, east: float, heading: float, distance: float, angle: float,
-                absolute: bool = False) -> tuple[float, float]:  # fmt: skip
+def move_target(
+    north: float, east: float, heading: float, distance: float, angle: float, absolute: bool = False
+) -> tuple[float, float]:
     c = math.radians(course(heading, angle, absolute))
     return north + distance * math.cos(c), east + distance * math.sin(c)
 
 
-def distance_and_angle(north: float, east: float, heading: float, to_north: float, to_east: float,
-                       absolute: bool = False) -> tuple[float, float]:  # fmt: skip
+def distance_and_angle(
+    north: float, east: float, heading: float, to_north: float, to_east: float, absolute: bool = False
+) -> tuple[float, float]:
     """The (distance, angle) of a move from here to a point: what clicking the map fills in."""
     dn, de = to_north - north, to_east - east
     distance = math.hypot(dn, de)

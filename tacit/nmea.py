@@ -338,6 +338,7 @@ class Message(Sentence):
 
     SID: ClassVar = "MSG"
     TALKERS: ClassVar = (MODEM,)
+    FAILURES: ClassVar = ("BAD_CRC", "PACKET_TIMEOUT")  # a frame heard but not decoded, or missed
     type: str
     value: str
 
@@ -494,6 +495,15 @@ def parse(line: str | bytes, require_checksum: bool = True) -> Sentence | Raw:
     if not len(names) - cls.OPTIONAL_TAIL <= len(fields) <= len(names):
         raise FieldError(f"{talker}{sid}: expected {len(names)} fields, got {len(fields)}")
     return cls(**{n: _convert(cls, n, t) for n, t in zip(names, fields, strict=False)})
+
+
+def modem_error(sentence: Sentence | Raw) -> str | None:
+    """The kind of error a modem sentence reports (``CAERR``, ``BAD_CRC``, ``PACKET_TIMEOUT``), or None."""
+    if isinstance(sentence, Error):
+        return "CAERR"
+    if isinstance(sentence, Message) and sentence.type in Message.FAILURES:
+        return sentence.type
+    return None
 
 
 def talker_of(sentence: Sentence | Raw, host: bool) -> str:

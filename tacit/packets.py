@@ -3,14 +3,15 @@
 Every packet is exactly one rate-0 Micro-Modem frame (32 bytes). Integers are big-endian.
 Byte 0 is a header common to all packets::
 
-    bit 7-6  version (2; version 1 had no key epoch in control packets and no MAC in check-points)
+    bit 7-6  version (3; version 2 had no check-point state flags and ordered SYNCs by time, version 1
+             had no key epoch in control packets and no MAC in check-points)
     bit 5-4  type: 0 control (shore -> vehicle), 1 check-point, 2 priority (vehicle -> shore)
     bit 3-0  type-specific: control flags; check-point flags and key parity; priority: priority
              level (bits 3-2) and stream (bits 1-0)
 
 Both directions are authenticated with the vehicle's key (``tacit.auth``): a control packet carries a
-64-bit MAC; a check-point carries a 32-bit MAC that also covers the priority packets it lists, so
-priority packets spend nothing on authentication of their own.
+64-bit MAC; a check-point carries a 32-bit MAC that also covers the priority packets it lists, so a
+priority packet spends only a one-byte tag of its own (it weeds out forged twins on arrival).
 
 Control packet (shore -> vehicle), authenticated (see ``tacit.auth``):
 
@@ -37,9 +38,23 @@ or a true bearing from north when the absolute-angle flag is set. ``depth`` is t
 difference for MOVE (positive = deeper) and the target depth for GOTO_DEPTH. ``key_epoch`` names
 the key the MAC was made with, so old and new keys can both be valid during a rotation.
 
-A SYNC control packet is the shore's authenticated "I am here": its ``seq`` is a heartbeat counter
-(not a command sequence number; the pair (time, seq) only ever grows), ``time`` is the shore's clock,
-and ``param_id`` bit 0 asks the vehicle to restart its sample chains (the shore lost their state).
+A SYNC control packet (command 10) is the shore's authenticated "I am here", with its own layout:
+
+==========  ====  =================  =============================================================
+field       off   type               meaning
+==========  ====  =================  =============================================================
+header      0     u8                 flags zero
+command     1     u8                 10 (SYNC)
+seq         2     u32                the SYNC counter: per vehicle, persisted by the shore, only grows
+time        6     u32                the shore's clock, s (UNIX)
+(zero)      10    7 bytes            distance, angle, depth, speed: zero
+param_id    17    u8                 bit 0: restart the sample chains (the shore lost their state)
+echo        18    4 bytes            the MAC of the unsynced check-point this SYNC answers; zero if none
+key_epoch   22    u8                 as in every control packet
+reserved    23    1 byte, zero
+mac         24    8 bytes            truncated HMAC-SHA256 (64 bits), as in every control packet
+==========  ====  =================  =============================================================
+
 Only authentic control packets, SYNC included, reset the vehicle's link-lost timer: an
 unauthenticated Micro-Modem poll ($CCCYC) is answered but proves nothing.
 
@@ -54,7 +69,9 @@ header          0     u8    type 1; bits 2-0 flags: bit0 position fix, bit1 arme
                             mode; bit 3 key parity (key version mod 2)
 seq             1     u8    0 .. 255 (vehicle packet counter, wraps)
 time            2     u32   0 .. 4294967295             1             s (UNIX)
-state           6     u8    ``MissionState``
+state           6     u8    bits 3-0 ``MissionState``; bit 4 unsynced (the vehicle lost its state and
+                            waits for a SYNC echoing this MAC); bit 5 holds_next_key (it has the key
+                            after the one it signs with); bits 6-7 zero
 mission_id      7     u8    0 .. 255                    1             -
 waypoint        8     u8    0 .. 255                    1             -
 north           9     i16   -3276.8 .. 3276.7           0.1           m from home
@@ -74,8 +91,10 @@ mac             28    4 B   HMAC-SHA256 truncated to 32 bits over bytes 0-27, th
 ==============  ====  ====  ==========================  ============  ==========
 
 Priority packet (vehicle -> shore), the paper's "two bytes of priority/type, thirty bytes of
-samples": byte 0 header (priority level 0-3, stream 0-3), byte 1 seq (u8, shared counter with
-check-points), bytes 2-31 the samples as encoded by the sample codec.
+samples" less one: byte 0 header (priority level 0-3, stream 0-3), byte 1 seq (u8, shared counter with
+check-points), byte 2 tag (a one-byte MAC of the other 31 bytes, ``tacit.auth.priority_tag``: a forged
+packet fails it with probability 255/256 and is never decoded), bytes 3-31 the samples as encoded by
+the sample codec.
 
 Decoding never raises anything but ``PacketError`` subclasses; encoding an out-of-range value
 raises ``FieldRangeError`` (no silent wrap or clamp).
@@ -91,11 +110,12 @@ from enum import IntEnum
 from typing import Any, ClassVar, TypeVar
 
 PACKET_SIZE = 32
-VERSION = 2
+VERSION = 3
 MAC_SIZE = 8
 CHECKPOINT_MAC_SIZE = 4
+ECHO = slice(18, 22)  # a SYNC's echo: where other commands carry param_value
 COVER_BITS = 16  # how far back (in vehicle packet seqs) a check-point's MAC can reach
-PAYLOAD_SIZE = 30
+PAYLOAD_SIZE = 29
 OXYGEN_NONE = 655.35
 FLOAT32_MAX = struct.unpack(">f", b"\x7f\x7f\xff\xff")[0]
 
@@ -130,10 +150,36 @@ class Command(enum.IntEnum):
     RETURN_HOME = 7
     SET_PARAM = 8  # param_id, param_value
     REQUEST_CHECKPOINT = 9
-    SYNC = 10  # the shore's authenticated heartbeat: its time; param_id bit0 = restart sample chains
+    SYNC = 10  # the shore's authenticated heartbeat (own layout: counter, time, restart bit, echo)
+
+    @property
+    def from_operator(self) -> bool:
+        """An operator may send it (SYNC is the shore's own heartbeat)."""
+        return self is not Command.SYNC
+
+    @property
+    def sets_course(self) -> bool:
+        """The vehicle steers by it from now on: a course an older command set is abandoned."""
+        return self in _COURSE
+
+    @property
+    def has_target(self) -> bool:
+        """It names where to go (a move, a depth, home): its run ends on arrival."""
+        return self in _TARGETED
+
+    @property
+    def ends_run(self) -> bool:
+        """Executed at once, it ends the run of the command the vehicle was steering by."""
+        return self.sets_course and not self.has_target
+
+
+_TARGETED = frozenset({Command.MOVE, Command.GOTO_DEPTH, Command.RETURN_HOME})
+_COURSE = _TARGETED | {Command.HOLD, Command.RESUME, Command.START_MISSION, Command.ABORT_MISSION}
 
 
 SYNC_RESTART_CHAINS = 1
+UNSYNCED = 0x10  # check-point state byte flags (bits 3-0 are the MissionState)
+HOLDS_NEXT_KEY = 0x20
 
 
 class ControlFlag(enum.IntFlag):
@@ -342,6 +388,7 @@ class ControlPacket(_Packet):
     param_value: float = 0.0
     flags: ControlFlag = ControlFlag(0)
     key_epoch: int = 0
+    echo: bytes = bytes(CHECKPOINT_MAC_SIZE)  # SYNC only, in param_value's bytes
 
     TYPE: ClassVar = PacketType.CONTROL
     FIELDS: ClassVar = (
@@ -360,6 +407,17 @@ class ControlPacket(_Packet):
 
     def _header_low(self) -> int:
         return int(self.flags) & 0x0F
+
+    def _body(self) -> bytes:
+        """The fields; a SYNC's echo takes param_value's bytes (which a SYNC leaves at zero)."""
+        body = super()._body()
+        if self.command is not Command.SYNC:
+            if any(self.echo):
+                raise FieldRangeError("echo", self.echo.hex(), 0, 0, "(only a SYNC echoes)")
+            return body
+        if len(self.echo) != CHECKPOINT_MAC_SIZE or self.param_value:
+            raise FieldRangeError("echo", bytes(self.echo).hex(), 4, 4, "bytes (a SYNC has no param_value)")
+        return body[: ECHO.start] + bytes(self.echo) + body[ECHO.stop :]
 
     def signed_part(self) -> bytes:
         """The 24 bytes the MAC covers."""
@@ -389,13 +447,15 @@ class CheckpointPacket(_Packet):
     covered: int = 0
     flags: int = 0
     key_parity: int = 0
+    unsynced: bool = False
+    holds_next_key: bool = False
     mac: bytes = bytes(CHECKPOINT_MAC_SIZE)
 
     TYPE: ClassVar = PacketType.CHECKPOINT
     FIELDS: ClassVar = (
         _u("seq", "B"),
         _u("time", "I", unit="s"),
-        _e("state", MissionState),
+        _u("state_byte", "B"),
         _u("mission_id", "B"),
         _u("waypoint", "B"),
         _u("north", "h", 0.1, "m"),
@@ -415,6 +475,12 @@ class CheckpointPacket(_Packet):
     @property
     def outcome(self) -> int:
         return (int(CommandStatus(self.command_status)) << 4) | int(Reason(self.reason))
+
+    @property
+    def state_byte(self) -> int:
+        """The state and its flags, as the wire carries them."""
+        flags = (UNSYNCED if self.unsynced else 0) | (HOLDS_NEXT_KEY if self.holds_next_key else 0)
+        return int(MissionState(self.state)) | flags
 
     def _header_low(self) -> int:
         if not 0 <= self.flags <= 7:
@@ -448,15 +514,17 @@ def cover_bitmap(checkpoint_seq: int, seqs: list[int]) -> int:
 
 @dataclass(frozen=True)
 class PriorityPacket(_Packet):
-    """Vehicle -> shore: unpredictable samples (30 bytes, as the sample codec packs them)."""
+    """Vehicle -> shore: unpredictable samples (29 bytes, as the sample codec packs them) and their tag
+    (set by ``tacit.auth.tag_priority``)."""
 
     seq: int
     priority: Priority
     stream: Stream
     payload: bytes
+    tag: int = 0
 
     TYPE: ClassVar = PacketType.PRIORITY
-    FIELDS: ClassVar = (_u("seq", "B"),)
+    FIELDS: ClassVar = (_u("seq", "B"), _u("tag", "B"))
     TAIL: ClassVar = PAYLOAD_SIZE
 
     def _header_low(self) -> int:
@@ -481,6 +549,8 @@ def packet_type(frame: bytes) -> PacketType:
     if len(frame) != PACKET_SIZE:
         raise PacketError(f"a packet is {PACKET_SIZE} bytes, got {len(frame)}")
     version = frame[0] >> 6
+    if version == VERSION - 1:
+        raise PacketError(f"protocol version {version} (this end speaks {VERSION}): update its agent")
     if version != VERSION:
         raise PacketError(f"unknown packet version {version}")
     try:
@@ -500,10 +570,23 @@ def decode_control(frame: bytes) -> ControlPacket:
     flags = frame[0] & 0x0F
     if flags & ~int(ControlFlag.ABSOLUTE_ANGLE | ControlFlag.DELAY_SENSITIVE):
         raise PacketError(f"unknown control flags {flags:#x}")
+    _check_zero(frame, 23, 24)
+    if values["command"] is Command.SYNC:
+        return ControlPacket(flags=ControlFlag(flags), **{**values, "param_value": 0.0}, echo=frame[ECHO])
     if not math.isfinite(values["param_value"]):
         raise PacketError("param_value is not finite")
-    _check_zero(frame, 23, 24)
     return ControlPacket(flags=ControlFlag(flags), **values)
+
+
+def _state_flags(byte: int) -> dict[str, Any]:
+    """A check-point's state byte as its fields (the state and its two flags)."""
+    if byte & 0xC0:
+        raise PacketError(f"state byte {byte:#04x}: bits 6-7 are not zero")
+    try:
+        state = MissionState(byte & 0x0F)
+    except ValueError:
+        raise PacketError(f"state: unknown value {byte & 0x0F}") from None
+    return {"state": state, "unsynced": bool(byte & UNSYNCED), "holds_next_key": bool(byte & HOLDS_NEXT_KEY)}
 
 
 def decode(frame: bytes) -> Packet:
@@ -514,18 +597,26 @@ def decode(frame: bytes) -> Packet:
         return decode_control(frame)
     if kind is PacketType.CHECKPOINT:
         values = CheckpointPacket._unpack_fields(frame)
+        values.update(_state_flags(values.pop("state_byte")))
         outcome = values.pop("outcome")
         try:
             status, reason = CommandStatus(outcome >> 4), Reason(outcome & 0x0F)
         except ValueError:
             raise PacketError(f"outcome: unknown status/reason {outcome:#04x}") from None
-        return CheckpointPacket(**values, command_status=status, reason=reason, flags=frame[0] & 0x07,
-                                key_parity=frame[0] >> 3 & 1, mac=frame[28:32])  # fmt: skip
+        return CheckpointPacket(
+            **values,
+            command_status=status,
+            reason=reason,
+            flags=frame[0] & 0x07,
+            key_parity=frame[0] >> 3 & 1,
+            mac=frame[28:32],
+        )
     return PriorityPacket(
         seq=frame[1],
         priority=Priority((frame[0] >> 2) & 0x03),
         stream=Stream(frame[0] & 0x03),
-        payload=frame[2:],
+        payload=frame[3:],
+        tag=frame[2],
     )
 
 

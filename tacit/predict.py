@@ -12,7 +12,7 @@ both ends compute identical predictions; the quantizer in ``tacit.codec`` then g
     both ends land on identical filters. A white-noise channel picks a small K (a long running mean);
     a random walk picks a large one (it follows the last value). (The method of moments on first
     differences was tried first: on 64 ticks of real IMU data it overestimates q/r by 4-40x.)
-    This is the paper's model-based approach with its equations corrected (REFERENCE §5).
+    This is the paper's model-based approach with its equations corrected.
 ``kalman-cv`` -- a constant-velocity Kalman filter per channel (level and rate), white-noise
     acceleration of intensity q (same adaptive estimate), for smooth kinematic channels.
 ``mean`` -- the paper's model-free test (Algorithm 1) made dual-consistent: the prediction mu is the
@@ -212,7 +212,11 @@ class Hold(WindowMean):
 def make_predictor(method: str, channels: int, initial: np.ndarray | None = None) -> Predictor:
     start = np.zeros(channels) if initial is None else np.asarray(initial, dtype=np.float64)
     factories: dict[str, Callable[[int, np.ndarray], Predictor]] = {
-        "kalman": kalman_level, "kalman-cv": kalman_cv, "mean": WindowMean, "hold": Hold}  # fmt: skip
+        "kalman": kalman_level,
+        "kalman-cv": kalman_cv,
+        "mean": WindowMean,
+        "hold": Hold,
+    }
     try:
         return factories[method](channels, start)
     except KeyError:

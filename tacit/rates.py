@@ -1,4 +1,4 @@
-"""Micro-Modem packet rates: frames, frame sizes and nominal bit rates (REFERENCE §1).
+"""Micro-Modem packet rates: frames, frame sizes and nominal bit rates, as WHOI documents them.
 
 Shared by the simulator (airtime) and the link policy (which rate to use, how long a slot lasts).
 Airtime of a transmission = its bits / the rate's nominal bit rate + a fixed acquisition overhead.

@@ -13,6 +13,21 @@ from tacit.packets import Stream
 IMU_CHANNELS = ("xacc", "yacc", "zacc", "xgyro", "ygyro", "zgyro", "xmag", "ymag", "zmag")
 ENV_CHANNELS = ("temperature", "depth", "oxygen")
 WATER_CHANNELS = ("temperature", "oxygen")  # what the water does (depth is the vehicle's own motion)
+#: Each channel's unit (RAW_IMU: mG, mrad/s, mGauss; environment: degC, m, mg/L).
+UNITS = {
+    "xacc": "mG",
+    "yacc": "mG",
+    "zacc": "mG",
+    "xgyro": "mrad/s",
+    "ygyro": "mrad/s",
+    "zgyro": "mrad/s",
+    "xmag": "mGauss",
+    "ymag": "mGauss",
+    "zmag": "mGauss",
+    "temperature": "°C",
+    "depth": "m",
+    "oxygen": "mg/L",
+}
 
 DEFAULT_EPS = {
     # RAW_IMU units: mG, mrad/s, mGauss. About half a standard deviation of a BlueROV2 at rest.
@@ -23,9 +38,19 @@ DEFAULT_EPS = {
 }  # fmt: skip
 
 
-def default_streams(eps: dict[str, float] | None = None, imu_period: float = 0.25,
-                    env_period: float = 1.0) -> dict[Stream, StreamSpec]:  # fmt: skip
-    """The kinematic (RAW_IMU, 4 Hz as in the paper) and environmental (1 Hz) streams."""
+#: Each stream's tick period, s: the rate the agent asks ArduSub for the stream's message is 1 / period, so a
+#: tick holds one sample and every sample keeps its own time (a sensor faster than its stream's grid would
+#: put two samples, dated alike, in one tick).
+IMU_PERIOD = 0.25  # RAW_IMU at 4 Hz, as in the paper
+ENV_PERIOD = 0.5  # SCALED_PRESSURE2 (Bar30: depth, water temperature) at 2 Hz
+
+
+def default_streams(
+    eps: dict[str, float] | None = None, imu_period: float = IMU_PERIOD, env_period: float = ENV_PERIOD
+) -> dict[Stream, StreamSpec]:
+    """The kinematic (RAW_IMU) and environmental (depth, water temperature, oxygen) streams. Both ends
+    date samples by the wall clock: a simulation run k times faster than real time delivers k samples
+    per tick (each kept, dated within the tick); at real time every sample has its own tick."""
     bounds = {**DEFAULT_EPS, **(eps or {})}
     return {
         Stream.KINEMATIC: StreamSpec("imu", Stream.KINEMATIC, IMU_CHANNELS,

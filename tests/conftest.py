@@ -15,7 +15,8 @@ import pytest
 
 from launch.processes import stop
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+# Real logs kept in the repository (tests/data/README.md says where from): no test reads outside it.
+DATA = Path(__file__).resolve().parent / "data"
 
 
 @contextmanager
@@ -23,8 +24,14 @@ def tacit_process(
     *args: str, cwd: Path | None = None
 ) -> Iterator[tuple[subprocess.Popen[str], dict[str, Any]]]:
     """Run ``tacit ARGS --json``; yield the process and the JSON object of its first line."""
-    proc = subprocess.Popen([sys.executable, "-m", "tacit.cli", *args, "--json"], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, cwd=cwd, env={**os.environ, "PYTHONUNBUFFERED": "1"})  # fmt: skip
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tacit.cli", *args, "--json"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=cwd,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
     try:
         line = proc.stdout.readline()  # type: ignore[union-attr]
         if not line:
@@ -34,25 +41,54 @@ def tacit_process(
         stop(proc)
 
 
-POSTGRES = os.environ.get("TACIT_TEST_POSTGRES", "postgresql+psycopg://postgres@127.0.0.1:5432/test")
+@pytest.fixture(scope="session")
+def postgres_server() -> Iterator[str]:
+    """The PostgreSQL server the tests use: TACIT_TEST_POSTGRES (default postgres@127.0.0.1:5432) if it
+    answers, else a throwaway cluster for this session (tests/support/postgres.py). Exported as
+    TACIT_TEST_POSTGRES for the processes the tests start."""
+    from tests.support.postgres import postgres_server as server
+
+    with server() as url:
+        before = os.environ.get("TACIT_TEST_POSTGRES")
+        os.environ["TACIT_TEST_POSTGRES"] = url
+        try:
+            yield url
+        finally:
+            if before is None:
+                os.environ.pop("TACIT_TEST_POSTGRES", None)
+            else:
+                os.environ["TACIT_TEST_POSTGRES"] = before
 
 
 @contextmanager
-def postgres_database() -> Iterator[str]:
-    """A fresh, empty PostgreSQL database on the test server, dropped afterwards."""
+def postgres_database(server: str) -> Iterator[str]:
+    """A fresh, empty PostgreSQL database on the test server at ``server``, dropped afterwards."""
     import uuid
 
     import psycopg
 
     name = f"tacit_{uuid.uuid4().hex[:12]}"
-    admin = POSTGRES.replace("postgresql+psycopg://", "postgresql://")
+    admin = server.replace("postgresql+psycopg://", "postgresql://")
     with psycopg.connect(admin, autocommit=True) as conn:
         conn.execute(f'CREATE DATABASE "{name}"')
     try:
-        yield POSTGRES.rsplit("/", 1)[0] + "/" + name
+        yield server.rsplit("/", 1)[0] + "/" + name
     finally:
         with psycopg.connect(admin, autocommit=True) as conn:
             conn.execute(f'DROP DATABASE "{name}" WITH (FORCE)')
+
+
+TIERS = ("unit", "integration", "system")
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Mark each test with its tier, the folder under tests/ it lives in."""
+    here = Path(__file__).resolve().parent
+    for item in items:
+        path = item.path.resolve()
+        parts = path.relative_to(here).parts if path.is_relative_to(here) else ()
+        if parts and parts[0] in TIERS:
+            item.add_marker(getattr(pytest.mark, parts[0]))
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])
@@ -61,12 +97,11 @@ def database_url(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str
     if request.param == "sqlite":
         yield f"sqlite:///{tmp_path}/tacit.db"
     else:
-        with postgres_database() as url:
+        with postgres_database(request.getfixturevalue("postgres_server")) as url:
             yield url
 
 
 @pytest.fixture(scope="session")
-def shared_data() -> Path:
-    if not DATA.is_dir():
-        raise FileNotFoundError(f"the shared data folder is missing at {DATA}")
+def real_data() -> Path:
+    """The folder of real data files (``real_data / "ardusub" / "small.tlog"``), inside the repository."""
     return DATA

@@ -6,8 +6,10 @@ shore's authenticated control packets, and persists its state. It never stops on
 link or a restart: the MAVLink and modem links reconnect with backoff while the vehicle holds.
 
 Trust: only authentic control packets (commands, or the shore's SYNC heartbeat) reset the link-lost
-timer; a SYNC's time corrects the clock (up to ``max_clock_correction``) and can ask the compressor to
-restart its chains. Check-points are signed with the vehicle's key and cover the priority packets
+timer; a SYNC's time corrects the clock (up to ``max_clock_correction``, both ways) and can ask the
+compressor to restart its chains. An agent that lost its state is unsynced: its check-points say so,
+and it accepts nothing until a SYNC echoes one of their MACs (``tacit.auth.SyncWindow``), which sets
+its clock. Check-points are signed with the vehicle's key and cover the priority packets
 delivered since the last delivered check-point (at most 16 packet seqs back: a check-point is due
 before the oldest would fall out of reach). Key rotation is staged: the agent holds ``key`` (version
 ``key_version``) and optionally ``next_key`` (version + 1), accepts both, and signs with the newest the
@@ -36,6 +38,7 @@ from tacit.config import check_keys
 from tacit.limits import Limits
 from tacit.navigation import Pose, Target
 from tacit.packets import (
+    CHECKPOINT_MAC_SIZE,
     COVER_BITS,
     OXYGEN_NONE,
     SYNC_RESTART_CHAINS,
@@ -50,15 +53,17 @@ from tacit.packets import (
     pack_settled,
     with_seq,
 )
+from tacit.private import private_dir
 from tacit.streams import WATER_CHANNELS, default_streams
-from vehicle_agent.compressor import Compressor, PlumeDetector
+from vehicle_agent.compressor import Compressor, PlumeDetector, PlumeEvent
 from vehicle_agent.link import VehicleLink
 from vehicle_agent.mavlink_io import MavlinkLink
-from vehicle_agent.mission import MissionFSM, MissionPlan, MissionStatus
+from vehicle_agent.mission import MissionFSM, MissionPlan, MissionProgress
 from vehicle_agent.navigator import NavConfig, Navigator, PositionEstimate
-from vehicle_agent.state import AgentState
+from vehicle_agent.state import AgentState, Queued, Settled, Uncovered
 
 log = logging.getLogger("tacit.agent")
+CLOCK_DEADBAND = 30.0  # s: travel and airtime are seconds; a synced clock is corrected beyond this
 
 
 @dataclass
@@ -131,39 +136,54 @@ class Agent:
             self.state.key_epoch = config.key_version
         tlog = Path(config.tlog_dir) / time.strftime("agent-%Y%m%d-%H%M%S.tlog") if config.tlog_dir else None
         if tlog:
-            tlog.parent.mkdir(parents=True, exist_ok=True)
+            private_dir(tlog.parent)
         self.mav = MavlinkLink(config.mavlink_url, tlog)
         self.position = PositionEstimate(config.nav)
         if self.state.time is not None:
-            self.position.resume(self.state.north, self.state.east, self.state.speed, self.state.thrust,
-                                 self.state.time, self.state.yaw)  # fmt: skip
+            self.position.resume(
+                self.state.north,
+                self.state.east,
+                self.state.speed,
+                self.state.thrust,
+                self.state.time,
+                self.state.yaw,
+            )
         self.navigator = Navigator(self.mav, config.nav, self.position)
         try:
-            status = MissionStatus.from_dict(self.state.mission) if self.state.mission else None
+            status = MissionProgress.from_dict(self.state.mission) if self.state.mission else None
         except (KeyError, TypeError, ValueError) as exc:
             log.error("saved mission status unreadable (%s): starting safe, waiting", exc)
             status = None
-        self.fsm = MissionFSM(plans, config.limits, status, config.link_lost_timeout, config.lost_action,
-                              config.checkpoint_interval)  # fmt: skip
+        self.fsm = MissionFSM(
+            plans,
+            config.limits,
+            status,
+            config.link_lost_timeout,
+            config.lost_action,
+            config.checkpoint_interval,
+        )
         self.streams = default_streams()
         self.compressor = Compressor(self.streams, config.max_latency, config.max_silence)
         self.plume = PlumeDetector(self.fsm.status.params.get("plume_threshold", config.plume_threshold))
         window = auth.ReplayWindow.from_dict(self.state.replay)
-        sync = auth.SyncWindow(config.max_clock_correction, tuple(self.state.heartbeat))
-        self.driver = modem.ModemDriver(modem.DriverSettings(url=config.modem_url, address=config.address,
-                                                             log_path=config.modem_log or None))  # fmt: skip
+        sync = auth.SyncWindow(config.max_clock_correction, self.state.sync_counter)
+        self.driver = modem.ModemDriver(
+            modem.DriverSettings(
+                url=config.modem_url, address=config.address, log_path=config.modem_log or None
+            )
+        )
         self.link = VehicleLink(
             self.driver, auth.ControlReceiver(self.keys, config.address, window, sync), config.shore_address
         )
         self.link.offset = self.state.clock_offset
-        for urgent, data in self.state.outbox:  # what a SIGKILL interrupted goes out again, byte for byte
-            packet = bytes.fromhex(data)
-            self.link.send(packet, urgent, self._on_delivered(packet))
+        for queued in self.state.outbox:  # what a SIGKILL interrupted goes out again, byte for byte
+            self.link.send(queued.data, queued.urgent, self._on_delivered(queued.data))
         if self.state.outbox:
             log.info("%d packet(s) restored to the send queue", len(self.state.outbox))
         self.link.on_control = self._on_control
         self.link.on_repeat = self._on_repeat
         self._repeat_answered = -1e9
+        self._challenged = -1e9  # vehicle time of the last check-point sent unsynced
         self._report: CheckpointPacket | None = None  # the check-point of the last status change, until sent
         self.samples: deque[tuple[str, float, tuple]] = deque(maxlen=10_000)
         self.mav.listeners.append(self._on_mavlink)
@@ -179,8 +199,13 @@ class Agent:
         if kind == "RAW_IMU" and imu is not None:
             self.samples.append(("imu", self.now(), imu))
         elif kind == "SCALED_PRESSURE2":
-            self.samples.append(("env", self.now(), (self.mav.telemetry.temperature, self.mav.telemetry.depth,
-                                                      self.mav.telemetry.oxygen)))  # fmt: skip
+            self.samples.append(
+                (
+                    "env",
+                    self.now(),
+                    (self.mav.telemetry.temperature, self.mav.telemetry.depth, self.mav.telemetry.oxygen),
+                )
+            )
 
     def pose(self) -> Pose:
         tel = self.mav.telemetry
@@ -191,8 +216,10 @@ class Agent:
         self.shore_heard_at = now  # only authentic packets get here
         if packet.key_epoch > self.state.key_epoch % 256 and packet.key_epoch in {v % 256 for v in self.keys}:
             self.state.key_epoch = next(v for v in self.keys if v % 256 == packet.key_epoch)
-            log.warning("shore uses key version %d: check-points signed with it from now on (confirms it)",
-                        self.state.key_epoch)  # fmt: skip
+            log.warning(
+                "shore uses key version %d: check-points signed with it from now on (confirms it)",
+                self.state.key_epoch,
+            )
             self.fsm.checkpoint_due = True
         if packet.command is Command.SYNC:
             self._on_sync(packet)
@@ -201,35 +228,41 @@ class Agent:
         status, reason = self.fsm.on_control(packet, self.pose(), now)
         if previous[0] and previous[0] != packet.seq and previous[0] != self.fsm.status.commanded:
             # the previous command is over (a move still steered to is reported when it arrives)
-            final = previous[1] if previous[1] in (CommandStatus.EXECUTED, CommandStatus.REFUSED) else (
-                CommandStatus.SUPERSEDED)  # fmt: skip
-            self.state.settled = [*self.state.settled, [previous[0], final.name]][-16:]
+            final = (
+                previous[1]
+                if previous[1] in (CommandStatus.EXECUTED, CommandStatus.REFUSED)
+                else (CommandStatus.SUPERSEDED)
+            )
+            self.state.settled = [*self.state.settled, Settled(previous[0], final.name)][-16:]
         self.plume.threshold = self.fsm.status.params.get("plume_threshold", self.plume.threshold)
         log.info("control seq %d %s: %s %s", packet.seq, packet.command.name, status.name, reason.name)
         self._persist()  # the replay window is on disk before anything acts on the command
 
     def _on_sync(self, packet: ControlPacket) -> None:
-        """The shore's authenticated heartbeat: its clock, and maybe a request to restart the chains."""
+        """The shore's authenticated heartbeat: its clock, corrected both ways when it is off by more
+        than the SYNC's own error (whole seconds, stamped before its seconds of travel and airtime: a
+        smaller correction would move the samples' clock back and forth for nothing), and maybe a request
+        to restart the chains. The replay floor is the receiver's: a SYNC never moves it back."""
         local = time.time()
         error = packet.time - (local + self.link.offset)
-        if abs(error) > 30.0:  # travel and airtime are seconds: only correct what matters
+        if abs(error) > CLOCK_DEADBAND:
             self.link.offset = self.state.clock_offset = packet.time - local
-            window = self.link.receiver.window
-            if window.floor:  # set from this (wrong) clock at a fresh start: on the shore's time now
-                window.floor += int(error)
-            log.warning("clock corrected by %+.0f s from the shore's SYNC (offset now %+.0f s)", error,
-                        self.link.offset)  # fmt: skip
+            log.warning(
+                "clock corrected by %+.0f s from the shore's SYNC (offset now %+.0f s)",
+                error,
+                self.link.offset,
+            )
         if packet.param_id & SYNC_RESTART_CHAINS:
             log.warning("shore asked to restart the sample chains (it lost their state)")
             self.compressor.restart_chains()
         self._persist()
 
-    def _on_delivered(self, packet: bytes):
+    def _on_delivered(self, packet: bytes) -> Callable[[bool], None]:
         """What to do when a priority packet is delivered: remember it for the next check-point's MAC."""
 
         def done(delivered: bool) -> None:
             if delivered:
-                self.state.uncovered = [*self.state.uncovered, [packet[1], auth.packet_hash(packet).hex()]]
+                self.state.uncovered = [*self.state.uncovered, Uncovered(packet[1], auth.packet_hash(packet))]
                 self._dirty = True
 
         return done
@@ -254,18 +287,26 @@ class Agent:
             elif kind == "env" and values[0] is not None:
                 temperature, depth, oxygen = values
                 event = self.plume.add(self.mav.telemetry.time, pose.north, pose.east, temperature)
-                self.compressor.add(Stream.ENVIRONMENTAL, stamp, [temperature, depth, oxygen],
-                                    urgent=event is not None)  # fmt: skip
+                self.compressor.add(
+                    Stream.ENVIRONMENTAL, stamp, [temperature, depth, oxygen], urgent=event is not None
+                )
                 if event is not None:
                     self._plume(event, pose)
 
-    def _plume(self, event, pose: Pose) -> None:
+    def _plume(self, event: PlumeEvent, pose: Pose) -> None:
         bearing = event.bearing if event.bearing is not None else pose.heading
         d = self.config.explore_distance
-        target = (pose.north + d * math.cos(math.radians(bearing)), pose.east + d * math.sin(math.radians(bearing)),
-                  pose.depth)  # fmt: skip
-        log.warning("warm water: %.2f degC (baseline %.2f); turning to %.0f deg", event.temperature,
-                    event.baseline, bearing)  # fmt: skip
+        target = (
+            pose.north + d * math.cos(math.radians(bearing)),
+            pose.east + d * math.sin(math.radians(bearing)),
+            pose.depth,
+        )
+        log.warning(
+            "warm water: %.2f degC (baseline %.2f); turning to %.0f deg",
+            event.temperature,
+            event.baseline,
+            bearing,
+        )
         self.fsm.on_unpredictable(True, target)
 
     # --- outputs --------------------------------------------------------------------------------
@@ -275,18 +316,23 @@ class Agent:
             urgent = encoded.packet.priority is Priority.TIME_SENSITIVE
             packet = with_seq(encoded.packet, self.state.packet_seq)
             self.state.packet_seq += 1
-            frame = packet.encode()
+            frame = auth.tag_priority(packet, self.keys[self.state.key_epoch], self.config.address)
             covered = self._on_delivered(frame)
 
-            def resolved(ok: bool, s: Stream = stream, covered=covered) -> None:
+            def resolved(ok: bool, s: Stream = stream, covered: Callable[[bool], None] = covered) -> None:
                 self.compressor.resolve(s, ok)
                 covered(ok)
 
             self.link.send(frame, urgent, resolved)
             self.state.priority_count += 1
             self._dirty = True
-            log.info("priority packet seq %d (%s, %d ticks, %d surprises) queued", packet.seq,
-                     stream.name.lower(), encoded.ticks, encoded.nonzero)  # fmt: skip
+            log.info(
+                "priority packet seq %d (%s, %d ticks, %d surprises) queued",
+                packet.seq,
+                stream.name.lower(),
+                encoded.ticks,
+                encoded.nonzero,
+            )
             if self._water_surprised(encoded) and not urgent:
                 self.fsm.on_unpredictable(False, None)
 
@@ -300,47 +346,81 @@ class Agent:
 
     def settled(self, last: int) -> int:
         """The check-point's ``settled`` byte: final statuses of the four commands before ``last``."""
-        finals = {seq: CommandStatus[name] for seq, name in self.state.settled}
+        finals = {s.seq: CommandStatus[s.status] for s in self.state.settled}
         return pack_settled([finals.get(last - k) for k in range(1, 5)])
 
     def checkpoint(self) -> CheckpointPacket:
-        tel, s, pose = self.mav.telemetry, self.fsm.status, self.pose()
-        flags = (1 if self.position.source != "dead_reckoning" else 0) | (2 if tel.armed else 0) | (
-            4 if s.state is MissionState.LINK_LOST else 0)  # fmt: skip
-        measured = CheckpointPacket.clamped(north=pose.north, east=pose.east, depth=pose.depth, battery=tel.battery,
-                                            temperature=tel.temperature or 0.0,
-                                            oxygen=min(tel.oxygen, OXYGEN_NONE - 0.01) if tel.oxygen is not None
-                                            else OXYGEN_NONE)  # fmt: skip
+        tel, s, pose = self.mav.telemetry, self.fsm.status, self.position.in_fleet_frame(self.pose())
+        flags = (
+            (1 if self.position.source != "dead_reckoning" else 0)
+            | (2 if tel.armed else 0)
+            | (4 if s.state is MissionState.LINK_LOST else 0)
+        )
+        measured = CheckpointPacket.clamped(
+            north=pose.north,
+            east=pose.east,
+            depth=pose.depth,
+            battery=tel.battery,
+            temperature=tel.temperature or 0.0,
+            oxygen=min(tel.oxygen, OXYGEN_NONE - 0.01) if tel.oxygen is not None else OXYGEN_NONE,
+        )
         return CheckpointPacket(
-            seq=self.state.packet_seq % 256, time=int(self.now()), state=s.state, mission_id=s.mission or 0,
-            waypoint=min(s.waypoint, 255), heading=round(pose.heading, 2) % 360.0,
-            last_command=s.last_command & 0xFFFF, command_status=s.command_status, reason=s.reason,
-            settled=self.settled(s.last_command), flags=flags, north=measured["north"], east=measured["east"],
-            depth=measured["depth"], battery=measured["battery"], temperature=measured["temperature"],
-            oxygen=measured["oxygen"])  # fmt: skip
+            seq=self.state.packet_seq % 256,
+            time=int(self.now()),
+            state=s.state,
+            mission_id=s.mission or 0,
+            waypoint=min(s.waypoint, 255),
+            heading=round(pose.heading, 2) % 360.0,
+            last_command=s.last_command & 0xFFFF,
+            command_status=s.command_status,
+            reason=s.reason,
+            settled=self.settled(s.last_command),
+            flags=flags,
+            north=measured["north"],
+            east=measured["east"],
+            depth=measured["depth"],
+            battery=measured["battery"],
+            temperature=measured["temperature"],
+            oxygen=measured["oxygen"],
+        )
 
-    def _reachable(self, seq: int) -> list[list]:
+    def _reachable(self, seq: int) -> list[Uncovered]:
         """The uncovered packets a check-point with ``seq`` can still cover (the others are dropped)."""
-        keep = [u for u in self.state.uncovered if (seq - 1 - u[0]) % 256 < COVER_BITS]
+        keep = [u for u in self.state.uncovered if (seq - 1 - u.seq) % 256 < COVER_BITS]
         if len(keep) < len(self.state.uncovered):
-            log.warning("%d delivered packet(s) fell out of reach of any check-point: they stay unverified",
-                        len(self.state.uncovered) - len(keep))  # fmt: skip
+            log.warning(
+                "%d delivered packet(s) fell out of reach of any check-point: they stay unverified",
+                len(self.state.uncovered) - len(keep),
+            )
             self.state.uncovered = keep
         return keep
 
     def _send_checkpoint(self) -> None:
         packet, report, self._report = self.checkpoint(), self._report, None
-        if (report is not None and report.last_command == packet.last_command
-                and report.command_status is packet.command_status):  # fmt: skip
+        if (
+            report is not None
+            and report.last_command == packet.last_command
+            and report.command_status is packet.command_status
+        ):
             packet = with_seq(report, packet.seq)  # the pose and time of the tick the status changed
         covered = self._reachable(packet.seq)
-        packet = replace(packet, covered=cover_bitmap(packet.seq, [u[0] for u in covered]))
-        hashes = [bytes.fromhex(h) for _, h in sorted(covered, key=lambda u: (packet.seq - 1 - u[0]) % 256,
-                                                      reverse=True)]  # fmt: skip
-        frame = auth.sign_checkpoint(packet, self.keys[self.state.key_epoch], self.state.key_epoch,
-                                     self.config.address, hashes)  # fmt: skip
+        sync = self.link.receiver.sync
+        packet = replace(
+            packet,
+            covered=cover_bitmap(packet.seq, [u.seq for u in covered]),
+            unsynced=sync.unsynced,
+            holds_next_key=self.state.key_epoch + 1 in self.keys,
+        )
+        oldest_first = sorted(covered, key=lambda u: (packet.seq - 1 - u.seq) % 256, reverse=True)
+        hashes = [u.hash for u in oldest_first]
+        frame = auth.sign_checkpoint(
+            packet, self.keys[self.state.key_epoch], self.state.key_epoch, self.config.address, hashes
+        )
+        if sync.unsynced:
+            sync.challenge(frame[-CHECKPOINT_MAC_SIZE:])
+            self._challenged = self.mav.telemetry.time
 
-        def delivered(ok: bool, done: list[list] = covered) -> None:
+        def delivered(ok: bool, done: list[Uncovered] = covered) -> None:
             if ok:  # the shore holds the MAC for these now: no later check-point needs to cover them
                 self.state.uncovered = [u for u in self.state.uncovered if u not in done]
                 self._dirty = True
@@ -349,8 +429,13 @@ class Agent:
         self.link.send(frame, urgent=True, on_result=delivered)
         self.fsm.checkpoint_sent(self.mav.telemetry.time)
         self._dirty = True
-        log.info("check-point seq %d queued: %s, command %d %s", packet.seq, packet.state.name,
-                 packet.last_command, packet.command_status.name)  # fmt: skip
+        log.info(
+            "check-point seq %d queued: %s, command %d %s",
+            packet.seq,
+            packet.state.name,
+            packet.last_command,
+            packet.command_status.name,
+        )
 
     def _persist(self) -> None:
         self.state.mission = self.fsm.status.to_dict()
@@ -358,9 +443,9 @@ class Agent:
         self.state.speed, self.state.thrust = self.position.speed, self.navigator.thrust
         self.state.yaw = self.mav.telemetry.yaw
         self.state.time = self.mav.telemetry.time if self.mav.telemetry.time else self.state.time
-        self.state.outbox = [[urgent, data.hex()] for urgent, data in self.link.pending()]
-        self.state.replay = self.link.receiver.window.to_dict()  # a SYNC may have moved its floor
-        self.state.heartbeat = list(self.link.receiver.sync.last)
+        self.state.outbox = [Queued(urgent, data) for urgent, data in self.link.pending()]
+        self.state.replay = self.link.receiver.window.to_dict()  # the answering SYNC set its floor
+        self.state.sync_counter = self.link.receiver.sync.counter
         self.state.save(self.state_path)
         self._dirty = False
 
@@ -383,9 +468,14 @@ class Agent:
         if reported != (before["last_command"], before["command_status"]):
             self._report = self.checkpoint()  # where and when it happened (e.g. arrival), even if sent later
         self._send_packets()
-        oldest = min(((self.state.packet_seq - u[0]) % 256 for u in self.state.uncovered), default=0)
+        oldest = min(((self.state.packet_seq - u.seq) % 256 for u in self.state.uncovered), default=0)
         if oldest >= COVER_BITS - 4:  # a check-point now, while the oldest delivered packet is in reach
             self.fsm.checkpoint_due = True
+        if (
+            self.link.receiver.sync.unsynced
+            and tel.time - self._challenged >= self.fsm.status.params["checkpoint_interval"]
+        ):
+            self.fsm.checkpoint_due = True  # even while waiting: a new challenge until one is answered
         if self.fsm.checkpoint_due and self.link.backlog < 4:
             self._send_checkpoint()
         if self._dirty or self.fsm.status.to_dict() != before or tel.time - self._persisted_at >= 1.0:
@@ -395,8 +485,13 @@ class Agent:
     async def run(self, stop: asyncio.Event) -> None:
         self.mav.start()
         await self.driver.start()
-        log.info("agent %d up: modem %s, MAVLink %s, state %s", self.config.address, self.config.modem_url,
-                 self.config.mavlink_url, self.fsm.state.name)  # fmt: skip
+        log.info(
+            "agent %d up: modem %s, MAVLink %s, state %s",
+            self.config.address,
+            self.config.modem_url,
+            self.config.mavlink_url,
+            self.fsm.state.name,
+        )
         try:
             while not stop.is_set():
                 try:

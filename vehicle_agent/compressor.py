@@ -82,8 +82,13 @@ class Compressor:
     one rides along). Each sample is pushed at its sensor's own time and rate; a value that is None or
     NaN (a sensor without a reading) is coded as absent, and the shore stores it as absent."""
 
-    def __init__(self, streams: dict[Stream, StreamSpec], max_latency: float = 10.0, max_silence: float = 60.0,
-                 urgent_threshold: float | None = 20.0) -> None:  # fmt: skip
+    def __init__(
+        self,
+        streams: dict[Stream, StreamSpec],
+        max_latency: float = 10.0,
+        max_silence: float = 60.0,
+        urgent_threshold: float | None = 20.0,
+    ) -> None:
         self.order = list(streams)
         self.encoder = PacketEncoder(list(streams.values()), max_latency, urgent_threshold, max_silence)
         self.samples = 0

@@ -48,8 +48,14 @@ class Outgoing:
 
 
 class VehicleLink:
-    def __init__(self, driver: modem.ModemDriver, receiver: auth.ControlReceiver, shore_address: int = 1,
-                 attempts: int = 4, clock: Callable[[], float] = time.time) -> None:  # fmt: skip
+    def __init__(
+        self,
+        driver: modem.ModemDriver,
+        receiver: auth.ControlReceiver,
+        shore_address: int = 1,
+        attempts: int = 4,
+        clock: Callable[[], float] = time.time,
+    ) -> None:
         self.driver = driver
         self.receiver = receiver
         self.shore_address = shore_address

@@ -5,7 +5,7 @@ message received is also written to a ``.tlog`` (a UNIX-microsecond stamp and th
 pymavlink's logs are), since ``setup_logfile`` writes nothing on network links. If the link drops the
 reader reconnects with backoff; callers see ``connected`` go false, never an exception.
 
-Commands follow ArduSub's rules (REFERENCE §3): MANUAL_CONTROL is only accepted from SYSID_MYGCS
+Commands follow ArduSub's rules: MANUAL_CONTROL is only accepted from SYSID_MYGCS
 (255), so the agent uses that system id; depth targets are SET_POSITION_TARGET_GLOBAL_INT in a
 depth-holding mode; headings are SET_ATTITUDE_TARGET with the throttle ignored, which ArduSub follows
 for 5 s only; with a position fix, GUIDED and SET_POSITION_TARGET_LOCAL_NED.
@@ -25,11 +25,15 @@ from pathlib import Path
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from tacit.private import open_private
+from tacit.streams import ENV_PERIOD, IMU_PERIOD
+
 log = logging.getLogger("tacit.agent.mavlink")
 
 GCS_SYSTEM_ID = 255
-STREAMS_HZ = {
-    mav.MAVLINK_MSG_ID_RAW_IMU: 4.0, mav.MAVLINK_MSG_ID_ATTITUDE: 10.0, mav.MAVLINK_MSG_ID_SCALED_PRESSURE2: 2.0,
+STREAMS_HZ = {  # the sample streams' messages at their streams' rates (tacit.streams), the rest as navigation needs
+    mav.MAVLINK_MSG_ID_RAW_IMU: 1 / IMU_PERIOD, mav.MAVLINK_MSG_ID_ATTITUDE: 10.0,
+    mav.MAVLINK_MSG_ID_SCALED_PRESSURE2: 1 / ENV_PERIOD,
     mav.MAVLINK_MSG_ID_VFR_HUD: 4.0, mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 4.0, mav.MAVLINK_MSG_ID_GPS_RAW_INT: 1.0,
     mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 4.0, mav.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
 }  # fmt: skip
@@ -38,7 +42,7 @@ WATER_HPA_PER_M = 98.0665  # fresh water
 
 
 @dataclass
-class Telemetry:
+class VehicleTelemetry:
     """The latest of what the vehicle reports; ``time`` is the vehicle's own clock (s since boot)."""
 
     time: float = 0.0
@@ -75,7 +79,7 @@ class Telemetry:
 class MavlinkLink:
     def __init__(self, url: str, tlog: str | Path | None = None, reconnect_max: float = 10.0) -> None:
         self.url = url
-        self.telemetry = Telemetry()
+        self.telemetry = VehicleTelemetry()
         self.connected = False
         self.listeners: list[Callable[[str, object], None]] = []
         self.reconnect_max = reconnect_max
@@ -83,7 +87,7 @@ class MavlinkLink:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._write_lock = threading.Lock()
-        self._tlog = open(tlog, "ab") if tlog else None
+        self._tlog = open_private(tlog, "ab") if tlog else None
         self._updated = time.monotonic()
 
     # --- lifecycle ------------------------------------------------------------------------------
@@ -111,8 +115,13 @@ class MavlinkLink:
         delay = 0.5
         while not self._stop.is_set():
             try:
-                self._conn = mavutil.mavlink_connection(self.url, source_system=GCS_SYSTEM_ID, source_component=190,
-                                                        autoreconnect=False, robust_parsing=True)  # fmt: skip
+                self._conn = mavutil.mavlink_connection(
+                    self.url,
+                    source_system=GCS_SYSTEM_ID,
+                    source_component=190,
+                    autoreconnect=False,
+                    robust_parsing=True,
+                )
                 if self._conn.wait_heartbeat(timeout=10) is None:
                     raise ConnectionError("no heartbeat")
                 self.connected = True
@@ -219,21 +228,66 @@ class MavlinkLink:
 
     def depth_target(self, depth: float) -> bool:
         mask = 0b110111111011  # only z
-        return self._send(lambda c: c.mav.set_position_target_global_int_send(
-            0, c.target_system, c.target_component, mav.MAV_FRAME_GLOBAL_INT, mask, 0, 0, -depth,
-            0, 0, 0, 0, 0, 0, 0, 0))  # fmt: skip
+        return self._send(
+            lambda c: c.mav.set_position_target_global_int_send(
+                0,
+                c.target_system,
+                c.target_component,
+                mav.MAV_FRAME_GLOBAL_INT,
+                mask,
+                0,
+                0,
+                -depth,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+            )
+        )
 
     def heading_target(self, heading_deg: float) -> bool:
         half = math.radians(heading_deg) / 2
         q = [math.cos(half), 0.0, 0.0, math.sin(half)]
-        return self._send(lambda c: c.mav.set_attitude_target_send(
-            0, c.target_system, c.target_component, mav.ATTITUDE_TARGET_TYPEMASK_THROTTLE_IGNORE, q, 0, 0, 0, 0))  # fmt: skip
+        return self._send(
+            lambda c: c.mav.set_attitude_target_send(
+                0,
+                c.target_system,
+                c.target_component,
+                mav.ATTITUDE_TARGET_TYPEMASK_THROTTLE_IGNORE,
+                q,
+                0,
+                0,
+                0,
+                0,
+            )
+        )
 
     def manual(self, x: int = 0, y: int = 0, z: int = 500, r: int = 0) -> bool:
         return self._send(lambda c: c.mav.manual_control_send(c.target_system, x, y, z, r, 0))
 
     def position_target(self, north: float, east: float, depth: float) -> bool:
         mask = 0b110111111000  # position only
-        return self._send(lambda c: c.mav.set_position_target_local_ned_send(
-            0, c.target_system, c.target_component, mav.MAV_FRAME_LOCAL_NED, mask, north, east, depth,
-            0, 0, 0, 0, 0, 0, 0, 0))  # fmt: skip
+        return self._send(
+            lambda c: c.mav.set_position_target_local_ned_send(
+                0,
+                c.target_system,
+                c.target_component,
+                mav.MAV_FRAME_LOCAL_NED,
+                mask,
+                north,
+                east,
+                depth,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+            )
+        )

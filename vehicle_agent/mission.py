@@ -33,15 +33,15 @@ from tacit.limits import Limits
 from tacit.navigation import Pose, Target
 from tacit.packets import Command, CommandStatus, ControlFlag, ControlPacket, MissionState, Reason
 
-ACTIVE = {MissionState.PREPROGRAMMED, MissionState.SELF_DETERMINED, MissionState.AWAITING_COMMAND,
-          MissionState.COMMANDED, MissionState.HOLDING, MissionState.RETURNING}  # fmt: skip
+ACTIVE = {
+    MissionState.PREPROGRAMMED,
+    MissionState.SELF_DETERMINED,
+    MissionState.AWAITING_COMMAND,
+    MissionState.COMMANDED,
+    MissionState.HOLDING,
+    MissionState.RETURNING,
+}
 HOME = Target(0.0, 0.0, 0.0)  # compared with, never handed out (a Target is mutable)
-NEW_COURSE = {
-    Command.HOLD,
-    Command.RESUME,
-    Command.START_MISSION,
-    Command.ABORT_MISSION,
-}  # end a command's run
 FOLLOWING = (MissionState.PREPROGRAMMED, MissionState.AWAITING_COMMAND)  # on the pre-programmed trajectory
 PARAMS = {1: "plume_threshold", 2: "checkpoint_interval", 3: "cruise_speed", 4: "link_lost_timeout"}
 
@@ -62,8 +62,15 @@ class MissionPlan:
         return cls(number, "square", [(n, e, depth) for n, e in corners], duration_s)
 
     @classmethod
-    def lawnmower(cls, number: int = 2, width: float = 40.0, length: float = 40.0, spacing: float = 10.0,
-                  depth: float = 2.0, duration_s: float = 3600.0) -> MissionPlan:  # fmt: skip
+    def lawnmower(
+        cls,
+        number: int = 2,
+        width: float = 40.0,
+        length: float = 40.0,
+        spacing: float = 10.0,
+        depth: float = 2.0,
+        duration_s: float = 3600.0,
+    ) -> MissionPlan:
         points, east, forward = [], 0.0, True
         while east <= width + 1e-9:
             ends = (0.0, length) if forward else (length, 0.0)
@@ -85,7 +92,7 @@ class MissionPlan:
 
 
 @dataclass
-class MissionStatus:
+class MissionProgress:
     """Everything that must survive a restart (persisted as JSON by the agent)."""
 
     state: MissionState = MissionState.WAITING
@@ -109,7 +116,7 @@ class MissionStatus:
         return data
 
     @classmethod
-    def from_dict(cls, data: dict) -> MissionStatus:
+    def from_dict(cls, data: dict) -> MissionProgress:
         data = dict(data)
         data["state"] = MissionState[data["state"]]
         data["resume_state"] = MissionState[data["resume_state"]] if data.get("resume_state") else None
@@ -120,14 +127,20 @@ class MissionStatus:
 
 
 class MissionFSM:
-    def __init__(self, plans: dict[int, MissionPlan], limits: Limits, status: MissionStatus | None = None,
-                 link_lost_timeout: float = 300.0, lost_action: str = "hold",
-                 checkpoint_interval: float = 60.0) -> None:  # fmt: skip
+    def __init__(
+        self,
+        plans: dict[int, MissionPlan],
+        limits: Limits,
+        status: MissionProgress | None = None,
+        link_lost_timeout: float = 300.0,
+        lost_action: str = "hold",
+        checkpoint_interval: float = 60.0,
+    ) -> None:
         if lost_action not in ("hold", "surface", "return"):
             raise ValueError("lost_action is hold, surface or return")
         self.plans = plans
         self.limits = limits
-        self.status = status or MissionStatus()
+        self.status = status or MissionProgress()
         self.status.params.setdefault("link_lost_timeout", link_lost_timeout)
         self.status.params.setdefault("checkpoint_interval", checkpoint_interval)
         self.lost_action = lost_action
@@ -152,11 +165,16 @@ class MissionFSM:
     def on_control(self, packet: ControlPacket, pose: Pose, now: float) -> tuple[CommandStatus, Reason]:
         """Apply a control packet (already authenticated); returns what the check-point will say."""
         handler = {
-            Command.MOVE: self._move, Command.GOTO_DEPTH: self._goto_depth, Command.HOLD: self._hold,
-            Command.RESUME: self._resume, Command.START_MISSION: self._start, Command.ABORT_MISSION: self._abort,
-            Command.RETURN_HOME: self._return, Command.SET_PARAM: self._set_param,
+            Command.MOVE: self._move,
+            Command.GOTO_DEPTH: self._goto_depth,
+            Command.HOLD: self._hold,
+            Command.RESUME: self._resume,
+            Command.START_MISSION: self._start,
+            Command.ABORT_MISSION: self._abort,
+            Command.RETURN_HOME: self._return,
+            Command.SET_PARAM: self._set_param,
             Command.REQUEST_CHECKPOINT: lambda p, _pose, _now: (CommandStatus.EXECUTED, Reason.OK),
-        }[packet.command]  # fmt: skip
+        }[packet.command]
         status, reason = handler(packet, pose, now)
         self._started(packet.command, status, packet.seq)
         self._report(packet.seq, status, reason)
@@ -166,8 +184,11 @@ class MissionFSM:
         refused = self.limits.check_target(*target)
         if refused is not None:
             return CommandStatus.REFUSED, refused.reason
-        if self.status.state in (MissionState.PREPROGRAMMED, MissionState.SELF_DETERMINED,
-                                 MissionState.AWAITING_COMMAND):  # fmt: skip
+        if self.status.state in (
+            MissionState.PREPROGRAMMED,
+            MissionState.SELF_DETERMINED,
+            MissionState.AWAITING_COMMAND,
+        ):
             self.status.resume_state = MissionState.PREPROGRAMMED
         self.status.target = target
         self._go(MissionState.COMMANDED)
@@ -178,7 +199,7 @@ class MissionFSM:
         is reported meanwhile, but arrival is reported for this one."""
         if status is CommandStatus.EXECUTING:
             self.status.commanded = seq
-        elif status is CommandStatus.EXECUTED and command in NEW_COURSE:
+        elif status is CommandStatus.EXECUTED and command.ends_run:
             self.status.commanded = 0  # whatever was under way is over
 
     def _move(self, p: ControlPacket, pose: Pose, _now: float) -> tuple[CommandStatus, Reason]:
@@ -262,14 +283,22 @@ class MissionFSM:
             and now - shore_heard_at > s.params["link_lost_timeout"]
         ):
             self._lost(pose)
-        if s.started_at is not None and s.mission is not None and now - s.started_at > self.plans[s.mission].duration_s \
-                and s.state in ACTIVE and s.state is not MissionState.RETURNING:  # fmt: skip
+        if (
+            s.started_at is not None
+            and s.mission is not None
+            and now - s.started_at > self.plans[s.mission].duration_s
+            and s.state in ACTIVE
+            and s.state is not MissionState.RETURNING
+        ):
             self._go(MissionState.RETURNING)
         return self._target(pose, reached)
 
     def _lost(self, pose: Pose) -> None:
-        targets = {"hold": (pose.north, pose.east, pose.depth), "surface": (pose.north, pose.east, 0.0),
-                   "return": (0.0, 0.0, 0.0)}  # fmt: skip
+        targets = {
+            "hold": (pose.north, pose.east, pose.depth),
+            "surface": (pose.north, pose.east, 0.0),
+            "return": (0.0, 0.0, 0.0),
+        }
         self.status.target = targets[self.lost_action]
         self._go(MissionState.LINK_LOST)
 

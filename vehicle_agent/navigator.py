@@ -10,18 +10,24 @@ cruise_speed once per vehicle (time a run at cruise_thrust). At the surface each
 estimate towards it by ``gps_gain`` (a complementary filter: dead reckoning is smooth but drifts, GPS
 does not drift but is noisy by a metre or more), the first fix sets it outright. With a fix (DVL/USBL: LOCAL_POSITION_NED): GUIDED and position targets.
 
-All times are the vehicle's own clock (``Telemetry.time``), so the same code runs against a simulator
+Frames: the agent steers, plans and fences in its own frame, north and east of its home (a mission plan's
+waypoints, RETURN_HOME, the geofence radius are all relative to home). A fleet shares one frame (one
+origin) and each vehicle starts at ``home`` in it (``[nav] home = [north, east]``): what the vehicle
+reports (check-points) and what a position source measures (LOCAL_POSITION_NED, in the fleet's frame) are
+moved between the two here, and nowhere else. With GPS the first fix is the vehicle's home.
+
+All times are the vehicle's own clock (``VehicleTelemetry.time``), so the same code runs against a simulator
 running faster than real time.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from tacit import navigation
-from tacit.navigation import Origin, Target
-from vehicle_agent.mavlink_io import MavlinkLink, Telemetry
+from tacit.navigation import Origin, Pose, Target
+from vehicle_agent.mavlink_io import MavlinkLink, VehicleTelemetry
 
 ALT_HOLD, GUIDED = 2, 4
 PILOT_TIMEOUT = 3.0  # s: ArduSub's FS_PILOT_TIMEOUT default; manual control older than this is neutral
@@ -36,6 +42,11 @@ class NavConfig:
     heading_tolerance: float = 8.0  # deg: turn in place before moving when off by more
     depth_tolerance: float = 0.25  # m
     gps_gain: float = 0.1  # per fix (1 Hz): a ~10 s time constant
+    home: tuple[float, float] = (0.0, 0.0)  # m north, east of the fleet's origin where this vehicle starts
+
+    def __post_init__(self) -> None:
+        north, east = self.home  # a TOML list of two numbers; anything else is a configuration error
+        self.home = (float(north), float(east))
 
 
 class PositionEstimate:
@@ -67,7 +78,20 @@ class PositionEstimate:
         self.north, self.east, self.speed, self._last_time = north, east, speed, time
         self._resumed_thrust, self._resumed_yaw = thrust, yaw
 
-    def update(self, tel: Telemetry, thrust: int) -> None:
+    def from_fleet(self, north: float, east: float) -> tuple[float, float]:
+        """A point of the fleet's frame in this vehicle's (relative to its home)."""
+        return north - self.config.home[0], east - self.config.home[1]
+
+    def to_fleet(self, north: float, east: float) -> tuple[float, float]:
+        """A point of this vehicle's frame in the fleet's."""
+        return north + self.config.home[0], east + self.config.home[1]
+
+    def in_fleet_frame(self, pose: Pose) -> Pose:
+        """``pose`` as the vehicle reports it (check-points): in the fleet's frame."""
+        north, east = self.to_fleet(pose.north, pose.east)
+        return replace(pose, north=north, east=east)
+
+    def update(self, tel: VehicleTelemetry, thrust: int) -> None:
         gap = 0.0 if self._last_time is None else max(0.0, tel.time - self._last_time)
         self._last_time = tel.time
         if gap > 1.0 and self._resumed_thrust is not None:  # the agent was down: what did the vehicle do?
@@ -80,7 +104,7 @@ class PositionEstimate:
         fix_time = tel.seen.get("LOCAL_POSITION_NED")
         if tel.position_fix is not None and fix_time != self._fix_used:  # a new fix: take it
             self._fix_used = fix_time
-            self.north, self.east = tel.position_fix[0], tel.position_fix[1]
+            self.north, self.east = self.from_fleet(tel.position_fix[0], tel.position_fix[1])
             self.source = "position_source"
             return
         gps_time = tel.seen.get("GPS_RAW_INT")
@@ -152,13 +176,14 @@ class Navigator:
             self.link.manual(x=thrust)
         self.thrust = thrust
 
-    def _guided(self, tel: Telemetry, now: float) -> None:
+    def _guided(self, tel: VehicleTelemetry, now: float) -> None:
         target = self.target
         if self._due("position", 1.0, now):
-            self.link.position_target(target.north, target.east, target.depth)  # type: ignore[union-attr]
+            north, east = self.position.to_fleet(target.north, target.east)  # type: ignore[union-attr]
+            self.link.position_target(north, east, target.depth)  # type: ignore[union-attr]
         self._check_arrival(tel)
 
-    def _dead_reckoned(self, tel: Telemetry, now: float) -> None:
+    def _dead_reckoned(self, tel: VehicleTelemetry, now: float) -> None:
         target = self.target
         assert target is not None
         self._depth(target.depth, now)
@@ -168,8 +193,12 @@ class Navigator:
             if self._due("heading", 0.5, now):
                 self.link.heading_target(heading)
             braking = self.position.speed > 0.05
-            self._manual(-int(self.config.cruise_thrust * min(1.0, self.position.speed / self.config.cruise_speed))
-                         if braking else 0, now)  # fmt: skip
+            self._manual(
+                -int(self.config.cruise_thrust * min(1.0, self.position.speed / self.config.cruise_speed))
+                if braking
+                else 0,
+                now,
+            )
             self._check_arrival(tel)
             return
         bearing = math.degrees(
@@ -184,7 +213,7 @@ class Navigator:
             slow = min(1.0, max(0.25, distance / 3.0))
             self._manual(int(self.config.cruise_thrust * slow * slow), now)
 
-    def _check_arrival(self, tel: Telemetry) -> None:
+    def _check_arrival(self, tel: VehicleTelemetry) -> None:
         target = self.target
         assert target is not None
         close = (

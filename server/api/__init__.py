@@ -1,1 +1,1 @@
-"""REST API v1 routes: thin, each delegating to ``server.services``."""
+"""What the API shares: the typed dependencies and the server's own routes (health, whoami)."""

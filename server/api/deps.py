@@ -1,22 +1,24 @@
-"""Typed route dependencies: the database sessions and the shore's parts (``server.shore.Shore``)."""
+"""Typed route dependencies: the shore's services (``server.shore.Shore``), the caller (an ``Actor``: name
+and role) from its bearer token, and the bounded id and offset parameters every route shares."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
-from contextlib import AbstractContextManager
-from functools import partial
 from typing import Annotated
 
-from fastapi import Depends, Path, Query, Request
-from sqlmodel import Session
+from fastapi import Depends, HTTPException, Path, Query, Request, status
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from server.db import writing
-from server.events import EventBus
+from server.commands.service import CommandDesk
+from server.core.config import Settings
+from server.core.events import Bus
+from server.core.security import Actor, Role, open_reads
 from server.link.engine import LinkEngine
-from server.link.ingest import Ingest
-from server.services.commands import CommandDesk
-from server.settings import Settings
+from server.missions.service import Missions
+from server.operators.service import Operators
+from server.screens.service import Screens
 from server.shore import Shore
+from server.telemetry.service import TelemetryReader
+from server.vehicles.service import Vehicles
 
 
 def shore(request: Request) -> Shore:
@@ -26,50 +28,99 @@ def shore(request: Request) -> Shore:
 ShoreDep = Annotated[Shore, Depends(shore)]
 
 
-def db(shore: ShoreDep) -> Iterator[Session]:
-    """A session for reading."""
-    with Session(shore.db, expire_on_commit=False) as s:
-        yield s
-
-
-def writer(shore: ShoreDep) -> Writer:
-    """Opens short write transactions inside the route (``with write() as s``). Not a yielded session:
-    a write lock held across a dependency's enter and exit can wait on the very thread pool the route
-    needs, and a busy server then deadlocks."""
-    return partial(writing, shore.db)
-
-
 def settings(shore: ShoreDep) -> Settings:
     return shore.settings
 
 
-def command_desk(shore: ShoreDep) -> CommandDesk:
+SettingsDep = Annotated[Settings, Depends(settings)]
+
+
+def _vehicles(shore: ShoreDep) -> Vehicles:
+    return shore.vehicles
+
+
+def _commands(shore: ShoreDep) -> CommandDesk:
     return shore.commands
 
 
-def link(shore: ShoreDep) -> LinkEngine:
+def _missions(shore: ShoreDep) -> Missions:
+    return shore.missions
+
+
+def _telemetry(shore: ShoreDep) -> TelemetryReader:
+    return shore.telemetry
+
+
+def _screens(shore: ShoreDep) -> Screens:
+    return shore.screens
+
+
+def _link(shore: ShoreDep) -> LinkEngine:
     return shore.link
 
 
-def ingest(shore: ShoreDep) -> Ingest:
-    return shore.ingest
-
-
-def bus(shore: ShoreDep) -> EventBus:
+def _bus(shore: ShoreDep) -> Bus:
     return shore.bus
 
 
-ReadSession = Annotated[Session, Depends(db)]
-Writer = Callable[[], AbstractContextManager[Session]]
-WriteDep = Annotated[Writer, Depends(writer)]
-SettingsDep = Annotated[Settings, Depends(settings)]
-CommandsDep = Annotated[CommandDesk, Depends(command_desk)]
-LinkDep = Annotated[LinkEngine, Depends(link)]
-IngestDep = Annotated[Ingest, Depends(ingest)]
-BusDep = Annotated[EventBus, Depends(bus)]
+def _operators(shore: ShoreDep) -> Operators:
+    return shore.operators
+
+
+VehiclesDep = Annotated[Vehicles, Depends(_vehicles)]
+CommandsDep = Annotated[CommandDesk, Depends(_commands)]
+MissionsDep = Annotated[Missions, Depends(_missions)]
+TelemetryDep = Annotated[TelemetryReader, Depends(_telemetry)]
+ScreensDep = Annotated[Screens, Depends(_screens)]
+LinkDep = Annotated[LinkEngine, Depends(_link)]
+BusDep = Annotated[Bus, Depends(_bus)]
+OperatorsDep = Annotated[Operators, Depends(_operators)]
+
+bearer = HTTPBearer(
+    auto_error=False,
+    description="Authorization: Bearer <token>. Operators' tokens may "
+    "write (commands, missions, vehicles); observers' tokens only read.",
+)
+Credentials = Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)]
+BENCH = Actor("bench", Role.WRITE)  # the caller when no tokens are configured (reads only: writes need one)
+
+
+def _unauthorized(detail: str) -> HTTPException:
+    return HTTPException(status.HTTP_401_UNAUTHORIZED, detail, headers={"WWW-Authenticate": "Bearer"})
+
+
+def _actor(
+    shore: Shore, request: Request, credentials: HTTPAuthorizationCredentials | None, needed: str
+) -> Actor:
+    """The caller; a missing token, a wrong one and an expired or revoked one (``Unauthorized``, saying
+    when) are told apart; too many wrong ones from the caller's address are refused (``Throttle``)."""
+    if credentials is None:
+        raise _unauthorized(f"{needed} is required: send Authorization: Bearer <token>")
+    client = request.client.host if request.client else "unknown"
+    found = shore.sign_ins.actor(credentials.credentials, client)
+    if found is None:
+        raise _unauthorized("this token is not accepted here (mistyped, or not one of this shore's tokens)")
+    return found
+
+
+def require_read(shore: ShoreDep, request: Request, credentials: Credentials) -> Actor:
+    """Reads are open when no tokens are configured at all (a bench setup); otherwise any valid token."""
+    if open_reads(shore.settings):
+        return BENCH
+    return _actor(shore, request, credentials, "a bearer token")
+
+
+def require_write(shore: ShoreDep, request: Request, credentials: Credentials) -> Actor:
+    found = _actor(shore, request, credentials, "an operator's bearer token")
+    if found.role is not Role.WRITE:
+        raise HTTPException(status.HTTP_403_FORBIDDEN, "this token may only read")
+    return found
+
 
 DB_INT_MAX = 2**31 - 1  # what every database's INTEGER holds: larger ids cannot exist, say 422 not 500
 Id = Annotated[int, Path(ge=1, le=DB_INT_MAX)]
 QueryId = Annotated[int, Query(ge=1, le=DB_INT_MAX)]
 OptionalId = Annotated[int | None, Query(ge=1, le=DB_INT_MAX)]
 Offset = Annotated[int, Query(ge=0, le=DB_INT_MAX)]
+Reader = Annotated[Actor, Depends(require_read)]
+Writer = Annotated[Actor, Depends(require_write)]

@@ -1,65 +1,108 @@
 """SYNC: the shore's authenticated heartbeat.
 
 The Micro-Modem's poll carries no data, so it cannot be authenticated; the vehicle resets its
-link-lost timer only on authentic control packets. With no command to send, a vehicle's slot carries a
-SYNC control packet (the shore's time, signed with the vehicle's newest key) every ``sync_interval``
-seconds, and every ``sync_retry`` seconds while ingest needs the vehicle to restart its sample chains
-(``needs_restart``, cleared once the vehicle's modem acknowledged the request).
+link-lost timer only on authentic control packets. A vehicle's slot starts with a SYNC control packet
+(the shore's time and the vehicle's SYNC counter, signed with the key the vehicle is known to hold)
+every ``sync_interval`` seconds, every ``sync_retry`` seconds while ingest needs the vehicle to restart
+its sample chains (``needs_restart``, cleared once the vehicle's modem acknowledged the request or after
+``restart_sends`` requests, acknowledged or not: a second modem can make every ACK collide), and at once
+when an unsynced check-point waits for its answer (``echo``: the SYNC echoes its MAC, once). The slot
+goes on after a SYNC (``server.link.engine``): polling never stops for it.
+
+The counter comes from ``Ingest.next_sync``, which saves it before the SYNC leaves: a vehicle accepts
+only a counter above the last it accepted, whatever the shore's clock says.
+
+While a key rotation waits for the vehicle's confirmation (``server.vehicles.keys``), every
+``probe_every``-th SYNC is a probe signed with the new key instead: a vehicle holding it switches to it
+and confirms it with its next check-point; one that does not drops the probe, and the other SYNCs keep
+its link alive. A probe never carries a chain-restart request (the modem ACKs a probe the vehicle drops).
 """
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import time
+from collections.abc import Callable
 
-from sqlmodel import Session
-
-from server.link import keys
-from server.link.ingest import VehicleState
+from server.core.config import Settings
+from server.link.state import VehicleState
 from server.link.store import LinkStore
 from server.link.timing import Timing
-from server.models import Vehicle
-from server.settings import Settings
+from server.vehicles import keys
+from server.vehicles.service import Vehicles
 from tacit import auth
 from tacit import modem as mm
-from tacit.packets import SYNC_RESTART_CHAINS, ControlPacket
+from tacit.packets import CHECKPOINT_MAC_SIZE, SYNC_RESTART_CHAINS, ControlPacket
 from tacit.packets import Command as Kind
 
 log = logging.getLogger("tacit.server.link")
 
 
 class Heartbeat:
-    def __init__(self, settings: Settings, store: LinkStore, timing: Timing) -> None:
+    def __init__(
+        self,
+        settings: Settings,
+        store: LinkStore,
+        timing: Timing,
+        vehicles: Vehicles,
+        counter: Callable[[VehicleState], int],
+    ) -> None:
         self.settings = settings
         self.store = store
         self.timing = timing
+        self.vehicles = vehicles
+        self.counter = counter  # the vehicle's next SYNC counter, saved (``Ingest.next_sync``)
         self.syncs = 0
         self._last: dict[int, float] = {}
-        self._seq = 0
+        self._count: dict[int, int] = {}  # SYNCs sent, by modem address
+        self._restarts: dict[int, int] = {}  # chain-restart requests sent since it was raised, by address
 
     def due(self, vehicle: VehicleState) -> bool:
-        interval = self.settings.sync_retry if vehicle.needs_restart else self.settings.sync_interval
+        if vehicle.link.echo is not None:
+            return True  # an unsynced vehicle accepts nothing before this answer
+        interval = self.settings.sync_retry if vehicle.link.needs_restart else self.settings.sync_interval
         return time.time() - self._last.get(vehicle.address, 0.0) > interval / self.settings.time_scale
 
-    async def sync(self, driver: mm.ModemDriver, vehicle: VehicleState) -> None:
-        """One SYNC; asks for a chain restart if ingest needs one."""
+    async def sync(self, driver: mm.ModemDriver, vehicle: VehicleState) -> bool:
+        """One SYNC; answers a waiting unsynced check-point, asks for a chain restart if ingest needs one.
+        False if our modem refused the cycle (the SYNC is due again)."""
         self._last[vehicle.address] = time.time()
-        restart = vehicle.needs_restart
-        row = await self.store.run(self._vehicle_row, vehicle.id)
-        if row is None:
-            return
-        version, key = keys.current(row)
-        self._seq += 1
-        packet = ControlPacket(Kind.SYNC, seq=self._seq, time=int(time.time()),
-                               param_id=SYNC_RESTART_CHAINS if restart else 0)  # fmt: skip
+        restart = vehicle.link.needs_restart
+        echo = vehicle.link.echo
+        row = await self.store.run(self.vehicles.get, vehicle.id)
+        count = self._count[vehicle.address] = self._count.get(vehicle.address, 0) + 1
+        probe = keys.pending(row) and not restart and echo is None and count % self.settings.probe_every == 0
+        version, key = keys.current(row) if probe else keys.for_commands(row)
+        seq = await self.store.run(self.counter, vehicle)
+        packet = ControlPacket(
+            Kind.SYNC,
+            seq=seq,
+            time=int(time.time()),
+            echo=echo or bytes(CHECKPOINT_MAC_SIZE),
+            param_id=SYNC_RESTART_CHAINS if restart else 0,
+        )
         frame = auth.sign(packet, key, vehicle.address, epoch=version)
-        result = await driver.send(vehicle.address, [frame], rate=0, ack=True,
-                                   ack_timeout=self.timing.ack_timeout(vehicle))  # fmt: skip
+        result = await driver.send(
+            vehicle.address, [frame], rate=0, ack=True, ack_timeout=self.timing.ack_timeout(vehicle)
+        )
+        if not result.transmitted:  # our modem refused the cycle: due again at the next slot
+            log.info("vehicle %s: SYNC %d not transmitted (%s); next slot", vehicle.name, seq, result.error)
+            self._last[vehicle.address] = 0.0
+            await asyncio.sleep(self.timing.busy_wait())
+            return False
+        if vehicle.link.echo == echo:  # on the air: one answer per check-point (a newer one waits)
+            vehicle.link.echo = None
         self.syncs += 1
-        if restart and result.all_acked:
-            vehicle.needs_restart = False
-            log.info("vehicle %s: asked to restart its sample chains", vehicle.name)
+        if probe:
+            await self.store.run(self.vehicles.probed, vehicle.id)
+        if restart:
+            self._restart_sent(vehicle, result.all_acked)
+        return True
 
-    def _vehicle_row(self, vehicle_id: int) -> Vehicle | None:
-        with Session(self.store.db) as s:
-            return s.get(Vehicle, vehicle_id)
+    def _restart_sent(self, vehicle: VehicleState, acked: bool) -> None:
+        sent = self._restarts[vehicle.address] = self._restarts.get(vehicle.address, 0) + 1
+        if acked or sent >= self.settings.restart_sends:
+            vehicle.link.needs_restart = False
+            self._restarts[vehicle.address] = 0
+            log.info("vehicle %s: asked to restart its sample chains (%d request(s))", vehicle.name, sent)

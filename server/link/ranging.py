@@ -5,19 +5,19 @@ from __future__ import annotations
 import logging
 import time
 
-from server.events import EventBus
-from server.link.ingest import VehicleState
+from server.core.config import Settings
+from server.core.events import Bus, LinkNotice
+from server.link.models import LinkEvent
+from server.link.state import VehicleState
 from server.link.store import LinkStore
 from server.link.timing import Timing
-from server.models import LinkEvent
-from server.settings import Settings
 from tacit import modem as mm
 
 log = logging.getLogger("tacit.server.link")
 
 
 class Ranging:
-    def __init__(self, settings: Settings, store: LinkStore, bus: EventBus, timing: Timing) -> None:
+    def __init__(self, settings: Settings, store: LinkStore, bus: Bus, timing: Timing) -> None:
         self.settings = settings
         self.store = store
         self.bus = bus
@@ -38,5 +38,7 @@ class Ranging:
         await self.store.add(
             LinkEvent(vehicle_id=vehicle.id, kind="range", detail={"range_m": vehicle.range_m})
         )
-        self.bus.publish("link", event="range", vehicle=vehicle.name, range_m=round(vehicle.range_m, 1))
+        self.bus.publish(
+            LinkNotice(event="range", vehicle=vehicle.name, detail={"range_m": round(vehicle.range_m, 1)})
+        )
         log.info("vehicle %s: range %.1f m", vehicle.name, vehicle.range_m)

@@ -15,7 +15,8 @@ from typing import TypeVar
 from sqlalchemy import Engine
 from sqlalchemy.exc import OperationalError
 
-from server.db import writing
+from server.core.db import writing
+from server.link import repository as link
 
 log = logging.getLogger("tacit.server.link")
 T = TypeVar("T")
@@ -52,5 +53,5 @@ class LinkStore:
 
     def _add_now(self, *rows: object) -> None:
         with writing(self.db) as s:
-            s.add_all(rows)
+            link.add(s, *rows)
             s.commit()

@@ -5,8 +5,8 @@
 
 from __future__ import annotations
 
-from server.link.ingest import VehicleState
-from server.settings import Settings
+from server.core.config import Settings
+from server.link.state import VehicleState
 from tacit import rates
 from tacit.link import capacity
 
@@ -34,6 +34,11 @@ class Timing:
         answer = rates.data_airtime_s(rate, max(1, capacity(rate) // 2))
         window = rates.airtime_s(rates.CYCLE_INIT_BITS, 0) + 2 * self.travel_s(vehicle) + 1.0 + answer
         return window * 1.3 / self.settings.time_scale
+
+    def busy_wait(self) -> float:
+        """How long our modem may still be busy with the last cycle (it owes the answer's ACK) when the
+        next slot starts: tried again after this, the slot stays the same vehicle's."""
+        return (rates.TURNAROUND_S + 2 * rates.airtime_s(rates.ACK_BITS, 0)) / self.settings.time_scale
 
     def ping_timeout(self) -> float:
         return (2 * MAX_PING_RANGE_M / self.settings.sound_speed + 2) / self.settings.time_scale

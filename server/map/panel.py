@@ -1,33 +1,412 @@
-"""The operator panel's logic, without a browser: where a click lands, and what command it makes.
+"""One browser's panel on the 3D map: built per client (viser has no authentication of its own), so
+what one browser types or presses reaches only its own panel.
 
-Scene frame: x = east, y = north, z = up (z = -depth), metres from home. A click in viser is a ray;
-it lands where the ray meets the water surface or the chosen depth plane.
+The panel acts for a signed-in operator only: its token is resolved by the shore's one rule
+(``server.operators.service.Operators.actor``: the same tokens as the API, expiry and revocation
+included) when signing in, through the map's ``Throttle``, and again at every send; each command
+records the operator's name. Without a token, or with an observer's
+(read) token, the map can be watched but nothing can be sent; a websocket client that skips the page
+and sets the panel's values or presses its buttons directly meets the same check.
+
+The command fields, their labels, units, ranges and hints come from ``server.screens.form``
+(the control packet's field table narrowed by the vehicle's limits), the same spec the dashboard reads
+from the API, and are checked by ``check_form`` before anything is sent.
 """
 
 from __future__ import annotations
 
-from server.schemas import CommandIn
-from tacit import navigation
+import logging
+from typing import Any, Protocol
+
+import numpy as np
+
+from server.commands.schemas import CommandIn
+from server.commands.service import CommandDesk
+from server.core.config import Settings
+from server.core.errors import ApiError
+from server.core.events import CommandChanged
+from server.core.security import Actor, Role, Throttle
+from server.map.geometry import OBLIQUE_FOV, PLAN_FOV, move_to, ray_to_depth_plane, top_down
+from server.screens.form import SPEED_DEFAULT, check_form, command_form, field_specs
+from server.vehicles.models import Vehicle
 from tacit.navigation import Pose
-from tacit.packets import ControlPacket
 
 
-def ray_to_depth_plane(origin: tuple[float, float, float], direction: tuple[float, float, float],
-                       depth: float) -> tuple[float, float] | None:  # fmt: skip
-    """(north, east) where the ray meets the horizontal plane at ``depth``; None if it never does."""
-    z = -depth
-    if abs(direction[2]) < 1e-9:
-        return None
-    t = (z - origin[2]) / direction[2]
-    if t <= 0:
-        return None
-    return origin[1] + t * direction[1], origin[0] + t * direction[0]
+class MapOwner(Protocol):
+    """What a panel asks of the map it sits on (``server.map.scene.OperatorMap``)."""
+
+    settings: Settings
+    desk: CommandDesk
+    sign_ins: Throttle
+    suggestion: tuple[float, float] | None
+    estimate_cloud: tuple[np.ndarray, np.ndarray, np.ndarray] | None
+
+    def vehicle_names(self) -> list[str]: ...
+
+    def vehicle(self, name: str) -> Vehicle | None: ...
+
+    def pose(self, vehicle: Vehicle) -> Pose | None: ...
+
+    def focus(self) -> tuple[float, float]: ...
+
+    def command_list(self) -> str: ...
 
 
-def move_to(pose: Pose, north: float, east: float, depth: float, absolute: bool = False) -> CommandIn:
-    """The control packet that takes the vehicle from ``pose`` to a point: distance, angle, depth change."""
-    distance, angle = navigation.distance_and_angle(
-        pose.north, pose.east, pose.heading, north, east, absolute
+log = logging.getLogger("tacit.server.map")
+
+NOT_SIGNED_IN = (
+    "**Watching only.** Paste the **operator token** above and press **Sign in** to send "
+    "commands (`tacit demo` prints it; it is also in the demo's `secrets.json`)."
+)
+ANGLE_MODES = {"turn from heading": "relative", "bearing (true)": "bearing"}
+INPUTS = ("distance", "angle", "depth", "speed", "param_id", "param_value")
+
+LEGEND = """\
+**In the scene** (x east, y north, z up; metres from home; opens top-down, north up)
+- **red arrow from home**: north (N); **dark arrow**: east (E); grid: 5 m cells, 25 m sections
+- **depth scale**: the black line south-west of home, with its labels stepped aside
+- **vehicle**: black box; **yellow arrow outlined in black** = its heading; label = state, heading, age of the report
+- **blue line**: track it reported (check-points)
+- **grey line**: the mission's planned waypoints
+- **orange**: where the shore predicts it is now (sphere), the line from its last report to there, and a circle = how unsure (grows with silence)
+- **dots above the track**: packets by priority (blue routine, yellow, orange, red time-sensitive)
+- **coloured dots**: verified water temperatures (scale below); **grey squares**: not yet verified (left out of the estimate)
+- **estimate** (when ticked): coloured cloud at the vehicle's depth, **black diamonds** its front
+- **purple sphere**: where the temperature estimate is most uncertain (a good place to sample next)
+- **yellow sphere**: the point you clicked (the command's target)
+"""
+
+
+def colour_scale(lo: float | None, hi: float | None) -> str:
+    """The temperature colour scale (blue cold, red warm) as HTML."""
+    labels = ("-", "-") if lo is None or hi is None else (f"{lo:.2f} °C", f"{hi:.2f} °C")
+    return (
+        '<div style="font-size:0.8em">water temperature (verified samples)</div>'
+        '<div style="height:10px;background:linear-gradient(to right, rgb(40,90,220), rgb(230,50,40))"></div>'
+        f'<div style="display:flex;justify-content:space-between;font-size:0.8em"><span>{labels[0]}</span>'
+        f"<span>{labels[1]}</span></div>"
     )
-    return CommandIn(command="move", distance=round(min(distance, ControlPacket.field("distance").hi), 1), angle=round(angle, 2),
-                     depth=round(depth - pose.depth, 2), absolute_angle=absolute)  # fmt: skip
+
+
+class OperatorPanel:
+    def __init__(self, owner: MapOwner, client: Any) -> None:
+        self.map = owner
+        self.client = client
+        self.gui = client.gui
+        self.token: str | None = None
+        self.role: str | None = None
+        self.pending_confirm: str | None = None
+        self.last_sent: int | None = None
+        self.estimate_handle: Any = None
+        self.form = command_form()
+        self.ranges: dict[str, tuple[float, float]] = {}
+        self._build()
+        self._apply_form()
+        self._show_role()
+
+    # --- building ------------------------------------------------------------------------------
+
+    def _build(self) -> None:
+        gui = self.gui
+        with gui.add_folder("Sign in"):
+            self.token_in = gui.add_text(
+                "Token",
+                "",
+                hint="The operator's token sends commands; an observer's "
+                "token (or none) only watches. Cleared from the box after signing in.",
+            )
+            self.sign_in_btn = gui.add_button("Sign in", hint="Check the token with the shore server")
+            self.role_md = gui.add_markdown(NOT_SIGNED_IN)
+        with gui.add_folder("View"):
+            top = gui.add_button(
+                "Top-down view",
+                hint="Look straight down on the vehicle, north "
+                "up, as the map opens (from high with a narrow lens: close to a plan)",
+            )
+            side = gui.add_button(
+                "Oblique view", hint="Back to the view from the south-west, above the water"
+            )
+            self.estimate_cb = gui.add_checkbox(
+                "Temperature estimate (verified samples)",
+                False,
+                hint="The shore's estimate of the water temperature at the "
+                "vehicle's depth, fitted to the verified samples only (a sample "
+                "waits, grey, until a check-point vouches for its packet; colour scale "
+                "below), and its front (black diamonds: where it crosses its "
+                "median). Off by default: it covers the track.",
+            )
+            self.scale_html = gui.add_html(colour_scale(None, None))
+            gui.add_markdown(LEGEND)
+        with gui.add_folder("Vehicle"):
+            self.vehicle_md = gui.add_markdown("no check-point yet")
+        with gui.add_folder("Link"):
+            self.link_md = gui.add_markdown("waiting for the link engine")
+        with gui.add_folder("Command"):
+            names = self.map.vehicle_names() or ["(none)"]
+            self.vehicle_dd = gui.add_dropdown("Vehicle", names, hint="The vehicle the command goes to")
+            self.command_dd = gui.add_dropdown(
+                "Command",
+                list(self.form["commands"]),
+                initial_value="move",
+                hint="What to ask of the vehicle",
+            )
+            d = self.form["defaults"]
+            self.inputs = {
+                "distance": gui.add_number("Distance (m)", d["distance"]),
+                "angle_mode": gui.add_dropdown("Angle is", list(ANGLE_MODES), hint="A turn relative to the "
+                                               "vehicle's heading, or a true bearing from north"),
+                "angle": gui.add_number("Angle (deg)", d["angle"]),
+                "depth": gui.add_number("Depth (m)", d["depth"]),
+                "speed": gui.add_number("Speed (m/s)", 1.0, disabled=True),
+                "param_id": gui.add_number("Number", d["param_id"], step=1),
+                "param_value": gui.add_number("Value", d["param_value"]),
+            }  # fmt: skip
+            self.speed_cb = gui.add_checkbox(
+                "Set speed",
+                False,
+                hint="Off: nothing is sent and the vehicle "
+                f"keeps its cruise speed ({SPEED_DEFAULT}); on: the speed below",
+            )
+            self.plane_dd = gui.add_dropdown(
+                "Click plane",
+                ["vehicle depth", "surface"],
+                hint="Clicking the scene fills distance and angle toward the point "
+                "where the click meets this plane",
+            )
+            self.send_btn = gui.add_button(
+                "Send", color="blue", hint="Check the fields and queue the command"
+            )
+            self.status_md = gui.add_markdown("")
+        with gui.add_folder("Mission"):
+            self.start_btn = gui.add_button("Start mission", hint="Start the mission numbered in Number")
+            self.abort_btn = gui.add_button("Abort mission", color="red", hint="Abort and hold where it is")
+            self.home_btn = gui.add_button("Return home", color="orange", hint="Head home now")
+            self.confirm_btn = gui.add_button("Confirm", color="red", visible=False)
+            self.cancel_btn = gui.add_button("Cancel", visible=False)
+            self.suggest_btn = gui.add_button(
+                "Go to suggested target",
+                visible=False,
+                hint="Fill a move toward the purple sphere: where the temperature estimate is most uncertain",
+            )
+        with gui.add_folder("Commands"):
+            self.commands_md = gui.add_markdown(self.map.command_list())
+        self.sign_in_btn.on_click(lambda _e: self.sign_in(self.token_in.value))
+        top.on_click(lambda _e: self.top_down())
+        side.on_click(lambda _e: self.oblique())
+        self.estimate_cb.on_update(lambda _e: self.show_estimate())
+        self.command_dd.on_update(lambda _e: self._apply_form())
+        self.inputs["angle_mode"].on_update(lambda _e: self._apply_form())
+        self.speed_cb.on_update(lambda _e: self._apply_form())
+        self.vehicle_dd.on_update(lambda _e: self._apply_form())
+        self.send_btn.on_click(lambda _e: self.send_form())
+        self.start_btn.on_click(lambda _e: self.ask("start_mission"))
+        self.abort_btn.on_click(lambda _e: self.ask("abort_mission"))
+        self.home_btn.on_click(lambda _e: self.ask("return_home"))
+        self.confirm_btn.on_click(lambda _e: self.confirm())
+        self.cancel_btn.on_click(lambda _e: self.ask(None))
+        self.suggest_btn.on_click(
+            lambda _e: self.fill_from_point(*self.map.suggestion) if self.map.suggestion else None
+        )
+        scene = getattr(self.client, "scene", None)
+        if scene is not None and hasattr(scene, "on_click"):
+            scene.on_click()(self.on_scene_click)
+
+    # --- sign-in -------------------------------------------------------------------------------
+
+    def sign_in(self, token: str) -> str | None:
+        """Check ``token`` (the same operator and observer tokens as the API); the box is cleared."""
+        token = (token or "").strip()
+        self.token_in.value = ""
+        try:
+            found = self.map.sign_ins.actor(token, "map clients") if token else None
+        except ApiError as exc:  # too many wrong tokens; an expired or revoked one
+            self.token, self.role, self.role_md.content = None, None, f"**Not signed in**: {exc.detail}"
+            return None
+        self.token, self.role = (token, found.role) if found else (None, None)
+        self._show_role(rejected=bool(token) and found is None)
+        who = f"{found.name} ({found.role})" if found else "nobody"
+        log.info("map client %s signed in as %s", getattr(self.client, "client_id", "?"), who)
+        return self.role
+
+    def may_act(self) -> Actor | None:
+        """The signed-in operator, checked again now (not just at sign-in: it may have expired or been
+        revoked since); None if the panel may not send."""
+        if self.token is None:
+            return None
+        try:
+            found = self.map.sign_ins.lookup(self.token)
+        except ApiError:
+            return None
+        return found if found is not None and found.role is Role.WRITE else None
+
+    def _show_role(self, rejected: bool = False) -> None:
+        if self.role is Role.WRITE:
+            self.role_md.content = "Signed in as **operator**: commands enabled."
+        elif self.role is Role.READ:
+            self.role_md.content = (
+                "Signed in as **observer**: watching only (an observer's token cannot send)."
+            )
+        else:
+            self.role_md.content = ("**Token not accepted.** " if rejected else "") + NOT_SIGNED_IN
+        write = self.role is Role.WRITE
+        for button in (
+            self.send_btn,
+            self.start_btn,
+            self.abort_btn,
+            self.home_btn,
+            self.confirm_btn,
+            self.suggest_btn,
+        ):
+            button.disabled = not write
+
+    # --- the form ------------------------------------------------------------------------------
+
+    def vehicle(self) -> Any:
+        return self.map.vehicle(self.vehicle_dd.value)
+
+    def angle_mode(self) -> str:
+        return ANGLE_MODES.get(self.inputs["angle_mode"].value, "relative")
+
+    def _apply_form(self) -> None:
+        """Show the command's fields with their labels, ranges and hints from the form spec."""
+        vehicle = self.vehicle()
+        self.form = command_form(vehicle.limits() if vehicle else None)
+        command = self.command_dd.value
+        specs = {s["name"]: s for s in field_specs(self.form, command, self.angle_mode())}
+        for name in INPUTS:
+            handle, spec = self.inputs[name], specs.get(name)
+            handle.visible = spec is not None
+            if spec is None:
+                continue
+            unit = f" ({spec['unit']})" if spec["unit"] else ""
+            handle.label = f"{spec['label']}{unit}"
+            handle.hint = f"{spec['hint']} Range {spec['min']:g} .. {spec['max']:g}{unit}."
+            self.ranges[name] = (spec["min"], spec["max"])  # checked at send (check_form), shown in the hint
+        self.inputs["angle_mode"].visible = "angle" in specs
+        self.speed_cb.visible = "speed" in specs
+        self.inputs["speed"].disabled = not self.speed_cb.value
+
+    def values(self) -> dict[str, float | None]:
+        """The fields' values; the speed only when "Set speed" is ticked (a number box cannot be blank)."""
+        values = {name: self.inputs[name].value for name in INPUTS}
+        return {**values, "speed": values["speed"] if self.speed_cb.value else None}
+
+    def send_form(self) -> str:
+        """Check the visible fields against the spec, then send; returns what the status line says."""
+        try:
+            body = check_form(self.form, self.command_dd.value, self.values(), self.angle_mode())
+            command = CommandIn(**body)
+        except ValueError as exc:
+            return self._status(f"**Not sent**: {exc}")
+        return self.send(command)
+
+    def send(self, command: CommandIn) -> str:
+        actor = self.may_act()
+        if actor is None:
+            return self._status("**Not sent**: sign in with an operator's token to send commands.")
+        vehicle = self.vehicle()
+        if vehicle is None:
+            return self._status("**Not sent**: no vehicle registered")
+        try:
+            queued = self.map.desk.submit(vehicle.id, command, actor.name)
+        except ApiError as exc:
+            return self._status(f"**Refused**: {exc.field}: {exc.detail}")
+        self.last_sent = queued.id
+        return self._status(f"Command #{queued.id} **{queued.command}** seq {queued.seq}: **queued**")
+
+    def _status(self, text: str) -> str:
+        self.status_md.content = text
+        return text
+
+    def command_status(self, event: CommandChanged, lines: str) -> None:
+        self.commands_md.content = lines
+        if self.last_sent is not None and self.last_sent == event.id:
+            reason = f": {event.reason}" if event.reason else ""
+            self._status(f"Command #{event.id} seq {event.seq}: **{event.status}**{reason}")
+
+    # --- missions, confirmations ---------------------------------------------------------------
+
+    def ask(self, action: str | None) -> None:
+        self.pending_confirm = action
+        self.confirm_btn.visible = self.cancel_btn.visible = action is not None
+        if action:
+            self.confirm_btn.label = f"Confirm: {action.replace('_', ' ')}"
+
+    def confirm(self) -> None:
+        action, self.pending_confirm = self.pending_confirm, None
+        self.ask(None)
+        if not action:
+            return
+        try:
+            param = int(self.inputs["param_id"].value) if action == "start_mission" else 0
+            command = CommandIn(command=action, param_id=param)
+        except (TypeError, ValueError) as exc:  # a blank or out-of-range mission number (pydantic's too)
+            self._status(f"**Refused**: the mission number is not a mission number ({exc})")
+            return
+        self.send(command)
+
+    # --- the scene -----------------------------------------------------------------------------
+
+    def on_scene_click(self, event: Any) -> None:
+        vehicle = self.vehicle()
+        pose = self.map.pose(vehicle) if vehicle else None
+        depth = 0.0 if self.plane_dd.value == "surface" or pose is None else pose.depth
+        point = ray_to_depth_plane(event.ray_origin, event.ray_direction, depth)
+        if point is not None:
+            self.fill_from_point(point[0], point[1], depth)
+
+    def fill_from_point(self, north: float, east: float, depth: float | None = None) -> None:
+        vehicle = self.vehicle()
+        pose = (self.map.pose(vehicle) if vehicle else None) or Pose(0.0, 0.0, 0.0, 0.0)
+        command = move_to(
+            pose, north, east, pose.depth if depth is None else depth, self.angle_mode() == "bearing"
+        )
+        self.command_dd.value = "move"
+        self._apply_form()
+        angle = command.angle % 360.0 if self.angle_mode() == "bearing" else command.angle
+        self.inputs["distance"].value, self.inputs["angle"].value, self.inputs["depth"].value = (
+            command.distance,
+            round(angle, 2),
+            command.depth,
+        )
+        self.client.scene.add_icosphere(
+            "/click_target",
+            radius=0.4,
+            color=(250, 200, 0),
+            position=(east, north, -(pose.depth if depth is None else depth)),
+        )
+        self._status(f"Target set: {command.distance:.1f} m, angle {angle:.1f} deg. Press **Send**.")
+
+    def top_down(self) -> None:
+        self._look(*top_down(*self.map.focus()), PLAN_FOV)
+
+    def oblique(self) -> None:
+        north, east = self.map.focus()
+        self._look((east - 25.0, north - 35.0, 30.0), (east, north, -2.0), OBLIQUE_FOV)
+
+    def _look(
+        self, position: tuple[float, float, float], look_at: tuple[float, float, float], fov: float
+    ) -> None:
+        camera = self.client.camera
+        with self.client.atomic():
+            camera.up_direction = (0.0, 0.0, 1.0)
+            camera.fov = fov
+            camera.position = position
+            camera.look_at = look_at
+
+    def show_estimate(self) -> None:
+        """The temperature estimate in this client's scene only while its box is ticked."""
+        cloud = self.map.estimate_cloud
+        if self.estimate_cb.value and cloud is not None:
+            points, colours, front = cloud
+            scene = self.client.scene
+            self.estimate_handle = [
+                scene.add_point_cloud("/temperature/estimate", points, colours, point_size=0.45,
+                                      point_shape="circle"),
+                scene.add_point_cloud("/temperature/estimate/front", front, (20, 20, 20), point_size=0.5,
+                                      point_shape="diamond"),
+            ]  # fmt: skip
+        elif self.estimate_handle is not None:
+            for handle in self.estimate_handle:
+                handle.remove()
+            self.estimate_handle = None

@@ -4,12 +4,14 @@ Scene: x = east, y = north, z = up (z = -depth), metres from home. It shows the 
 depth axis, the vehicle's last reported pose, its actual track (check-points), the track it is
 predicted to follow during silence with an uncertainty ring that grows while nothing is heard, the
 mission's waypoints, packet markers coloured by priority, the reported water temperatures as a
-heatmap, and a Gaussian-process estimate of the temperature field: its mean, where it is most
-uncertain (the suggested next target), and the front's boundary (the mean crossing the median).
+heatmap (grey until a check-point verifies them), and a Gaussian-process estimate of the temperature
+field, fitted on verified samples only: its mean, where it is most uncertain (the suggested next
+target), and the front's boundary (the mean crossing the median).
 
-Each browser gets its own panel (``server.map.operator_panel``): it acts for a signed-in operator only
+Each browser gets its own panel (``server.map.panel``): it acts for a signed-in operator only
 (the API's tokens; observers watch), offers the same commands, fields, units and checks as the dashboard
-(``server.operator``), and explains every item with a hint. The scene is shared: a north arrow and
+(``server.screens.form``), and explains every item with a hint. The map reads through the screens'
+service and sends through the command desk; it never opens a database session itself. The scene is shared: a north arrow and
 labelled north/east/depth axes, the vehicle drawn with its heading, the temperature estimate off by
 default (per browser) with a colour scale. viser runs its own thread; its GUI callbacks run in its
 thread pool.
@@ -26,23 +28,40 @@ import threading
 import time
 import warnings
 from concurrent.futures import ThreadPoolExecutor
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
-from sqlmodel import Session, col, select
 
-from server import operator
-from server.map.operator_panel import OperatorPanel, colour_scale
-from server.models import Command, Mission, Vehicle
-from server.services.commands import MissionStatus
+from server.commands.models import CommandRecord
+from server.commands.service import CommandDesk
+from server.core.config import Settings
+from server.core.events import (
+    Bus,
+    CommandChanged,
+    Event,
+    LinkNotice,
+    PacketHeard,
+    PacketsSettled,
+    TelemetryDecoded,
+    VehicleReported,
+)
+from server.core.security import Lookup, Throttle
+from server.map.geometry import PLAN_FOV, top_down
+from server.map.panel import OperatorPanel, colour_scale
+from server.screens import states
+from server.screens.service import Screens
+from server.vehicles.models import Vehicle
 from tacit.navigation import Pose
-
-if TYPE_CHECKING:
-    from server.shore import Shore
 
 log = logging.getLogger("tacit.server.map")
 
 PRIORITY_COLOURS = {0: (70, 130, 230), 1: (240, 200, 40), 2: (245, 130, 30), 3: (220, 30, 30)}
+DEPTH_SCALE = (-14.0, -6.0)  # (east, north) of the depth scale: off the side of the area, away from home
+DEPTH_LABEL_STEP = 4.0  # metres south between depth labels: apart when seen from above
+PENDING_COLOUR = (150, 150, 150)  # a temperature sample no check-point has verified yet
+PENDING_PACKETS = 500  # packets whose samples wait for a check-point (older ones were never covered)
+Sample = tuple[float, float, float, float]  # north, east, depth, degC
+RECENT_COMMANDS = 10
 
 
 def colormap(values: np.ndarray, lo: float, hi: float) -> np.ndarray:
@@ -53,10 +72,18 @@ def colormap(values: np.ndarray, lo: float, hi: float) -> np.ndarray:
 
 
 class OperatorMap:
-    def __init__(self, shore: Shore, host: str, port: int) -> None:
-        self.shore = shore
-        self.host = host
-        self.wanted_port = port
+    def __init__(
+        self, screens: Screens, desk: CommandDesk, bus: Bus, settings: Settings, lookup: Lookup
+    ) -> None:
+        """``lookup``: the shore's one rule for tokens (``Operators.actor``), asked through a throttle of
+        the map's own: every map client as one, as viser does not tell their addresses."""
+        self.screens = screens
+        self.desk = desk
+        self.bus = bus
+        self.settings = settings
+        self.sign_ins = Throttle(settings, lookup)
+        self.host = settings.host
+        self.wanted_port = settings.map_port
         self.port: int | None = None
         self.server: Any = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -64,9 +91,12 @@ class OperatorMap:
         self._running = False
         self._lock = threading.RLock()
         self.track: dict[str, list[tuple[float, float, float]]] = {}
-        self.temperatures: list[tuple[float, float, float, float]] = []  # north, east, depth, degC
+        self.temperatures: list[Sample] = []  # verified: the estimate is fitted on these only
+        self.pending: dict[int, list[Sample]] = {}  # by packet id: samples no check-point settled yet
+        self._pending_cloud: Any = None
         self.markers: list[tuple[float, float, float, int]] = []
         self.last_heard: dict[str, float] = {}
+        self.reports: dict[str, dict] = {}  # by vehicle name: its last verified check-point
         self._nodes: dict[str, dict[str, Any]] = {}
         self.panels: dict[int, OperatorPanel] = {}  # by viser client id: one panel per browser
         self.estimate_cloud: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # points, colours, front
@@ -87,7 +117,7 @@ class OperatorMap:
         self._build_scene()
         self.server.on_client_connect(self._connected)
         self.server.on_client_disconnect(lambda client: self.panels.pop(client.client_id, None))
-        self.shore.bus.on_event(self._on_event)
+        self.bus.on_event(self._on_event)
         self._ticker = threading.Thread(target=self._tick_loop, daemon=True)
         self._running = True
         self._ticker.start()
@@ -103,26 +133,65 @@ class OperatorMap:
     # --- scene ----------------------------------------------------------------------------------
 
     def _build_scene(self) -> None:
+        """The water, the axes and the labels; the view opens top-down on the area (the operator's main
+        screen). Labels are anchored away from home so that they never lie across a track near it."""
         scene = self.server.scene
         scene.set_up_direction("+z")
-        scene.add_grid("/water", width=300, height=300, plane="xy", cell_size=5, section_size=25,
-                       plane_color=(60, 130, 190), plane_opacity=0.18, cell_color=(150, 180, 210))  # fmt: skip
-        axis = np.array([[[0, 0, 0], [0, 0, -30]]], dtype=np.float32)
-        scene.add_line_segments("/axes/depth", axis, (30, 30, 30), thickness=0.08)
-        for depth in range(10, 31, 10):
-            scene.add_label(f"/axes/depth/{depth}", f"{depth} m deep", position=(0.5, 0, -depth))
-        scene.add_label("/axes/depth/label", "depth", position=(0.5, 0, -33))
+        scene.add_grid(
+            "/water",
+            width=300,
+            height=300,
+            plane="xy",
+            cell_size=5,
+            section_size=25,
+            plane_color=(60, 130, 190),
+            plane_opacity=0.18,
+            cell_color=(150, 180, 210),
+        )
+        self._depth_scale()
         arrows = np.array([[[0, 0, 0.05], [0, 12, 0.05]], [[0, 0, 0.05], [12, 0, 0.05]]], dtype=np.float32)
-        scene.add_arrows("/axes/north_east", arrows, np.array([[200, 20, 20], [40, 40, 40]], dtype=np.uint8),
-                         shaft_radius=0.12, head_radius=0.45, head_length=1.2)  # fmt: skip
-        scene.add_label("/axes/north", "N (north, +y)", position=(0, 13.5, 0.3))
-        scene.add_label("/axes/east", "E (east, +x)", position=(13.5, 0, 0.3))
+        scene.add_arrows(
+            "/axes/north_east",
+            arrows,
+            np.array([[200, 20, 20], [40, 40, 40]], dtype=np.uint8),
+            shaft_radius=0.12,
+            head_radius=0.45,
+            head_length=1.2,
+        )
+        scene.add_label("/axes/north", "N (north, +y)", position=(-1.0, 12.0, 0.3), anchor="center-right")
+        scene.add_label("/axes/east", "E (east, +x)", position=(12.0, -1.0, 0.3), anchor="top-center")
         for metres in (25, 50, 100):
-            scene.add_label(f"/axes/grid/n{metres}", f"{metres} m N", position=(0, metres, 0.1))
-            scene.add_label(f"/axes/grid/e{metres}", f"{metres} m E", position=(metres, 0, 0.1))
-        scene.add_label("/home", "home (0, 0)", position=(0, 0, 0.8))
-        self.server.initial_camera.position = (-25.0, -35.0, 30.0)
-        self.server.initial_camera.look_at = (10.0, 10.0, -2.0)
+            scene.add_label(
+                f"/axes/grid/n{metres}", f"{metres} m N", position=(-1.0, metres, 0.1), anchor="center-right"
+            )
+            scene.add_label(
+                f"/axes/grid/e{metres}", f"{metres} m E", position=(metres, -1.0, 0.1), anchor="top-center"
+            )
+        scene.add_label("/home", "home (0, 0)", position=(-1.0, -1.0, 0.8), anchor="top-right")
+        camera = self.server.initial_camera
+        camera.position, camera.look_at = top_down(*self.last_pose)
+        camera.fov = PLAN_FOV
+
+    def _depth_scale(self) -> None:
+        """The depth scale, off to the south-west of home (``DEPTH_SCALE``): a vertical line with its labels
+        stepped south, one per 10 m, so that seen from above they neither cover each other nor the track."""
+        east, north = DEPTH_SCALE
+        scene = self.server.scene
+        scene.add_line_segments(
+            "/axes/depth",
+            np.array([[[east, north, 0], [east, north, -30]]], dtype=np.float32),
+            (30, 30, 30),
+            thickness=0.08,
+        )
+        ticks = []
+        for step, depth in enumerate((10, 20, 30, 33), start=1):
+            at = (east - 0.5, north - DEPTH_LABEL_STEP * step, -depth)
+            text = "depth" if depth == 33 else f"{depth} m deep"
+            scene.add_label(f"/axes/depth/{depth}", text, position=at, anchor="center-right")
+            ticks.append([(east, north, -depth), at])
+        scene.add_line_segments(
+            "/axes/depth/ticks", np.array(ticks, dtype=np.float32), (30, 30, 30), thickness=0.04
+        )
 
     def _connected(self, client: Any) -> None:
         """A browser opened the map: its own panel, signed out."""
@@ -137,16 +206,13 @@ class OperatorMap:
     # --- what panels ask --------------------------------------------------------------------------
 
     def vehicle_names(self) -> list[str]:
-        with Session(self.shore.db) as s:
-            return [v.name for v in s.exec(select(Vehicle).order_by(col(Vehicle.id)))]
+        return [v.name for v in self.screens.vehicles()]
 
     def vehicle(self, name: str) -> Vehicle | None:
-        with Session(self.shore.db) as s:
-            return s.exec(select(Vehicle).where(Vehicle.name == name)).first()
+        return self.screens.vehicle(name)
 
     def pose(self, vehicle: Vehicle) -> Pose | None:
-        state = self.shore.ingest.vehicles.get(vehicle.address)
-        return Pose.from_checkpoint(state.checkpoint if state else None)
+        return self.screens.pose(vehicle)
 
     def focus(self) -> tuple[float, float]:
         """(north, east) the views centre on: the vehicle's last reported position."""
@@ -154,7 +220,7 @@ class OperatorMap:
 
     # --- live updates ---------------------------------------------------------------------------
 
-    def _on_event(self, event: dict) -> None:
+    def _on_event(self, event: Event) -> None:
         """Called on the FastAPI loop for every published event: handed to the map's own thread, in order,
         so that the scene's database reads never hold up the loop that serves the modem."""
         if not self._running:  # events published while the server stops (the modem closing) are not drawn
@@ -162,26 +228,28 @@ class OperatorMap:
         with contextlib.suppress(RuntimeError):  # stop() shut the map's thread down meanwhile
             self._updates.submit(self._handle, event)
 
-    def _handle(self, event: dict) -> None:
+    def _handle(self, event: Event) -> None:
         """Update the scene for one event (viser is thread-safe)."""
-        kind = event["kind"]
         try:
-            if kind == "vehicle":
-                self._checkpoint(event["vehicle"], event["checkpoint"])
-            elif kind == "packet":
+            if isinstance(event, VehicleReported):
+                self._checkpoint(event.vehicle, event.checkpoint)
+            elif isinstance(event, PacketHeard):
                 self._marker(event)
-            elif kind == "command":
+            elif isinstance(event, CommandChanged):
                 self._command_status(event)
-            elif kind == "telemetry" and event.get("stream") == "env":
+            elif isinstance(event, TelemetryDecoded) and event.stream == "env":
                 self._temperatures(event)
-            elif kind == "link":
-                self.last_heard[event.get("vehicle", "")] = time.time()
+            elif isinstance(event, PacketsSettled):
+                self._settled(event)
+            elif isinstance(event, LinkNotice) and event.vehicle:
+                self.last_heard[event.vehicle] = time.time()
         except Exception:  # the map must never break the link engine's publishing
-            log.exception("map update failed for %s", kind)
+            log.exception("map update failed for %s", event.kind)
 
     def _checkpoint(self, name: str, cp: dict) -> None:
         north, east, depth, heading = cp["north"], cp["east"], cp["depth"], cp["heading"]
         with self._lock:
+            self.reports[name] = cp
             track = self.track.setdefault(name, [])
             track.append((east, north, -depth))
             if cp.get("temperature") and cp["temperature"] != 0.0:
@@ -209,24 +277,38 @@ class OperatorMap:
                 scene = self.server.scene
                 frame = scene.add_frame(f"/vehicles/{name}", show_axes=False)
                 scene.add_box(f"/vehicles/{name}/body", color=(30, 30, 30), dimensions=(1.4, 0.9, 0.6))
-                scene.add_arrows(f"/vehicles/{name}/heading", np.array([[[0.7, 0, 0], [3.2, 0, 0]]], dtype=np.float32),
-                                 (250, 200, 0), shaft_radius=0.1, head_radius=0.35, head_length=0.8)  # fmt: skip
+                # the heading: a bright arrow on a larger black one, which outlines it seen from above
+                scene.add_arrows(
+                    f"/vehicles/{name}/heading_outline",
+                    np.array([[[0.5, 0, 0], [5.6, 0, 0]]], dtype=np.float32),
+                    (0, 0, 0),
+                    shaft_radius=0.4,
+                    head_radius=1.15,
+                    head_length=2.1,
+                )
+                scene.add_arrows(
+                    f"/vehicles/{name}/heading",
+                    np.array([[[0.7, 0, 0.35], [5.1, 0, 0.35]]], dtype=np.float32),
+                    (255, 225, 0),
+                    shaft_radius=0.25,
+                    head_radius=0.8,
+                    head_length=1.6,
+                )
                 label = scene.add_label(f"/vehicles/{name}/label", name, position=(0, 0, 1.2))
                 node = self._nodes[name] = {"frame": frame, "label": label}
         return node
 
     def _label(self, name: str, cp: dict, age: float) -> None:
-        label, _hint = operator.STATES.get(cp.get("state", ""), (cp.get("state", "?"), ""))
-        self._vehicle_node(name)["label"].text = f"{name}: {label}, reported {age:.0f} s ago"
+        label, _hint = states.label(cp.get("state", ""))
+        text = f"{name}: {label}, heading {cp['heading']:.0f}°, reported {age:.0f} s ago"
+        self._vehicle_node(name)["label"].text = text
 
     def _planned(self, name: str, cp: dict) -> None:
         """The pre-programmed trajectory (the mission's waypoints)."""
-        with Session(self.shore.db) as s:
-            vehicle = s.exec(select(Vehicle).where(Vehicle.name == name)).first()
-            mission = s.exec(select(Mission).where(Mission.vehicle_id == vehicle.id, Mission.status == MissionStatus.STARTED)
-                             .order_by(col(Mission.id).desc())).first() if vehicle else None  # fmt: skip
-        if mission and mission.plan.get("waypoints"):
-            points = [(w["east"], w["north"], -w["depth"]) for w in mission.plan["waypoints"]]
+        vehicle = self.screens.vehicle(name)
+        route = self.screens.route(vehicle.id) if vehicle and vehicle.id else []
+        if route:
+            points = [(east, north, -depth) for north, east, depth in route]
             if len(points) >= 2:
                 segments = np.array(
                     [[a, b] for a, b in zip(points[:-1], points[1:], strict=True)], dtype=np.float32
@@ -235,45 +317,92 @@ class OperatorMap:
                     f"/plans/{name}", segments, (120, 120, 120), thickness=0.06
                 )
 
-    def _marker(self, event: dict) -> None:
-        state = self.shore.ingest.vehicles.get(event["address"])
-        cp = state.checkpoint if state else None
+    def _marker(self, event: PacketHeard) -> None:
+        cp = self.reports.get(event.vehicle)
         if not cp:
             return
         with self._lock:
-            self.markers.append((cp["east"], cp["north"], -cp["depth"], int(event.get("priority", 0))))
+            self.markers.append((cp["east"], cp["north"], -cp["depth"], event.priority))
             points = np.array([m[:3] for m in self.markers[-500:]], dtype=np.float32)
             colours = np.array([PRIORITY_COLOURS[m[3]] for m in self.markers[-500:]], dtype=np.uint8)
-        self.server.scene.add_point_cloud("/markers", points + np.array([0, 0, 0.4], dtype=np.float32), colours,
-                                          point_size=0.5, point_shape="circle")  # fmt: skip
+        self.server.scene.add_point_cloud(
+            "/markers",
+            points + np.array([0, 0, 0.4], dtype=np.float32),
+            colours,
+            point_size=0.5,
+            point_shape="circle",
+        )
 
-    def _temperatures(self, event: dict) -> None:
-        state = next((v for v in self.shore.ingest.vehicles.values() if v.name == event["vehicle"]), None)
-        cp = state.checkpoint if state else None
+    def _temperatures(self, event: TelemetryDecoded) -> None:
+        """A priority packet's temperatures, drawn grey and kept out of the estimate until a check-point
+        vouches for their packet (``_settled``)."""
+        cp = self.reports.get(event.vehicle)
         if not cp:
             return
+        # an absent sample is not drawn
+        samples = [
+            (cp["north"], cp["east"], depth, temperature)
+            for temperature, depth, *_ in event.values
+            if temperature is not None and depth is not None
+        ]
         with self._lock:
-            for temperature, depth, *_ in event["values"]:
-                if temperature is not None and depth is not None:  # an absent sample is not drawn
-                    self.temperatures.append((cp["north"], cp["east"], depth, temperature))
-            if not self.temperatures:
-                return
-            data = np.array(self.temperatures[-2000:])
-        points = np.column_stack([data[:, 1], data[:, 0], -data[:, 2]]).astype(np.float32)
-        lo, hi = float(data[:, 3].min()), float(data[:, 3].max())
-        self.server.scene.add_point_cloud("/temperature/samples", points, colormap(data[:, 3], lo, hi),
-                                          point_size=0.35, point_shape="rounded")  # fmt: skip
+            self.pending.setdefault(event.packet_id, []).extend(samples)
+            while len(self.pending) > PENDING_PACKETS:
+                del self.pending[min(self.pending)]
+        self._draw_temperatures()
+
+    def _settled(self, event: PacketsSettled) -> None:
+        """A check-point settled packets: the trusted ones' samples join the verified ones; the rest (forged,
+        or decoded on a chain nobody vouched for) are dropped."""
+        trusted = set(event.trusted)
+        with self._lock:
+            for packet_id in [*event.verified, *event.forged]:
+                samples = self.pending.pop(packet_id, [])
+                if packet_id in trusted:
+                    self.temperatures.extend(samples)
+        self._draw_temperatures()
+
+    def _draw_temperatures(self) -> None:
+        """The verified samples coloured by temperature (the scale's range is theirs), the pending ones grey."""
+        with self._lock:
+            verified = np.array(self.temperatures[-2000:]).reshape(-1, 4)
+            pending = np.array([x for samples in self.pending.values() for x in samples]).reshape(-1, 4)
+        scene = self.server.scene
+        if len(pending):
+            self._pending_cloud = scene.add_point_cloud(
+                "/temperature/pending",
+                _scene_points(pending),
+                PENDING_COLOUR,
+                point_size=0.3,
+                point_shape="square",
+            )
+        elif self._pending_cloud is not None:
+            self._pending_cloud.remove()
+            self._pending_cloud = None
+        if not len(verified):
+            return
+        lo, hi = float(verified[:, 3].min()), float(verified[:, 3].max())
+        scene.add_point_cloud(
+            "/temperature/samples",
+            _scene_points(verified),
+            colormap(verified[:, 3], lo, hi),
+            point_size=0.35,
+            point_shape="rounded",
+        )
         if self.temperature_range != (lo, hi):
             self.temperature_range = (lo, hi)
             for panel in list(self.panels.values()):
                 panel.scale_html.content = colour_scale(lo, hi)
 
-    def _command_status(self, event: dict) -> None:
-        with Session(self.shore.db) as s:
-            rows = s.exec(select(Command).order_by(col(Command.id).desc()).limit(6)).all()
-        lines = "\n".join(f"- #{c.id} **{c.command}** seq {c.seq}: **{c.status}** {c.reason}" for c in rows)
+    def command_list(self) -> str:
+        """The panels' list of recent commands (markdown), newest first."""
+        rows = self.screens.recent_commands(RECENT_COMMANDS)
+        return "\n".join(f"- {command_line(c)}" for c in rows) or "none yet"
+
+    def _command_status(self, event: CommandChanged) -> None:
+        lines = self.command_list()
         for panel in list(self.panels.values()):
-            panel.command_status(event, lines or "none yet")
+            panel.command_status(event, lines)
 
     # --- periodic: link and vehicle panels, prediction, Gaussian-process field ------------------
 
@@ -286,7 +415,7 @@ class OperatorMap:
             time.sleep(1.0)
 
     def _tick(self) -> None:
-        status = self.shore.link.status()
+        status = self.screens.link_status()
         names = list(status["vehicles"])
         lines = [f"**Modem**: {status['modem']}"]
         cards = []
@@ -308,13 +437,8 @@ class OperatorMap:
 
     def _prediction(self, name: str) -> str:
         """Draw where the shore thinks the vehicle is now and how sure; return the panel's text."""
-        with Session(self.shore.db) as s:
-            vehicle = s.exec(select(Vehicle).where(Vehicle.name == name)).first()
-            known = (
-                operator.vehicle_estimate(s, vehicle, time.time(), self.shore.settings.time_scale)
-                if vehicle
-                else None
-            )
+        vehicle = self.screens.vehicle(name)
+        known = self.screens.estimate(vehicle.id) if vehicle and vehicle.id else None
         if not known or not known["reported"]:
             return ""
         cp, p = known["reported"], known["predicted"]
@@ -322,23 +446,38 @@ class OperatorMap:
         scene = self.server.scene
         here, there = (cp["east"], cp["north"], -cp["depth"]), (p["east"], p["north"], -p["depth"])
         scene.add_icosphere(f"/predicted/{name}/now", radius=0.45, color=(250, 150, 30), position=there)
-        scene.add_line_segments(f"/predicted/{name}/path", np.array([[here, there]], dtype=np.float32),
-                                (250, 150, 30), thickness=0.1)  # fmt: skip
+        scene.add_line_segments(
+            f"/predicted/{name}/path",
+            np.array([[here, there]], dtype=np.float32),
+            (250, 150, 30),
+            thickness=0.1,
+        )
         angles = np.linspace(0, 2 * np.pi, 49)
         radius = p["radius_m"]
-        ring = np.column_stack([p["east"] + radius * np.cos(angles), p["north"] + radius * np.sin(angles),
-                                np.full_like(angles, -p["depth"])]).astype(np.float32)  # fmt: skip
-        scene.add_line_segments(f"/predicted/{name}/uncertainty", np.stack([ring[:-1], ring[1:]], axis=1),
-                                (250, 150, 30), thickness=0.06)  # fmt: skip
+        ring = np.column_stack(
+            [
+                p["east"] + radius * np.cos(angles),
+                p["north"] + radius * np.sin(angles),
+                np.full_like(angles, -p["depth"]),
+            ]
+        ).astype(np.float32)
+        scene.add_line_segments(
+            f"/predicted/{name}/uncertainty",
+            np.stack([ring[:-1], ring[1:]], axis=1),
+            (250, 150, 30),
+            thickness=0.06,
+        )
         toward = f"toward N {p['target'][0]:.1f}, E {p['target'][1]:.1f} m" if p["target"] else "staying put"
-        return (f"**{name}**: *{known['state_label']}*  \n"
-                f"last report **{known['age_s']:.0f} s ago**: N {cp['north']:.1f}, E {cp['east']:.1f}, "
-                f"depth {cp['depth']:.1f} m, heading {cp['heading']:.0f}°  \n"
-                f"predicted now: N {p['north']:.1f}, E {p['east']:.1f}, depth {p['depth']:.1f} m "
-                f"**± {radius:.1f} m** ({toward})")  # fmt: skip
+        return (
+            f"**{name}**: *{known['state_label']}* ({known['state_hint']})  \n"
+            f"last report **{known['age_s']:.0f} s ago**: N {cp['north']:.1f}, E {cp['east']:.1f}, "
+            f"depth {cp['depth']:.1f} m, heading {cp['heading']:.0f}°  \n"
+            f"predicted now: N {p['north']:.1f}, E {p['east']:.1f}, depth {p['depth']:.1f} m "
+            f"**± {radius:.1f} m** ({toward})"
+        )
 
     def _gaussian_process(self) -> None:
-        """Fit the reported temperatures; the mean field (for panels that show it), the front, and the
+        """Fit the verified temperatures (a sample waits for a check-point to vouch for its packet); the mean field (for panels that show it), the front, and the
         most uncertain place (the suggested next target)."""
         with self._lock:
             data = np.array(self.temperatures[-400:])
@@ -351,8 +490,9 @@ class OperatorMap:
         xy = data[:, :2]
         with warnings.catch_warnings():  # a length scale at its bound is expected for a sharp front: not news
             warnings.simplefilter("ignore", ConvergenceWarning)
-            gp = GaussianProcessRegressor(RBF(length_scale=10.0, length_scale_bounds=(2.0, 100.0)) + WhiteKernel(0.01),
-                                          normalize_y=True).fit(xy, data[:, 3])  # fmt: skip
+            gp = GaussianProcessRegressor(
+                RBF(length_scale=10.0, length_scale_bounds=(2.0, 100.0)) + WhiteKernel(0.01), normalize_y=True
+            ).fit(xy, data[:, 3])
         lo, hi = xy.min(axis=0) - 10, xy.max(axis=0) + 10
         grid_n, grid_e = np.meshgrid(
             np.linspace(lo[0], hi[0], 30), np.linspace(lo[1], hi[1], 30), indexing="ij"
@@ -367,15 +507,55 @@ class OperatorMap:
         level = float(np.median(mean))
         field = mean.reshape(grid_n.shape) - level
         crossings = np.argwhere(np.sign(field[:-1, :]) != np.sign(field[1:, :]))
-        front = np.array([[grid_e[i, j], (grid_n[i, j] + grid_n[i + 1, j]) / 2, -depth + 0.05] for i, j in crossings],
-                         dtype=np.float32).reshape(-1, 3)  # fmt: skip
+        front = np.array(
+            [[grid_e[i, j], (grid_n[i, j] + grid_n[i + 1, j]) / 2, -depth + 0.05] for i, j in crossings],
+            dtype=np.float32,
+        ).reshape(-1, 3)
         self.estimate_cloud = (points, colormap(mean, t_lo, t_hi), front)
         best = int(np.argmax(std))
         self.suggestion = (float(grid[best, 0]), float(grid[best, 1]))
-        self.server.scene.add_icosphere("/temperature/suggested", radius=0.6, color=(160, 40, 200),
-                                        position=(self.suggestion[1], self.suggestion[0], -depth))  # fmt: skip
-        self.server.scene.add_label("/temperature/suggested/label", "most uncertain: sample here",
-                                    position=(0, 0, 1.0))  # fmt: skip
+        self.server.scene.add_icosphere(
+            "/temperature/suggested",
+            radius=0.6,
+            color=(160, 40, 200),
+            position=(self.suggestion[1], self.suggestion[0], -depth),
+        )
+        self.server.scene.add_label(
+            "/temperature/suggested/label", "most uncertain: sample here", position=(0, 0, 1.0)
+        )
         for panel in list(self.panels.values()):
             panel.suggest_btn.visible = True
             panel.show_estimate()
+
+
+def _scene_points(samples: np.ndarray) -> np.ndarray:
+    """Rows of (north, east, depth, ...) as scene points (east, north, -depth)."""
+    return np.column_stack([samples[:, 1], samples[:, 0], -samples[:, 2]]).astype(np.float32)
+
+
+def command_line(c: CommandRecord) -> str:
+    """One command as the panel lists it, with its parameters and times (UTC), e.g.
+    ``#12 move 10 m, turn +45°, 1 m deeper: executed 12:03:04Z (queued 12:02:50Z)``."""
+    queued, last = _utc(c.created_at), _utc(c.updated_at)
+    since = "" if c.status == "queued" else f" (queued {queued})"
+    reason = f": {c.reason}" if c.reason else ""
+    return f"#{c.id} {_parameters(c)}: **{c.status}** {last}{since}{reason}"
+
+
+def _parameters(c: CommandRecord) -> str:
+    if c.command == "move":
+        angle = f"bearing {c.angle % 360:g}°" if c.absolute_angle else f"turn {c.angle:+g}°"
+        depth = f", {abs(c.depth):g} m {'deeper' if c.depth > 0 else 'shallower'}" if c.depth else ""
+        speed = f", {c.speed:g} m/s" if c.speed else ""  # 0: the vehicle's cruise speed
+        return f"move {c.distance:g} m, {angle}{depth}{speed}"
+    if c.command == "goto_depth":
+        return f"go to depth {c.depth:g} m"
+    if c.command == "start_mission":
+        return f"start mission {c.param_id}"
+    if c.command == "set_param":
+        return f"set parameter {c.param_id} = {c.param_value:g}"
+    return c.command.replace("_", " ")
+
+
+def _utc(at: float) -> str:
+    return time.strftime("%H:%M:%SZ", time.gmtime(at))

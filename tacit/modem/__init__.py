@@ -15,6 +15,7 @@ from tacit.modem.events import (
     FrameBad,
     LineRejected,
     LinkState,
+    ModemBusy,
     ModemError,
     ModemReported,
     ModemTimeout,
@@ -26,6 +27,6 @@ from tacit.modem.events import (
 
 __all__ = [
     "AckReceived", "DriverSettings", "Event", "FrameBad", "LineRejected", "LinkState", "ModemDriver",
-    "ModemError", "ModemReported", "ModemTimeout", "PortLost", "ReceivedFrame", "StateChanged",
+    "ModemBusy", "ModemError", "ModemReported", "ModemTimeout", "PortLost", "ReceivedFrame", "StateChanged",
     "TransmitResult",
 ]  # fmt: skip

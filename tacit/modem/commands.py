@@ -9,7 +9,7 @@ import logging
 from collections.abc import Callable
 
 from tacit import nmea
-from tacit.modem.events import DriverSettings, ModemError, ModemTimeout, PortLost
+from tacit.modem.events import DriverSettings, ModemBusy, ModemError, ModemTimeout, PortLost
 from tacit.modem.transport import Transport
 
 log = logging.getLogger("tacit.modem")
@@ -22,8 +22,13 @@ _ECHO: dict[type[nmea.Sentence], str] = {
 
 
 class CommandChannel:
-    def __init__(self, settings: DriverSettings, transport: Transport, on_answering: Callable[[], None],
-                 on_silent: Callable[[int], None]) -> None:  # fmt: skip
+    def __init__(
+        self,
+        settings: DriverSettings,
+        transport: Transport,
+        on_answering: Callable[[], None],
+        on_silent: Callable[[int], None],
+    ) -> None:
         self.settings = settings
         self.transport = transport
         self.on_answering = on_answering  # an echo came: the modem answers
@@ -67,8 +72,13 @@ class CommandChannel:
             return await asyncio.wait_for(future, self.settings.echo_timeout)
         except TimeoutError:
             self.resends += attempt < self.settings.tries
-            log.info("modem %s: no echo for CC%s (try %d/%d)", self.transport.name, sentence.SID, attempt,
-                     self.settings.tries)  # fmt: skip
+            log.info(
+                "modem %s: no echo for CC%s (try %d/%d)",
+                self.transport.name,
+                sentence.SID,
+                attempt,
+                self.settings.tries,
+            )
             return None
         finally:
             self._pending = None
@@ -81,7 +91,8 @@ class CommandChannel:
         if future.done():
             return
         if isinstance(sentence, nmea.Error) and sentence.module in ("NMEA", sent.SID):
-            future.set_exception(ModemError(f"modem refused {sent.SID}: {sentence.message}"))
+            refused = ModemBusy if sentence.message == "BUSY" else ModemError
+            future.set_exception(refused(f"modem refused {sent.SID}: {sentence.message}"))
         elif sentence.SID == sid and nmea.MODEM in sentence.TALKERS and _echo_matches(sent, sentence):
             future.set_result(sentence)
 

@@ -38,8 +38,13 @@ class _Transmission:
 
 
 class Cycles:
-    def __init__(self, settings: DriverSettings, channel: CommandChannel, emit: Callable[[Event], None],
-                 spawn: Callable[..., None]) -> None:  # fmt: skip
+    def __init__(
+        self,
+        settings: DriverSettings,
+        channel: CommandChannel,
+        emit: Callable[[Event], None],
+        spawn: Callable[..., None],
+    ) -> None:
         self.settings = settings
         self.channel = channel
         self.emit = emit
@@ -53,8 +58,14 @@ class Cycles:
 
     # --- what we start ----------------------------------------------------------------------------
 
-    async def send(self, dest: int, frames: list[bytes], rate: int = 0, ack: bool = True,
-                   ack_timeout: float | None = None) -> TransmitResult:  # fmt: skip
+    async def send(
+        self,
+        dest: int,
+        frames: list[bytes],
+        rate: int = 0,
+        ack: bool = True,
+        ack_timeout: float | None = None,
+    ) -> TransmitResult:
         """Run one data cycle to ``dest``: cycle-init, answer the data requests, await ACKs."""
         if not frames:
             raise ValueError("a data cycle needs at least one frame")
@@ -147,8 +158,12 @@ class Cycles:
         try:
             await self.channel.command(nmea.TxData(drq.src, drq.dest, drq.ack, data[: drq.maxbytes]))
         except ModemError as exc:
-            log.warning("modem %s: could not answer data request for frame %d: %s", self.channel.transport.name,
-                        drq.frame, exc)  # fmt: skip
+            log.warning(
+                "modem %s: could not answer data request for frame %d: %s",
+                self.channel.transport.name,
+                drq.frame,
+                exc,
+            )
 
     def _on_txf(self, txf: nmea.TxFinished) -> None:
         if self._tx is not None and txf.nbytes > 0:

@@ -174,7 +174,7 @@ class ModemDriver:
         log.debug("modem %s < %s", self.transport.name, text)
         self.channel.resolve(sentence)
         self.cycles.handle(sentence)
-        if isinstance(sentence, nmea.Message) and sentence.type in ("BAD_CRC", "PACKET_TIMEOUT"):
+        if isinstance(sentence, nmea.Message) and sentence.type in nmea.Message.FAILURES:
             log.info("modem %s: %s %s", self.transport.name, sentence.type, sentence.value)
         elif isinstance(sentence, nmea.Revision):
             self._on_rev(sentence)
@@ -232,8 +232,14 @@ class ModemDriver:
             except ModemError as exc:
                 log.info("modem %s: keep-alive failed: %s", self.transport.name, exc)
 
-    async def send(self, dest: int, frames: list[bytes], rate: int = 0, ack: bool = True,
-                   ack_timeout: float | None = None) -> TransmitResult:  # fmt: skip
+    async def send(
+        self,
+        dest: int,
+        frames: list[bytes],
+        rate: int = 0,
+        ack: bool = True,
+        ack_timeout: float | None = None,
+    ) -> TransmitResult:
         """Run one data cycle to ``dest`` (``Cycles.send``)."""
         return await self.cycles.send(dest, frames, rate, ack, ack_timeout)
 

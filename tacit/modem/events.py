@@ -20,6 +20,10 @@ class ModemError(RuntimeError):
     """A command the modem did not carry out."""
 
 
+class ModemBusy(ModemError):
+    """The modem refused a command because it is still busy with a cycle (owes an ACK, say)."""
+
+
 class ModemTimeout(ModemError):
     pass
 

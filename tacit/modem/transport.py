@@ -21,8 +21,9 @@ log = logging.getLogger("tacit.modem")
 
 
 class Transport:
-    def __init__(self, settings: DriverSettings, on_line: Callable[[bytes], None],
-                 on_lost: Callable[[str], None]) -> None:  # fmt: skip
+    def __init__(
+        self, settings: DriverSettings, on_line: Callable[[bytes], None], on_lost: Callable[[str], None]
+    ) -> None:
         self.settings = settings
         self.on_line = on_line
         self.on_lost = on_lost

@@ -1,0 +1,115 @@
+"""Command request and response bodies. Every range comes from the control packet's field table."""
+
+from __future__ import annotations
+
+from pydantic import BaseModel, Field, JsonValue, ValidationInfo, field_validator
+
+from server.commands.models import CommandState
+from server.core.schemas import STRICT
+from tacit.navigation import wrap180
+from tacit.packets import FLOAT32_MAX, Command
+from tacit.packets import ControlPacket as WIRE
+
+#: What an operator may send: every command but the shore's own heartbeat.
+COMMAND_NAMES = [c.name.lower() for c in Command if c.from_operator]
+
+
+class CommandIn(BaseModel):
+    model_config = STRICT
+    command: str = Field(
+        json_schema_extra={"enum": list[JsonValue](COMMAND_NAMES)}, description="what to ask of the vehicle"
+    )
+    absolute_angle: bool = Field(False, description="angle is a true bearing (0 .. 360), not a turn")
+    distance: float = Field(0.0, ge=0, le=WIRE.field("distance").hi, description="m")
+    angle: float = Field(
+        0.0,
+        ge=-180,
+        le=360,
+        description="deg; heading change (-180 .. 180, + clockwise), or true bearing "
+        "(0 .. 360) if absolute_angle; stored and sent as the same direction in -180 .. 180",
+    )
+    depth: float = Field(
+        0.0,
+        ge=WIRE.field("depth").lo,
+        le=WIRE.field("depth").hi,
+        description="m; depth change (move) or target (goto_depth)",
+    )
+    speed: float = Field(0.0, ge=0, le=WIRE.field("speed").hi, description="m/s; 0 = vehicle default")
+    param_id: int = Field(0, ge=0, le=int(WIRE.field("param_id").hi))
+    param_value: float = Field(0.0, ge=-FLOAT32_MAX, le=FLOAT32_MAX, description="a float32")
+    delay_sensitive: bool = False
+
+    @field_validator("command")
+    @classmethod
+    def _known(cls, command: str) -> str:
+        if command not in COMMAND_NAMES:
+            raise ValueError(f"unknown command {command!r}; one of {', '.join(COMMAND_NAMES)}")
+        return command
+
+    @field_validator("angle")
+    @classmethod
+    def _one_turn(cls, angle: float, info: ValidationInfo) -> float:
+        """A turn is -180 .. 180; a bearing 0 .. 360, and a bearing of 270 is the direction -90 (the
+        packet's angle field holds -180 .. 180)."""
+        if not info.data.get("absolute_angle") and angle > 180:
+            raise ValueError("a turn from the heading is -180 .. 180 deg; for a bearing set absolute_angle")
+        return wrap180(angle) if angle > 180 else angle
+
+    def kind(self) -> Command:
+        return Command[self.command.upper()]
+
+
+class CommandOut(BaseModel):
+    id: int
+    vehicle_id: int
+    seq: int
+    command: str
+    distance: float
+    angle: float
+    depth: float
+    speed: float
+    param_id: int
+    param_value: float
+    absolute_angle: bool
+    status: CommandState
+    reason: str
+    attempts: int
+    issued_by: str = Field(description="the operator who sent it")
+    created_at: float
+    updated_at: float
+
+
+class CommandReport(BaseModel):
+    """What the vehicle's check-point said with a status: when (its clock) and where."""
+
+    time: float = Field(description="vehicle time, UNIX s (whole seconds): when the status changed on board")
+    state: str = Field(description="the vehicle's mission state then")
+    north: float = Field(description="m from home")
+    east: float = Field(description="m from home")
+    depth: float = Field(description="m, positive down")
+    heading: float = Field(description="deg from north")
+
+
+class CommandStepOut(BaseModel):
+    """One step of a command's life, oldest first: queued; sent (one row per attempt, detail
+    "attempt N"); acknowledged (the vehicle's modem ACKed); executing, executed, refused (with the vehicle's
+    reason), superseded (from the vehicle's check-points, with ``report``); failed (detail: why)."""
+
+    status: CommandState
+    detail: str = Field(
+        description="attempt number for sent, the vehicle's reason for refused, why for failed"
+    )
+    at: float = Field(description="shore time, UNIX s: when the shore learnt it")
+    report: CommandReport | None = Field(
+        None, description="for the steps a check-point reported: the vehicle's time and pose then"
+    )
+
+
+class CommandDetail(CommandOut):
+    history: list[CommandStepOut]
+
+
+class CommandListed(CommandOut):
+    history: list[CommandStepOut] | None = Field(
+        None, description="with ?history=true: as GET /commands/{id}"
+    )

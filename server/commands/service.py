@@ -1,0 +1,319 @@
+"""Commands: the one way in (``CommandDesk.submit``: REST, the map and missions call it), the one way a
+command's state changes (``advance``: the link for what the modem says, ingest for what check-points
+say), signing at send time, and reading a command with its history.
+
+A command is checked against the packet's ranges and the vehicle's limits (``tacit.limits``) and refused,
+with the field at fault, before it can reach the modem. Each change is a row in ``commandevent``, so
+every command's history (times, attempts, the vehicle's reason) can be shown. Sequence numbers are
+persisted, so a restart never reuses one; the frame is signed once per transmission, at send time, with
+the vehicle's key of that moment.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable
+
+from sqlalchemy import Engine
+
+from server.commands import repository as repo
+from server.commands.lifecycle import FROM_CHECKPOINT, allowed, report_of
+from server.commands.models import CommandRecord, CommandState, CommandStep
+from server.commands.schemas import CommandIn
+from server.core.db import Tx, reading, saved_id, writing
+from server.core.errors import NotFound, Refused, TooMany
+from server.core.events import Bus, CommandChanged
+from server.vehicles import keys
+from server.vehicles import repository as vehicle_repo
+from server.vehicles import service as vehicles
+from server.vehicles.models import Vehicle
+from tacit import auth
+from tacit.navigation import Pose
+from tacit.packets import (
+    CheckpointPacket,
+    Command,
+    CommandStatus,
+    ControlFlag,
+    ControlPacket,
+    FieldRangeError,
+    unpack_settled,
+)
+
+log = logging.getLogger("tacit.server.commands")
+
+IN_FLIGHT = (
+    CommandState.SENT,
+    CommandState.ACKNOWLEDGED,
+    CommandState.EXECUTING,
+)  # a check-point will end it
+RETRY_AFTER_S = 10  # a full queue's answer: about two command attempts at the default range
+
+
+class CommandRefused(Refused):
+    """A command outside the packet's ranges or the vehicle's limits (HTTP 422 naming the field)."""
+
+
+def check_limits(body: CommandIn, vehicle: Vehicle, pose: Pose | None = None) -> None:
+    """Raise ``CommandRefused`` if the command breaks one of the vehicle's limits (``tacit.limits``)."""
+    if not math.isfinite(body.param_value):
+        raise CommandRefused("param_value must be a finite number", "param_value")
+    refused = vehicle.limits().check(
+        body.kind(), body.distance, body.angle, body.depth, body.speed, body.absolute_angle, pose
+    )
+    if refused is not None:
+        raise CommandRefused(refused.message, refused.field)
+
+
+def packet_for(command: CommandRecord, stamp: int | None = None) -> ControlPacket:
+    flags = ControlFlag(0)
+    if command.absolute_angle:
+        flags |= ControlFlag.ABSOLUTE_ANGLE
+    if command.delay_sensitive:
+        flags |= ControlFlag.DELAY_SENSITIVE
+    return ControlPacket(
+        Command[command.command.upper()],
+        command.seq,
+        int(time.time()) if stamp is None else stamp,
+        command.distance,
+        command.angle,
+        command.depth,
+        command.speed,
+        command.param_id,
+        command.param_value,
+        flags,
+    )
+
+
+def sign(command: CommandRecord, vehicle: Vehicle) -> bytes:
+    """The frame to transmit now: the command signed with the vehicle's current key and a fresh stamp."""
+    version, key = keys.for_commands(vehicle)  # the last key the vehicle confirmed (staged rotation)
+    return auth.sign(packet_for(command), key, vehicle.address, epoch=version)
+
+
+def queue(
+    s: Tx, vehicle: Vehicle, body: CommandIn, issued_by: str, pose: Pose | None = None
+) -> CommandRecord:
+    """Check and queue a command (``s`` a writing session; the caller commits); raises ``CommandRefused``."""
+    check_limits(body, vehicle, pose)
+    seq = vehicle_repo.take_seq(s, saved_id(vehicle))
+    command = CommandRecord(
+        vehicle_id=saved_id(vehicle), seq=seq, frame=b"", issued_by=issued_by, **body.model_dump()
+    )
+    try:
+        packet_for(command).signed_part()  # every field within its range on the wire
+    except FieldRangeError as exc:
+        s.rollback()
+        raise CommandRefused(str(exc), exc.field) from None
+    return repo.add(s, command)
+
+
+def advance(
+    s: Tx,
+    command: CommandRecord,
+    status: CommandState,
+    detail: str = "",
+    reason: str | None = None,
+    report: dict | None = None,
+    at: float | None = None,
+    **extra: object,
+) -> bool:
+    """Move ``command`` to ``status`` if the lifecycle allows it, with a history row dated ``at`` (default
+    now); False if not. ``reason`` replaces the stored reason (the vehicle's, or why it failed); ``report``
+    is what the vehicle's check-point said with it (``lifecycle.report_of``). The caller commits."""
+    if not allowed(command.status, status):
+        return False
+    values = dict(extra)
+    if reason is not None:
+        values["reason"] = reason
+    repo.move(s, command.id, status, detail, report, values, at)
+    return True
+
+
+def supersede_older(s: Tx, command: CommandRecord) -> list[CommandRecord]:
+    """The vehicle reported ``command`` executing or executed: if it set a new course, the vehicle's older
+    commands still executing were abandoned on board; mark them superseded (it reports only its latest)."""
+    if not Command[command.command.upper()].sets_course:
+        return []
+    detail = f"by command {command.seq} ({command.command})"
+    return [c for c in repo.executing_before(s, command) if advance(s, c, CommandState.SUPERSEDED, detail)]
+
+
+def apply_checkpoint(s: Tx, vehicle: Vehicle, cp: CheckpointPacket, body: dict) -> list[CommandChanged]:
+    """What a verified check-point says of the vehicle's commands, through the one lifecycle:
+    last_command's status, with where and when (``body``, the check-point), and the final statuses of the
+    four commands before it, oldest first, each in its turn; then older commands a new course left
+    executing are superseded."""
+    if not cp.last_command:
+        return []
+    latest = vehicle.next_seq - 1  # the check-point names the latest seq with these low 16 bits
+    last = latest - ((latest - cp.last_command) % 65536)
+    report = report_of(body)
+    settled: list[tuple[int, CommandStatus | None, dict | None]] = [
+        (last - k, status, None) for k, status in enumerate(unpack_settled(cp.settled), start=1)
+    ]
+    events: list[CommandChanged] = []
+    newest: CommandRecord | None = None
+    for seq, reported, where in [*reversed(settled), (last, cp.command_status, report)]:
+        status = FROM_CHECKPOINT.get(reported) if reported else None
+        command = repo.by_seq(s, saved_id(vehicle), seq) if status is not None and seq > 0 else None
+        reason = cp.reason.name.lower() if where is not None and reported is CommandStatus.REFUSED else ""
+        if (
+            command is None
+            or status is None
+            or not advance(s, command, status, reason, reason=reason, report=where)
+        ):
+            continue
+        events.append(
+            CommandChanged(
+                saved_id(command), command.seq, status, vehicle=vehicle.name, reason=reason, report=where
+            )
+        )
+        if where is not None and status in (CommandState.EXECUTING, CommandState.EXECUTED):
+            newest = command
+    if newest is not None:  # after the settled finals: only what the vehicle left unsettled is superseded
+        events += [
+            CommandChanged(saved_id(old), old.seq, CommandState.SUPERSEDED, vehicle=vehicle.name)
+            for old in supersede_older(s, newest)
+        ]
+    return events
+
+
+class CommandDesk:
+    """Where commands come in, from the REST API, the operator's map and missions alike: checked against
+    the vehicle's limits and its last reported pose, queued in one transaction, announced, and the link
+    woken to send it. Also the commands' reads."""
+
+    def __init__(self, db: Engine, bus: Bus, pose: Callable[[int], Pose | None], max_queued: int) -> None:
+        self.db = db
+        self.bus = bus
+        self.pose = pose  # by modem address: the last check-point's pose, if any
+        self.max_queued = max_queued  # Settings.max_queued_commands
+        self.wake: Callable[[], None] = lambda: None  # the link's: send what was queued now
+
+    def submit(
+        self, vehicle_id: int, body: CommandIn, issued_by: str, then: Callable[[Tx], None] | None = None
+    ) -> CommandRecord:
+        """Queue a command sent by the operator named ``issued_by``; ``then(s)`` runs in the same transaction (a mission's new status). Refused with
+        ``TooMany`` while the vehicle already has ``max_queued`` commands waiting for the link: at a few
+        seconds per attempt, a longer queue would only hold the link for minutes (and each command would
+        run long after the operator asked for it)."""
+        with writing(self.db) as s:
+            vehicle = vehicles.get(s, vehicle_id)
+            waiting = repo.pending_count(s, vehicle_id)
+            if waiting >= self.max_queued:
+                raise TooMany(
+                    f"vehicle {vehicle.name} has {waiting} commands waiting for the link (the most it "
+                    "may have); wait for them to be sent, or to fail if it cannot be reached, then "
+                    "send again",
+                    RETRY_AFTER_S,
+                )
+            command = queue(s, vehicle, body, issued_by, self.pose(vehicle.address))
+            if then is not None:
+                then(s)
+            s.commit()
+        log.info("vehicle %s: command %s seq %d queued", vehicle.name, command.command, command.seq)
+        self.bus.publish(
+            CommandChanged(
+                saved_id(command),
+                command.seq,
+                CommandState.QUEUED,
+                vehicle=vehicle.name,
+                command=command.command,
+            )
+        )
+        self.wake()
+        return command
+
+    # --- what the link asks ---------------------------------------------------------------------
+
+    def next_to_send(self, vehicle_id: int, confirm_deadline: float) -> CommandRecord | None:
+        """The oldest queued or sent command; else the vehicle's latest if it was acknowledged but not
+        confirmed by a check-point since before ``confirm_deadline``. Only the latest: re-sending an older
+        one could run it after a newer one."""
+        with reading(self.db) as s:
+            pending = repo.oldest_pending(s, vehicle_id)
+            if pending is not None:
+                return pending
+            latest = repo.latest(s, vehicle_id)
+        if (
+            latest is not None
+            and latest.status == CommandState.ACKNOWLEDGED
+            and latest.updated_at < confirm_deadline
+        ):
+            log.info(
+                "vehicle %d: command seq %d acknowledged but never confirmed: sending again",
+                vehicle_id,
+                latest.seq,
+            )
+            return latest
+        return None
+
+    def demand(self, vehicle_id: int) -> tuple[bool, bool]:
+        """What the MAC's schedule weighs: whether a command waits for the link, and whether the vehicle's
+        latest is in flight (sent, acknowledged or executing: the operator waits for its check-point)."""
+        with reading(self.db) as s:
+            latest = repo.latest(s, vehicle_id)
+            return repo.oldest_pending(
+                s, vehicle_id
+            ) is not None, latest is not None and latest.status in IN_FLIGHT
+
+    def frame(self, command: CommandRecord) -> bytes:
+        """The command signed now for its vehicle (``sign``)."""
+        with reading(self.db) as s:
+            return sign(command, vehicles.get(s, command.vehicle_id))
+
+    def unanswered(self, command_id: int | None) -> int:
+        """Attempts since the command was last acknowledged: a command sent again because no check-point
+        confirmed it gets its own round of attempts, not what is left of the first round's."""
+        with reading(self.db) as s:
+            steps = repo.statuses(s, command_id)
+        if CommandState.ACKNOWLEDGED in steps:
+            steps = steps[len(steps) - steps[::-1].index(CommandState.ACKNOWLEDGED) :]
+        return sum(step == CommandState.SENT for step in steps)
+
+    def record(
+        self,
+        command: CommandRecord,
+        status: CommandState,
+        detail: str = "",
+        reason: str | None = None,
+        at: float | None = None,
+        **extra: int | bytes,
+    ) -> bool:
+        """What the modem said of a command, if the lifecycle allows it (a check-point may already have
+        said executing / executed / refused, which a late ACK must not undo); published if it moved.
+        ``at``: when it happened (default now); ``extra``: column values (attempts, frame)."""
+        with writing(self.db) as s:
+            current = repo.get(s, command.id)
+            if current is None or not advance(s, current, status, detail, reason, None, at, **extra):
+                return False
+            s.commit()
+        self.bus.publish(CommandChanged(saved_id(command), command.seq, status, detail=detail))
+        return True
+
+    def pending(self, vehicle_id: int) -> int:
+        """How many of the vehicle's commands wait for the link."""
+        with reading(self.db) as s:
+            return repo.pending_count(s, vehicle_id)
+
+    # --- reads ------------------------------------------------------------------------------------
+
+    def get(self, command_id: int) -> tuple[CommandRecord, list[CommandStep]]:
+        with reading(self.db) as s:
+            command = repo.get(s, command_id)
+            if command is None:
+                raise NotFound(f"no command {command_id}", "command_id")
+            return command, repo.steps(s, [command_id]).get(command_id, [])
+
+    def page(
+        self, vehicle_id: int | None, limit: int, offset: int = 0, history: bool = False
+    ) -> list[tuple[CommandRecord, list[CommandStep] | None]]:
+        """A vehicle's commands (every vehicle's if None), newest first, with their histories if asked."""
+        with reading(self.db) as s:
+            if vehicle_id is not None:
+                vehicles.get(s, vehicle_id)
+            rows = repo.page(s, vehicle_id, limit, offset)
+            steps = repo.steps(s, [saved_id(c) for c in rows]) if history else {}
+        return [(c, steps.get(saved_id(c), []) if history else None) for c in rows]

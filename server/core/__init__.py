@@ -1,0 +1,1 @@
+"""What every domain of the shore uses: settings, the database, errors mapped to HTTP, events, tokens."""

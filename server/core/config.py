@@ -1,0 +1,106 @@
+"""Server settings, in one typed place: defaults, then a TOML file, then ``TACIT_*`` environment variables.
+
+Lists are comma-separated in the environment (``TACIT_WRITE_TOKENS=a,b``), as operators write them.
+Secrets (tokens) come from the environment or from a file that only its owner may read
+(``TACIT_TOKEN_FILE``); they are never logged.
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+import tomllib
+from pathlib import Path
+from typing import Annotated, Any
+
+from pydantic import Field, ValidationError, field_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+
+class SettingsError(ValueError):
+    pass
+
+
+Csv = Annotated[list[str], NoDecode]
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="TACIT_", extra="forbid", validate_assignment=True)
+
+    database_url: str = "sqlite:///data/tacit.db"
+    modem_url: str = ""  # empty: run without a shore modem (API and storage only)
+    modem_address: int = Field(1, ge=0, le=127)
+    modem_log: str = ""  # file to log every NMEA sentence, with time stamps
+    host: str = "127.0.0.1"
+    port: int = Field(8000, ge=0, le=65535)
+    map_port: int = Field(8080, ge=0, le=65535)
+    map_enabled: bool = True
+    write_tokens: Csv = []
+    sign_in_failures: int = Field(10, ge=1)  # wrong tokens from one client within sign_in_window: then 429
+    sign_in_window: float = Field(60.0, gt=0)  # s
+    read_tokens: Csv = []
+    cors_origins: Csv = []
+    poll_interval: float = Field(2.0, gt=0)  # seconds between link slots when idle
+    ping_interval: float = Field(120.0, gt=0)
+    command_attempts: int = Field(4, ge=1)
+    confirm_timeout: float = Field(120.0, gt=0)  # s: an ACKed command no check-point confirmed is sent again
+    sound_speed: float = Field(1500.0, gt=0)
+    shore_position: tuple[float, float, float] = (0.0, 0.0, 1.0)  # north, east, depth of the shore modem
+    default_range: float = Field(1000.0, gt=0)  # used for slot timing until a ping measures it
+    sync_interval: float = Field(
+        60.0, gt=0
+    )  # s between SYNC heartbeats (a fifth of the agent's link_lost_timeout)
+    sync_retry: float = Field(
+        5.0, gt=0
+    )  # s between SYNCs asking for a chain restart, until one is acknowledged
+    time_scale: float = Field(1.0, gt=0)  # simulations faster than real time: acoustic timings divide by this
+    max_queued_commands: int = Field(20, ge=1)  # per vehicle: more waiting for the link are refused (429)
+    command_share: int = Field(3, ge=1)  # command slots in a row before the vehicle's next slot polls
+    stranger_frames_kept: int = Field(1000, ge=0)  # frames from unknown modem addresses: the newest kept
+    probe_every: int = Field(3, ge=2)  # while a key rotation waits: every Nth SYNC probes with the new key
+    restart_min_interval: float = Field(
+        60.0, gt=0
+    )  # s: an unauthenticated packet asks for a chain restart at
+    # most this often (the agent's check-point interval)
+    restart_sends: int = Field(2, ge=1)  # a chain-restart request is sent this often, ACKed or not
+    max_skew: float = Field(120.0, gt=0)  # s a check-point may be ahead of the shore's clock and raise the
+    # replay floor to its time (beyond, only to the shore's time)
+
+    @field_validator("write_tokens", "read_tokens", "cors_origins", mode="before")
+    @classmethod
+    def _comma_separated(cls, value: Any) -> Any:
+        if isinstance(value, str):
+            return [item.strip() for item in value.split(",") if item.strip()]
+        return value
+
+    @field_validator("shore_position", mode="before")
+    @classmethod
+    def _position(cls, value: Any) -> Any:
+        return tuple(float(x) for x in value.split(",")) if isinstance(value, str) else value
+
+    @classmethod
+    def load(cls, path: str | Path | None = None, env: dict[str, str] | None = None) -> Settings:
+        """The file's values, overridden by the environment (``env``, default ``os.environ``)."""
+        env = dict(os.environ if env is None else env)
+        values: dict[str, Any] = tomllib.loads(Path(path).read_text()) if path else {}
+        for name in cls.model_fields:
+            raw = env.get(f"TACIT_{name.upper()}")
+            if raw is not None:
+                values[name] = raw
+        if env.get("TACIT_TOKEN_FILE"):
+            values.update(_read_token_file(Path(env["TACIT_TOKEN_FILE"])))
+        try:
+            return cls.model_validate(values)
+        except ValidationError as exc:
+            first = exc.errors()[0]
+            where = ".".join(str(p) for p in first["loc"]) or "settings"
+            raise SettingsError(f"{path or 'environment'}: {where}: {first['msg']}") from None
+
+
+def _read_token_file(path: Path) -> dict[str, list[str]]:
+    """A TOML file with ``write_tokens`` / ``read_tokens``; refused if others may read it."""
+    mode = path.stat().st_mode
+    if mode & (stat.S_IRWXG | stat.S_IRWXO):
+        raise SettingsError(f"{path}: token file must not be readable by group or others (chmod 600)")
+    data = tomllib.loads(path.read_text())
+    return {k: list(v) for k, v in data.items() if k in ("write_tokens", "read_tokens")}

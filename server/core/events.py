@@ -1,0 +1,164 @@
+"""In-process publish/subscribe of typed events, for the live event stream (SSE) and the map.
+
+Each event is a frozen dataclass with its ``kind`` (the SSE event name); ``as_dict`` is its JSON.
+Publishing is thread-safe (the ingest worker publishes from its thread). Each subscriber has a bounded
+queue: a slow browser loses its oldest events, it never slows the link engine.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, fields
+from typing import Any, ClassVar
+
+
+@dataclass(frozen=True, kw_only=True)
+class Event:
+    kind: ClassVar[str]
+    at: float = field(default_factory=time.time)
+
+    def as_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"kind": self.kind}
+        for f in fields(self):
+            out[f.name] = getattr(self, f.name)
+        return out
+
+
+@dataclass(frozen=True, kw_only=True)
+class PacketHeard(Event):
+    """A vehicle packet was stored as packet ``id`` (``auth``: its trust, ``server.telemetry.models.PacketTrust``;
+    a priority packet's is pending until a check-point settles it: ``PacketsSettled``)."""
+
+    kind: ClassVar[str] = "packet"
+    id: int
+    vehicle: str
+    address: int
+    type: str
+    seq: int
+    priority: int
+    size: int
+    snr: float | None
+    body: dict[str, Any]
+    auth: str
+
+
+@dataclass(frozen=True)
+class CommandChanged(Event):
+    """A command moved to ``status`` (``server.commands.models.CommandState``)."""
+
+    kind: ClassVar[str] = "command"
+    id: int
+    seq: int
+    status: str
+    vehicle: str = ""
+    command: str = ""
+    detail: str = ""
+    reason: str = ""
+    report: dict[str, Any] | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class VehicleReported(Event):
+    """A verified check-point: the vehicle's state and pose."""
+
+    kind: ClassVar[str] = "vehicle"
+    vehicle: str
+    checkpoint: dict[str, Any]
+
+
+@dataclass(frozen=True, kw_only=True)
+class TelemetryDecoded(Event):
+    """Samples of one stream decoded from priority packet ``packet_id`` (``lost``: a span the shore cannot
+    vouch for). They are not verified when decoded: ``PacketsSettled`` says when they are."""
+
+    kind: ClassVar[str] = "telemetry"
+    packet_id: int
+    vehicle: str
+    stream: str
+    channels: list[str]
+    period: float
+    times: list[float]
+    values: list[list[float | None]]
+    lost: list[int] | None
+    verified: bool = False
+
+
+@dataclass(frozen=True, kw_only=True)
+class PacketsSettled(Event):
+    """A verified check-point settled the priority packets it covers (packet ids): their bytes are
+    ``verified`` or ``forged`` (another packet with a vouched-for seq); of the verified, the ``trusted``
+    ones' samples may be believed (decoded along a chain of trusted packets: ``server.link.verify``)."""
+
+    kind: ClassVar[str] = "settled"
+    vehicle: str
+    verified: list[int]
+    forged: list[int]
+    trusted: list[int]
+
+
+@dataclass(frozen=True, kw_only=True)
+class LinkNotice(Event):
+    """Something about the link: ``event`` names it (heard, modem, range, undecodable,
+    key_confirmed, forged_checkpoint, ...), ``detail`` says the rest."""
+
+    kind: ClassVar[str] = "link"
+    event: str
+    vehicle: str | None = None
+    detail: dict[str, Any] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        out = super().as_dict()
+        return {**out.pop("detail"), **out}
+
+
+class Bus:
+    def __init__(self, queue_size: int = 1000) -> None:
+        self.queue_size = queue_size
+        self._subscribers: set[asyncio.Queue[Event]] = set()
+        self._callbacks: list[Callable[[Event], None]] = []
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self.published = 0
+
+    def bind(self, loop: asyncio.AbstractEventLoop) -> None:
+        self._loop = loop
+
+    def subscribe(self) -> asyncio.Queue[Event]:
+        queue: asyncio.Queue[Event] = asyncio.Queue(self.queue_size)
+        self._subscribers.add(queue)
+        return queue
+
+    def unsubscribe(self, queue: asyncio.Queue[Event]) -> None:
+        self._subscribers.discard(queue)
+
+    def on_event(self, callback: Callable[[Event], None]) -> None:
+        """Also call ``callback`` (from the event loop) for every event: the map uses this."""
+        self._callbacks.append(callback)
+
+    def publish(self, event: Event) -> None:
+        self.published += 1
+        loop = self._loop
+        if loop is None or loop.is_closed():
+            return
+        try:
+            running = asyncio.get_running_loop()
+        except RuntimeError:
+            running = None
+        if running is loop:
+            self._deliver(event)
+        else:
+            loop.call_soon_threadsafe(self._deliver, event)
+
+    def _deliver(self, event: Event) -> None:
+        for queue in list(self._subscribers):
+            if queue.full():
+                queue.get_nowait()
+            queue.put_nowait(event)
+        for callback in self._callbacks:
+            callback(event)
+
+    @staticmethod
+    def sse(event: Event) -> str:
+        return f"event: {event.kind}\ndata: {json.dumps(event.as_dict())}\n\n"

@@ -1,0 +1,123 @@
+"""A priority packet's samples, decoded on the vehicle's chain (``tacit.codec``) into telemetry rows.
+
+Decoding problems are stored and published as such, never raised. A packet whose base state the shore
+does not hold (``UnknownBase``: it was down while the vehicle's modem was ACKed) is stored undecoded and
+the vehicle is asked, in a SYNC control packet (``needs_restart``, sent by the link engine), to
+restart its chains. A priority packet is not authenticated, so anyone can send one with an unknown
+base: such a request is raised at most once per ``restart_min_interval``.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any
+
+from server.core.events import Event, LinkNotice, TelemetryDecoded
+from server.link.batch import Batch
+from server.link.state import VehicleState
+from tacit import packets
+from tacit.codec import CodecError, DecodedSpan, UnknownBase, chain_ids
+from tacit.packets import PriorityPacket
+
+log = logging.getLogger("tacit.server.ingest")
+
+
+@dataclass
+class Decoded:
+    """What decoding a priority packet gave: the packet's body additions, the packet its decoder state
+    came from (``origin``), and the events to publish."""
+
+    body: dict[str, Any] = field(default_factory=dict)
+    origin: int | None = None
+    events: list[Event] = field(default_factory=list)
+
+
+def decode(
+    batch: Batch, v: VehicleState, pp: PriorityPacket, at: float, packet_id: int, restart_every: float
+) -> Decoded:
+    """Decode on the vehicle's chain; an unknown base asks for a chain restart (once per ``restart_every``
+    s at most)."""
+    try:
+        spans = v.decoder.decode(pp.payload, at)
+    except CodecError as exc:
+        return _undecodable(batch, v, pp, at, exc, restart_every)
+    v.decoder_saved = None
+    base, own = chain_ids(pp.payload)
+    out = Decoded(origin=v.link.producers.get(base) if base else None)  # the packet whose state this built on
+    v.link.producers = {own: packet_id} if not base else {**v.link.producers, own: packet_id}
+    carried = []
+    for span in spans:
+        if span.lost:  # the shore cannot vouch for these ticks: stored as uncertain, without values
+            batch.samples.extend(
+                {
+                    "vehicle_id": v.id,
+                    "stream": span.spec.name,
+                    "tick": k,
+                    "time": float(t),
+                    "values": [],
+                    "certain": False,
+                    "packet_id": packet_id,
+                    "verified": False,
+                }
+                for k, t in zip(range(*span.lost), span.lost_times, strict=True)
+            )
+        if len(span.ticks) or span.lost:
+            carried.append(span.spec.name)
+            out.events.append(_samples(batch, v, span, packet_id))
+    main = next((s for s in spans if s.spec.stream == pp.stream and len(s.ticks)), None)
+    main = main or next((s for s in spans if len(s.ticks)), spans[0])
+    out.body = {
+        "stream_name": main.spec.name,
+        "streams": carried,
+        "first_tick": main.first_tick,
+        "ticks": sum(len(s.ticks) for s in spans),
+        "lost": list(main.lost) if main.lost else None,
+    }
+    return out
+
+
+def _samples(batch: Batch, v: VehicleState, span: DecodedSpan, packet_id: int) -> TelemetryDecoded:
+    spec = span.spec
+    times = [float(t) for t in span.times]
+    # an absent channel is stored as absent (None), never as a made-up value
+    rows = [[None if x != x else round(float(x), 6) for x in values] for values in span.values]
+    batch.samples.extend(
+        {
+            "vehicle_id": v.id,
+            "stream": spec.name,
+            "tick": int(k),
+            "time": t,
+            "certain": True,
+            "values": row,
+            "packet_id": packet_id,
+            "verified": False,
+        }
+        for k, t, row in zip(span.ticks, times, rows, strict=True)
+    )
+    v.bytes_saved += max(0, int((span.values == span.values).sum()) * 2 - packets.PACKET_SIZE)
+    return TelemetryDecoded(
+        packet_id=packet_id,
+        vehicle=v.name,
+        stream=spec.name,
+        channels=list(spec.channels),
+        period=spec.period,
+        times=times,
+        values=[[None if x is None else round(x, 4) for x in r] for r in rows],
+        lost=list(span.lost) if span.lost else None,
+    )
+
+
+def _undecodable(
+    batch: Batch, v: VehicleState, pp: PriorityPacket, at: float, exc: CodecError, restart_every: float
+) -> Decoded:
+    stream = pp.stream.name.lower()
+    batch.events.append(
+        {"vehicle_id": v.id, "kind": "undecodable", "at": at, "detail": {"stream": stream, "error": str(exc)}}
+    )
+    if isinstance(exc, UnknownBase) and not v.link.needs_restart and at - v.restart_raised >= restart_every:
+        v.link.needs_restart = True  # the engine's next SYNCs ask the vehicle to restart its chains
+        v.restart_raised = at
+        log.warning("vehicle %s: sample chain state lost: asking the vehicle to restart its chains", v.name)
+    notice = LinkNotice(event="undecodable", vehicle=v.name, detail={"stream": stream, "error": str(exc)})
+    return Decoded(body={"error": str(exc)}, events=[notice])

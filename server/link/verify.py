@@ -1,0 +1,154 @@
+"""Trust in what a vehicle sends (``tacit.auth``): a check-point is applied only if its MAC holds under
+one of the vehicle's keys and it is not a replay (its MAC among the last accepted, or its time below the
+replay floor); otherwise it is stored as forged, replayed or unverifiable with a link event, and nothing
+else changes. The floor follows the shore's clock as much as the vehicle's (``raised_floor``): a clock
+that was wrong once must not lock the vehicle's reports out for as long as it was wrong. A verified check-point vouches for
+the priority packets it covers: their rows become verified, and another packet received with one of
+their seqs is forged. A vouched-for packet's data are trusted only along a chain of trusted packets:
+the MAC covers a packet's bytes, not the decoder state it was decoded on.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+from server.core.db import Tx, now, saved_id
+from server.core.events import Event, LinkNotice, PacketsSettled
+from server.link.batch import Batch
+from server.link.state import VehicleState
+from server.telemetry import repository as telemetry
+from server.telemetry.models import PacketTrust
+from server.vehicles import keys
+from server.vehicles.models import Vehicle
+from tacit import auth
+from tacit.packets import CheckpointPacket
+
+log = logging.getLogger("tacit.server.ingest")
+
+
+@dataclass
+class Verdict:
+    """What verifying a check-point found: its trust, the events, the key version that signed it and the
+    (seq, hash) of each priority packet it vouches for."""
+
+    trust: PacketTrust
+    events: list[Event] = field(default_factory=list)
+    version: int | None = None
+    covered: list[tuple[int, bytes]] = field(default_factory=list)
+    floor: int = 0  # the replay floor once it is applied
+
+
+def raised_floor(cp: CheckpointPacket, floor: int, shore_now: float, max_skew: float) -> int:
+    """The replay floor after a verified check-point: an unsynced vehicle's time never raises it (its
+    clock is unknown), and a synced one stamped more than ``max_skew`` ahead of the shore raises it only
+    to the shore's time (so the check-points after its clock is corrected are not "older than the last")."""
+    if cp.unsynced:
+        return floor
+    return max(floor, cp.time if cp.time <= shore_now + max_skew else int(shore_now))
+
+
+class Verifier:
+    def __init__(self, stats: dict[str, int], max_skew: float) -> None:
+        self.stats = stats
+        self.max_skew = max_skew  # Settings.max_skew
+
+    def checkpoint(self, batch: Batch, v: VehicleState, vehicle: Vehicle, cp: CheckpointPacket) -> Verdict:
+        """Verify a check-point (nothing is applied here, but the challenge of an unsynced one stamped
+        below the floor, which is answered all the same: a vehicle whose lost state held a large clock
+        offset would otherwise never be heard again, and a SYNC echoing an old MAC answers nothing)."""
+        seqs = cp.covered_seqs()
+        candidates = [[h for h, _ in v.link.recent.get(seq, [])] for seq in seqs]
+        try:
+            version, chosen = auth.verify_checkpoint(cp, keys.accepted(vehicle), v.address, candidates)
+        except auth.Unverifiable as exc:
+            return self._refused(batch, v, PacketTrust.UNVERIFIABLE, cp, exc)
+        except auth.BadMac as exc:
+            return self._refused(batch, v, PacketTrust.FORGED, cp, exc)
+        if cp.mac in v.link.accepted_macs:
+            return self._refused(batch, v, PacketTrust.REPLAYED, cp, ValueError("accepted before"))
+        if cp.time < v.link.checkpoint_time:
+            v.link.echo = cp.mac if cp.unsynced else v.link.echo
+            return self._refused(
+                batch, v, PacketTrust.REPLAYED, cp, ValueError("older than the replay floor")
+            )
+        v.verified += 1
+        self.stats["verified"] += 1
+        floor = raised_floor(cp, v.link.checkpoint_time, time.time(), self.max_skew)
+        return Verdict(
+            PacketTrust.VERIFIED, version=version, covered=list(zip(seqs, chosen, strict=True)), floor=floor
+        )
+
+    def _refused(
+        self, batch: Batch, v: VehicleState, trust: PacketTrust, cp: CheckpointPacket, why: Exception
+    ) -> Verdict:
+        detail = f"check-point seq {cp.seq}: {why}"
+        kind = f"{trust.value}_checkpoint"
+        v.forged += trust is not PacketTrust.UNVERIFIABLE
+        self.stats[trust.value] += 1
+        batch.events.append(
+            {
+                "vehicle_id": v.id,
+                "kind": kind,
+                "at": now(),
+                "detail": {"error": detail, "hex": cp.encode().hex()},
+            }
+        )
+        log.warning("vehicle %s: %s check-point ignored: %s", v.name, trust.value, detail)
+        return Verdict(trust, [LinkNotice(event=kind, vehicle=v.name, detail={"error": detail})])
+
+    def vouch(self, s: Tx, batch: Batch, v: VehicleState, covered: list[tuple[int, bytes]]) -> list[Event]:
+        """The ``covered`` packets (seq, hash) are verified; another packet received with one of their seqs
+        is forged."""
+        good: list[int] = []
+        bad: list[int] = []
+        for seq, digest in covered:
+            for h, packet_id in v.link.recent.get(seq, []):
+                (good if h == digest else bad).append(packet_id)
+            v.link.recent[seq] = [(h, pid) for h, pid in v.link.recent.get(seq, []) if h == digest]
+        batch.flush(s)  # telemetry of packets in this batch is in the table before it is marked
+        telemetry.set_trust(s, good, PacketTrust.VERIFIED)
+        trusted = self._trusted(s, good)
+        telemetry.trust_data(s, trusted)
+        if len(trusted) < len(good) and not v.link.needs_restart:
+            v.link.needs_restart = True  # its chain ran through a packet nobody vouched for: start clean
+            log.warning(
+                "vehicle %s: %d genuine packet(s) were decoded on a state no check-point vouched "
+                "for, or could not be decoded on it: their data stay unverified; asking for a "
+                "chain restart",
+                v.name,
+                len(good) - len(trusted),
+            )
+        if bad:
+            telemetry.set_trust(s, bad, PacketTrust.FORGED)
+            self.stats["forged"] += len(bad)
+            log.warning(
+                "vehicle %s: %d priority packet(s) not the ones the check-point vouched for: forged",
+                v.name,
+                len(bad),
+            )
+        return [PacketsSettled(vehicle=v.name, verified=good, forged=bad, trusted=trusted)]
+
+    @staticmethod
+    def _trusted(s: Tx, good: list[int]) -> list[int]:
+        """Of packets whose bytes a check-point just vouched for, those whose data can be trusted too: a
+        packet's data are trusted only if the packet its state came from (its origin) was trusted as
+        well. A forged packet slipped into the chain leaves what was decoded after it untrusted. A genuine
+        packet that could not be decoded (its state was a forged one's, read as garbage) is not trusted
+        either: the shore's chain is broken there, and the vehicle must restart it."""
+        rows = telemetry.packets(s, good)
+        trusted: list[int] = []
+        for packet_id in sorted(rows):  # arrival order: an origin comes first
+            row = rows[packet_id]
+            if row.body.get("error"):
+                continue
+            origin = row.origin
+            if origin is None or origin in trusted or _was_trusted(s, origin):
+                trusted.append(saved_id(row))
+        return trusted
+
+
+def _was_trusted(s: Tx, packet_id: int) -> bool:
+    row = telemetry.packet(s, packet_id)
+    return row is not None and row.auth == PacketTrust.VERIFIED and row.trusted

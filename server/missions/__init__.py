@@ -1,0 +1,1 @@
+"""Missions: recorded on the shore, started and aborted by a control packet."""

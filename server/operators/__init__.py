@@ -1,0 +1,1 @@
+"""Operators: named people with their own bearer tokens, which expire and can be revoked at once."""

@@ -1,0 +1,174 @@
+"""What the operator's two screens (the dashboard and the 3D map) read, in one place: the command form
+for a vehicle, what the shore knows of a vehicle and how sure (``estimate``), the link's airtime by use
+(``airtime``), the link's status, the configuration the browser needs, and the recent commands. The
+screens call this service (and the command desk to send); never a session or the link engine's dicts.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+from sqlalchemy import Engine
+
+from server.commands import repository as command_repo
+from server.commands.models import CommandRecord
+from server.core.config import Settings
+from server.core.db import Tx, reading
+from server.link.engine import LinkEngine
+from server.missions import repository as mission_repo
+from server.screens import airtime, estimate, states
+from server.screens.form import command_form
+from server.telemetry import repository as telemetry
+from server.telemetry.models import Packet
+from server.vehicles import repository as vehicle_repo
+from server.vehicles import service as vehicles
+from server.vehicles.models import Vehicle
+from tacit.navigation import Pose
+from tacit.streams import UNITS
+
+
+class Screens:
+    def __init__(self, settings: Settings, db: Engine, link: LinkEngine) -> None:
+        self.settings = settings
+        self.db = db
+        self.link = link
+        self.map_port: Callable[[], int | None] = lambda: None  # set when the map runs
+
+    # --- vehicles ---------------------------------------------------------------------------------
+
+    def vehicles(self) -> list[Vehicle]:
+        with reading(self.db) as s:
+            return vehicle_repo.every(s)
+
+    def vehicle(self, name: str) -> Vehicle | None:
+        with reading(self.db) as s:
+            return vehicle_repo.by_name(s, name)
+
+    def pose(self, vehicle: Vehicle) -> Pose | None:
+        """The pose the vehicle last reported (None before its first check-point)."""
+        return self.link.ingest.pose(vehicle.address)
+
+    def form(self, vehicle_id: int | None = None) -> dict[str, Any]:
+        """Each command's fields for the vehicle (its limits), or for the packet alone (None)."""
+        if vehicle_id is None:
+            return command_form()
+        with reading(self.db) as s:
+            return command_form(vehicles.get(s, vehicle_id).limits())
+
+    def estimate(self, vehicle_id: int, now: float | None = None) -> dict[str, Any]:
+        """The last verified check-point (from the database: it survives a shore restart), its age, and
+        the shore's prediction since: ``{"reported", "heard_at", "age_s", "predicted", ...}``."""
+        with reading(self.db) as s:
+            vehicle = vehicles.get(s, vehicle_id)
+            rows = telemetry.checkpoints(s, vehicle_id, 2)
+            if not rows:
+                return {"reported": None, "heard_at": None, "age_s": None, "predicted": None}
+            last, cp = rows[0], rows[0].body
+            mission = mission_repo.numbered(s, vehicle_id, int(cp.get("mission_id", 0)))
+            followed = _commanded(s, vehicle, cp)
+        speed = _speed(rows, vehicle, self.settings.time_scale)
+        target = estimate.target_of(cp, mission.plan.get("waypoints") if mission else None, followed)
+        guess = estimate.estimate(cp, last.at, time.time() if now is None else now, target, speed)
+        label, hint = states.label(cp.get("state", ""))
+        return {
+            "reported": cp,
+            "heard_at": last.at,
+            "age_s": round(guess.age, 1),
+            "state_label": label,
+            "state_hint": hint,
+            "speed_mps": None if speed is None else round(speed, 2),
+            "drift_mps": estimate.DRIFT,
+            "predicted": guess.as_dict(),
+        }
+
+    def route(self, vehicle_id: int) -> list[tuple[float, float, float]]:
+        """The waypoints (north, east, depth) of the vehicle's started mission."""
+        with reading(self.db) as s:
+            mission = mission_repo.started(s, vehicle_id)
+        return [
+            (w["north"], w["east"], w["depth"])
+            for w in (mission.plan.get("waypoints", []) if mission else [])
+        ]
+
+    def recent_commands(self, n: int = 6) -> list[CommandRecord]:
+        with reading(self.db) as s:
+            return command_repo.page(s, None, n)
+
+    # --- the link ---------------------------------------------------------------------------------
+
+    def link_status(self) -> dict[str, Any]:
+        return self.link.status()
+
+    def shares(self) -> dict[str, Any]:
+        """The link's airtime by use, counted from the stored frames, packets and samples (so a restart
+        keeps them) and the link engine's poll counter since it started."""
+        channels = {spec.name: len(spec.channels) for spec in self.link.ingest.streams.values()}
+        with reading(self.db) as s:
+            sent, by_type, ticks = (
+                telemetry.frames_sent(s),
+                telemetry.packets_by_type(s),
+                telemetry.certain_ticks_by_stream(s),
+            )
+        samples = sum(channels.get(stream, 1) * n for stream, n in ticks.items())
+        return airtime.link_shares(
+            sent,
+            int(self.link.counters["polls"]),
+            by_type.get("checkpoint", 0),
+            by_type.get("priority", 0),
+            samples,
+        )
+
+    def config(self) -> dict[str, Any]:
+        """What the browser needs (no secrets): the map's port, the streams' channels with units, what
+        the mission states mean, the commands' fields and the simulated time scale (1 when real)."""
+        streams = {
+            s.name: {
+                "channels": list(s.channels),
+                "eps": list(s.eps),
+                "period": s.period,
+                "units": [UNITS.get(c, "") for c in s.channels],
+            }
+            for s in self.link.ingest.streams.values()
+        }
+        labels = {
+            state.name.lower(): {"label": label, "hint": hint}
+            for state, (label, hint) in states.LABELS.items()
+        }
+        return {
+            "map_port": self.map_port(),
+            "streams": streams,
+            "states": labels,
+            "form": command_form(),
+            "time_scale": self.settings.time_scale,
+        }
+
+
+def _speed(rows: list[Packet], vehicle: Vehicle, time_scale: float) -> float | None:
+    """The vehicle's speed between its last two check-points (shore clock: simulations run faster),
+    bounded to what it can do."""
+    if len(rows) < 2:
+        return None
+    speed = estimate.speed_between(rows[1].body, rows[1].at, rows[0].body, rows[0].at)
+    return None if speed is None else min(max(speed, 0.1 * time_scale), vehicle.max_speed * time_scale)
+
+
+def _commanded(s: Tx, vehicle: Vehicle, cp: dict) -> dict | None:
+    """The command the check-point says the vehicle follows, with the pose it was given from (the last
+    check-point before it was first sent)."""
+    if estimate.state_of(cp) is not estimate.MissionState.COMMANDED or not cp.get("last_command"):
+        return None
+    command = command_repo.by_seq(s, vehicle.id or 0, cp["last_command"])
+    if command is None:
+        return None
+    sent = command_repo.first_sent_at(s, command.id)
+    before = telemetry.checkpoints(s, vehicle.id or 0, 1, until=sent or command.created_at)
+    return {
+        "command": command.command,
+        "distance": command.distance,
+        "angle": command.angle,
+        "depth": command.depth,
+        "absolute_angle": command.absolute_angle,
+        "from": before[0].body if before else None,
+    }

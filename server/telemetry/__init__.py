@@ -1,0 +1,1 @@
+"""Telemetry: frames and packets as heard, their trust, reconstructed samples, exports."""

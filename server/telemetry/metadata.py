@@ -1,0 +1,123 @@
+"""What an export's values mean, said the same way in every format: each column's attributes (CF names:
+``units`` in UDUNITS spelling, ``long_name``, ``standard_name`` where CF has one, ``error_bound`` = the
+channel's eps) and the file's (the vehicle, the stream and its period, where the data come from). NetCDF
+writes them as variable and global attributes, Parquet as field and schema metadata, CSV as the units
+in its header row and the error bounds in a response header."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import UTC, datetime
+
+from server.telemetry.models import SampleTrust
+from tacit.codec import StreamSpec
+from tacit.streams import UNITS
+
+Attributes = dict[str, str | float | int]
+
+TIME_UNITS = "seconds since 1970-01-01T00:00:00Z"  # UNIX seconds, UTC: CF's spelling of the epoch
+#: The vehicle's unit spellings (``tacit.streams.UNITS``) that UDUNITS, and so CF, cannot read: MAVLink's
+#: "mG" (milli-g; in SI, G is the gauss), and "°C" in ASCII, as NetCDF3 text has no encoding. Checked
+#: with cf-units: each parses and converts to its standard name's canonical units.
+UDUNITS = {"mG": "9.80665e-3 m s-2", "°C": "degree_Celsius"}
+STANDARD_NAMES = {
+    "temperature": "sea_water_temperature",
+    "depth": "depth",
+    "oxygen": "mass_concentration_of_oxygen_in_sea_water",
+}
+LONG_NAMES = {
+    **{
+        f"{axis}acc": f"acceleration along the vehicle's {axis} axis (MAVLink RAW_IMU, in milli-g)"
+        for axis in "xyz"
+    },
+    **{f"{axis}gyro": f"angular rate about the vehicle's {axis} axis (MAVLink RAW_IMU)" for axis in "xyz"},
+    **{f"{axis}mag": f"magnetic field along the vehicle's {axis} axis (MAVLink RAW_IMU)" for axis in "xyz"},
+    "temperature": "sea water temperature",
+    "depth": "depth below the sea surface",
+    "oxygen": "dissolved oxygen",
+}
+CERTAIN = (
+    "1: the value is within error_bound of what the sensor read; 0: a span the shore lost and "
+    "cannot vouch for (no values)"
+)
+TRUST_MEANINGS = {
+    SampleTrust.VERIFIED: "a check-point's MAC vouched for the packet it came in and for the packets "
+    "it was decoded on",
+    SampleTrust.PENDING: "no check-point has covered its packet yet",
+    SampleTrust.UNVERIFIABLE: "its packet was vouched for but decoded on a state no check-point vouched "
+    "for (or it has no packet on record): its values cannot be vouched for",
+    SampleTrust.FORGED: "its packet is not the one a check-point vouched for (left out unless "
+    "include_forged=true)",
+}
+VERIFICATION = "; ".join(f"{trust.value}: {meaning}" for trust, meaning in TRUST_MEANINGS.items())
+
+
+@dataclass(frozen=True)
+class Dataset:
+    """What an export holds: one vehicle's stream."""
+
+    vehicle_id: int
+    vehicle: str
+    spec: StreamSpec
+
+
+def units(channel: str) -> str:
+    """A channel's unit as UDUNITS spells it."""
+    unit = UNITS[channel]
+    return UDUNITS.get(unit, unit)
+
+
+def columns(spec: StreamSpec) -> dict[str, Attributes]:
+    """Each column's attributes, in the exports' column order."""
+    return {
+        "time": {
+            "standard_name": "time",
+            "long_name": "time of the sample (UTC)",
+            "units": TIME_UNITS,
+            "axis": "T",
+            "calendar": "standard",
+        },  # fmt: skip
+        "tick": {
+            "long_name": "the codec's tick number (time dates a sample within half the stream's period)"
+        },
+        "certain": {"long_name": "whether the value is within error_bound", "comment": CERTAIN},
+        "verification": {"long_name": "how far the sample may be believed", "comment": VERIFICATION},
+        **{channel: _channel(channel, eps) for channel, eps in zip(spec.channels, spec.eps, strict=True)},
+    }
+
+
+def _channel(channel: str, eps: float) -> Attributes:
+    standard = {"standard_name": STANDARD_NAMES[channel]} if channel in STANDARD_NAMES else {}
+    return {
+        **standard,
+        "long_name": LONG_NAMES[channel],
+        "units": units(channel),
+        "error_bound": eps,
+        "comment": "within error_bound (same units) of what the sensor read where certain",
+    }
+
+
+def attributes(d: Dataset) -> Attributes:
+    """The file's attributes (ACDD/CF names where they have one)."""
+    return {
+        "title": f"{d.spec.name} telemetry of vehicle {d.vehicle}",
+        "source": "Tacit shore control center: samples reconstructed from acoustic-modem packets, each "
+        "within its channel's error_bound of what the vehicle's sensor read",
+        "vehicle_name": d.vehicle,
+        "vehicle_id": d.vehicle_id,
+        "stream": d.spec.name,
+        "stream_period": d.spec.period,
+        "stream_period_units": "s",
+        "history": f"{datetime.now(UTC).isoformat(timespec='seconds')} exported by Tacit",
+    }
+
+
+def error_bounds(spec: StreamSpec) -> str:
+    """Each channel's eps for an HTTP header: ``temperature=0.05, depth=0.05, oxygen=0.05``."""
+    return ", ".join(f"{channel}={eps:g}" for channel, eps in zip(spec.channels, spec.eps, strict=True))
+
+
+def csv_header(spec: StreamSpec) -> list[str]:
+    """The CSV header row: each column's name with its units in parentheses, ``depth (m)`` (ERDDAP's
+    ``.csvp``): one plain row that every CSV reader takes as it is, and the units stay with the file."""
+    return [f"{name} ({a['units']})" if "units" in a else name for name, a in columns(spec).items()]

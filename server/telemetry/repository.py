@@ -1,0 +1,184 @@
+"""The SQL of what the shore heard: frames, vehicle packets with their trust, reconstructed samples."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from typing import Any
+
+from sqlalchemy import ColumnElement, delete, func, insert, update
+from sqlmodel import Session, col, select
+from sqlmodel.sql.expression import SelectOfScalar
+
+from server.telemetry.models import Frame, Packet, PacketTrust, Telemetry
+
+EXPORT_ROWS = 5000  # rows per database fetch of an export
+
+
+def add_frame(s: Session, row: dict[str, Any]) -> int:
+    return int(s.execute(insert(Frame).returning(col(Frame.id)), [row]).scalar_one())
+
+
+def _strangers(known: Sequence[int]) -> SelectOfScalar[Any]:
+    """The ids of frames received from modem addresses not in ``known``."""
+    return select(Frame.id).where(Frame.direction == "in", col(Frame.src).not_in(known))
+
+
+def count_strangers(s: Session, known: Sequence[int]) -> int:
+    return int(s.exec(select(func.count()).select_from(_strangers(known).subquery())).one())
+
+
+def drop_strangers(s: Session, known: Sequence[int], n: int, after: int) -> list[int]:
+    """Delete the ``n`` oldest frames from unknown addresses (those after id ``after``: older ones are gone
+    already); their ids."""
+    query = _strangers(known).where(col(Frame.id) > after).order_by(col(Frame.id)).limit(n)
+    ids = [i for i in s.exec(query) if i is not None]
+    if ids:
+        s.execute(delete(Frame).where(col(Frame.id).in_(ids)))
+    return ids
+
+
+def add_frames(s: Session, *frames: Frame) -> None:
+    s.add_all(frames)
+
+
+def add_packet(s: Session, row: dict[str, Any]) -> int:
+    return int(s.execute(insert(Packet).returning(col(Packet.id)), [row]).scalar_one())
+
+
+def set_packet(s: Session, packet_id: int, **values: Any) -> None:
+    s.execute(update(Packet).where(col(Packet.id) == packet_id).values(**values))
+
+
+def add_samples(s: Session, rows: list[dict[str, Any]]) -> None:
+    if rows:
+        s.execute(insert(Telemetry), rows)
+
+
+def set_trust(s: Session, packet_ids: Sequence[int], trust: PacketTrust) -> None:
+    if packet_ids:
+        s.execute(update(Packet).where(col(Packet.id).in_(packet_ids)).values(auth=trust.value))
+
+
+def trust_data(s: Session, packet_ids: Sequence[int]) -> None:
+    """The packets' data may be believed: they and their samples are marked so."""
+    if packet_ids:
+        s.execute(update(Packet).where(col(Packet.id).in_(packet_ids)).values(trusted=True))
+        s.execute(update(Telemetry).where(col(Telemetry.packet_id).in_(packet_ids)).values(verified=True))
+
+
+def packets(s: Session, packet_ids: Sequence[int]) -> dict[int, Packet]:
+    return {
+        p.id: p
+        for p in s.exec(select(Packet).where(col(Packet.id).in_(packet_ids))).all()
+        if p.id is not None
+    }
+
+
+def packet(s: Session, packet_id: int) -> Packet | None:
+    return s.get(Packet, packet_id)
+
+
+def checkpoints(s: Session, vehicle_id: int, n: int = 1, until: float | None = None) -> list[Packet]:
+    """The vehicle's last ``n`` verified check-points, newest first (received at or before ``until``)."""
+    query = select(Packet).where(
+        Packet.vehicle_id == vehicle_id, Packet.type == "checkpoint", Packet.auth == PacketTrust.VERIFIED
+    )
+    if until is not None:
+        query = query.where(Packet.at <= until)
+    return list(s.exec(query.order_by(col(Packet.id).desc()).limit(n)).all())
+
+
+def _window(
+    vehicle_column: Any, time_column: Any, vehicle_id: int | None, since: float | None, until: float | None
+) -> list[ColumnElement[bool]]:
+    """The filters every data query shares: one vehicle, a time window."""
+    return [
+        *([vehicle_column == vehicle_id] if vehicle_id is not None else []),
+        *([time_column >= since] if since is not None else []),
+        *([time_column <= until] if until is not None else []),
+    ]
+
+
+def _page(s: Session, query: SelectOfScalar[Any], limit: int, offset: int) -> tuple[int, list[Any]]:
+    total = s.exec(select(func.count()).select_from(query.subquery())).one()
+    return int(total), list(s.exec(query.offset(offset).limit(limit)).all())
+
+
+def packet_page(
+    s: Session,
+    vehicle_id: int | None,
+    kind: str | None,
+    since: float | None,
+    until: float | None,
+    limit: int,
+    offset: int,
+) -> tuple[int, list[Packet]]:
+    query = select(Packet).where(*_window(Packet.vehicle_id, Packet.at, vehicle_id, since, until))
+    query = query.order_by(col(Packet.id).desc())
+    if kind is not None:
+        query = query.where(Packet.type == kind)
+    return _page(s, query, limit, offset)
+
+
+def _samples(
+    vehicle_id: int | None, stream: str | None, since: float | None, until: float | None
+) -> SelectOfScalar[Telemetry]:
+    query = select(Telemetry).where(*_window(Telemetry.vehicle_id, Telemetry.time, vehicle_id, since, until))
+    query = query.order_by(col(Telemetry.time))
+    return query.where(Telemetry.stream == stream) if stream is not None else query
+
+
+def sample_page(
+    s: Session,
+    vehicle_id: int | None,
+    stream: str | None,
+    since: float | None,
+    until: float | None,
+    limit: int,
+    offset: int,
+) -> tuple[int, list[Telemetry]]:
+    return _page(s, _samples(vehicle_id, stream, since, until), limit, offset)
+
+
+def all_samples(
+    s: Session, vehicle_id: int, stream: str, since: float | None, until: float | None
+) -> Iterator[tuple[Telemetry, PacketTrust | None]]:
+    """Every sample in the window with its packet's trust (None: no packet on record), oldest first,
+    fetched ``EXPORT_ROWS`` at a time."""
+    query = (
+        select(Telemetry, Packet.auth)
+        .outerjoin(Packet, col(Telemetry.packet_id) == Packet.id)
+        .where(
+            Telemetry.stream == stream,
+            *_window(Telemetry.vehicle_id, Telemetry.time, vehicle_id, since, until),
+        )
+        .order_by(col(Telemetry.time))
+    )
+    for sample, auth in s.exec(query.execution_options(yield_per=EXPORT_ROWS)):
+        yield sample, None if auth is None else PacketTrust(auth)
+
+
+def sample_span(s: Session, vehicle_id: int, stream: str) -> tuple[float, float] | None:
+    """The first and last sample times of a vehicle's stream (None: no sample yet)."""
+    query = select(func.min(Telemetry.time), func.max(Telemetry.time)).where(
+        Telemetry.vehicle_id == vehicle_id, Telemetry.stream == stream
+    )
+    first, last = s.exec(query).one()
+    return None if first is None else (float(first), float(last))
+
+
+def frames_sent(s: Session) -> int:
+    return int(s.exec(select(func.count()).select_from(Frame).where(Frame.direction == "out")).one())
+
+
+def packets_by_type(s: Session) -> dict[str, int]:
+    return {kind: int(n) for kind, n in s.exec(select(Packet.type, func.count()).group_by(Packet.type)).all()}
+
+
+def certain_ticks_by_stream(s: Session) -> dict[str, int]:
+    query = (
+        select(Telemetry.stream, func.count())
+        .where(col(Telemetry.certain).is_(True))
+        .group_by(Telemetry.stream)
+    )
+    return {stream: int(n) for stream, n in s.exec(query).all()}

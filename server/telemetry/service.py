@@ -1,0 +1,94 @@
+"""Reading what the shore heard: pages of packets and samples, and one stream's samples for an export.
+A window or a vehicle that cannot hold data is an error (404 / 422), never an empty answer."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+from sqlalchemy import Engine
+
+from server.core.db import reading
+from server.core.errors import Refused
+from server.telemetry import repository as repo
+from server.telemetry.metadata import Dataset
+from server.telemetry.models import Packet, SampleTrust, Telemetry
+from server.vehicles import service as vehicles
+from tacit.codec import StreamSpec
+from tacit.packets import Stream
+
+Sample = tuple[Telemetry, SampleTrust]
+
+
+@dataclass(frozen=True)
+class Window:
+    """A time window (UNIX s); either end may be open."""
+
+    since: float | None = None
+    until: float | None = None
+
+    def check(self) -> None:
+        if self.since is not None and self.until is not None and self.since > self.until:
+            raise Refused(f"the window starts ({self.since}) after it ends ({self.until})", "since")
+
+
+class TelemetryReader:
+    def __init__(self, db: Engine, streams: dict[Stream, StreamSpec]) -> None:
+        self.db = db
+        self.streams = {spec.name: spec for spec in streams.values()}
+
+    def spec(self, stream: str) -> StreamSpec:
+        if stream not in self.streams:
+            raise Refused(f"no stream {stream!r}; one of {sorted(self.streams)}", "stream")
+        return self.streams[stream]
+
+    def packets(
+        self, vehicle_id: int | None, kind: str | None, window: Window, limit: int, offset: int
+    ) -> tuple[int, list[Packet]]:
+        window.check()
+        with reading(self.db) as s:
+            if vehicle_id is not None:
+                vehicles.get(s, vehicle_id)
+            return repo.packet_page(s, vehicle_id, kind, window.since, window.until, limit, offset)
+
+    def samples(
+        self, vehicle_id: int | None, stream: str | None, window: Window, limit: int, offset: int
+    ) -> tuple[int, list[Telemetry]]:
+        window.check()
+        if stream is not None:
+            self.spec(stream)
+        with reading(self.db) as s:
+            if vehicle_id is not None:
+                vehicles.get(s, vehicle_id)
+            return repo.sample_page(s, vehicle_id, stream, window.since, window.until, limit, offset)
+
+    def export(
+        self, vehicle_id: int, stream: str, window: Window, include_forged: bool = False
+    ) -> tuple[Dataset, Iterator[Sample]]:
+        """What the export holds and its samples in the window with their trust, oldest first, fetched in
+        pages as they are read; forged ones only if asked. The vehicle, the stream and the window are
+        checked before anything is sent."""
+        spec = self.spec(stream)
+        window.check()
+        with reading(self.db) as s:
+            vehicle = vehicles.get(s, vehicle_id)
+            span = repo.sample_span(s, vehicle_id, stream)
+        if span is None:
+            raise Refused(f"vehicle {vehicle_id} has sent no {stream} samples yet", "stream")
+        if (window.since or span[0]) > span[1] or (
+            window.until if window.until is not None else span[1]
+        ) < span[0]:
+            raise Refused(
+                f"no {stream} samples of vehicle {vehicle_id} in the window: they span {span[0]:.3f} .. "
+                f"{span[1]:.3f} (UNIX s)",
+                "since",
+            )
+
+        def rows() -> Iterator[Sample]:
+            with reading(self.db) as s:
+                for sample, auth in repo.all_samples(s, vehicle_id, stream, window.since, window.until):
+                    trust = SampleTrust.of(sample.verified, auth)
+                    if include_forged or trust is not SampleTrust.FORGED:
+                        yield sample, trust
+
+        return Dataset(vehicle_id, vehicle.name, spec), rows()

@@ -1,0 +1,1 @@
+"""Vehicles: registration, keys and their staged rotation, limits."""

@@ -1,0 +1,33 @@
+"""The vehicle table: its modem address, its keys (with a staged rotation), its limits and its share of the
+channel (the polled MAC's weight, ``server.link.schedule``)."""
+
+from __future__ import annotations
+
+from sqlmodel import Field, SQLModel
+
+from server.core.db import now
+from tacit.limits import Limits
+
+
+class Vehicle(SQLModel, table=True):
+    id: int | None = Field(default=None, primary_key=True)
+    name: str = Field(unique=True, max_length=64)
+    address: int = Field(unique=True, ge=1, le=127)
+    key_hex: str = Field(max_length=128)
+    key_version: int = Field(default=1, sa_column_kwargs={"server_default": "1"})
+    # During a staged rotation: the last key the vehicle confirmed (version key_version - 1); commands
+    # are signed with it until a check-point signed with the new key arrives. None: nothing staged.
+    previous_key_hex: str | None = Field(default=None, max_length=128)
+    rotation_since: float | None = None  # when the staged rotation began
+    rotation_probes: int = Field(default=0, sa_column_kwargs={"server_default": "0"})  # probe SYNCs sent
+    next_seq: int = Field(default=1)
+    max_depth: float = Limits.max_depth
+    max_distance: float = Limits.max_distance
+    max_speed: float = Limits.max_speed
+    geofence_radius: float = Limits.geofence_radius
+    share: float = Field(default=1.0, sa_column_kwargs={"server_default": "1"})  # its weight in the MAC
+    created_at: float = Field(default_factory=now)
+
+    def limits(self) -> Limits:
+        """The vehicle's limits as the shore holds them (set through the API)."""
+        return Limits(self.max_depth, self.max_distance, self.geofence_radius, self.max_speed)

@@ -1,0 +1,70 @@
+"""The vehicle table's SQL."""
+
+from __future__ import annotations
+
+from sqlalchemy import update
+from sqlmodel import Session, col, select
+
+from server.vehicles.models import Vehicle
+
+
+def get(s: Session, vehicle_id: int) -> Vehicle | None:
+    return s.get(Vehicle, vehicle_id)
+
+
+def by_name(s: Session, name: str) -> Vehicle | None:
+    return s.exec(select(Vehicle).where(Vehicle.name == name)).first()
+
+
+def by_address(s: Session, address: int) -> Vehicle | None:
+    return s.exec(select(Vehicle).where(Vehicle.address == address)).first()
+
+
+def using_key(s: Session, key_hex: str, other_than: int | None = None) -> Vehicle | None:
+    """A vehicle (other than ``other_than``) whose current or previous key is ``key_hex``."""
+    query = select(Vehicle).where(
+        (col(Vehicle.key_hex) == key_hex) | (col(Vehicle.previous_key_hex) == key_hex)
+    )
+    if other_than is not None:
+        query = query.where(col(Vehicle.id) != other_than)
+    return s.exec(query).first()
+
+
+def every(s: Session) -> list[Vehicle]:
+    return list(s.exec(select(Vehicle).order_by(col(Vehicle.id))))
+
+
+def save(s: Session, vehicle: Vehicle) -> Vehicle:
+    s.add(vehicle)
+    s.commit()
+    s.refresh(vehicle)
+    return vehicle
+
+
+def take_seq(s: Session, vehicle_id: int) -> int:
+    """The vehicle's next command sequence number, taken (persisted: a restart never reuses one)."""
+    statement = (
+        update(Vehicle)
+        .where(col(Vehicle.id) == vehicle_id)
+        .values(next_seq=col(Vehicle.next_seq) + 1)
+        .returning(col(Vehicle.next_seq))
+    )
+    return int(s.exec(statement).one()[0]) - 1
+
+
+def confirm_key(s: Session, vehicle_id: int) -> None:
+    """The staged rotation is over: the vehicle proved it holds the new key."""
+    s.execute(
+        update(Vehicle)
+        .where(col(Vehicle.id) == vehicle_id)
+        .values(previous_key_hex=None, rotation_since=None, rotation_probes=0)
+    )
+
+
+def count_probe(s: Session, vehicle_id: int) -> None:
+    """One more probe SYNC signed with the staged key went out."""
+    s.execute(
+        update(Vehicle)
+        .where(col(Vehicle.id) == vehicle_id)
+        .values(rotation_probes=col(Vehicle.rotation_probes) + 1)
+    )

@@ -1,0 +1,155 @@
+"""The dual predictor both ends run per stream: the channel's own predictor plus a cross-channel term.
+
+p is the channel's predictor (``tacit.predict``) plus a cross-channel term (``Dual``): channels are coded
+in order, and channel c's residual is predicted by a ridge regression on the residuals of the channels
+already coded in the same sample and on the previous sample's residuals, fitted on reconstructions (so
+both ends hold the same coefficients), used by a channel only while it has lately cut its squared error
+by 10 %. Each channel predicts with a held value instead (hold: send-on-delta's predictor, the last
+reconstruction moved no further than it must) while that would lately have missed (|value - prediction|
+> eps) less than half as often as its own: a slow profiling sensor's drift and a quantised sensor's
+dither are followed by hold, noise by the Kalman filter, and both ends choose alike from reconstructions,
+so the choice costs no bits. Both ends feed the reconstruction, not the raw value, back into the
+predictor; a single value sent raw (a glitch, ``tacit.codec.grammar.RawValue``) is not given to the
+predictor, a second one in a row is (a real jump).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from tacit.codec.spec import StreamSpec
+
+FEED_LIMIT = 1e100  # the predictors see values clipped to +-this (both ends), so they stay finite
+CROSS_FORGET = 1 - 1 / 256  # the regression's memory: about 256 samples
+CROSS_REFIT = 4  # samples between refits of the coefficients
+CROSS_CLIP = 3.0  # residuals (in steps) enter the regression clipped to +-this (a jump must not dominate)
+CROSS_RIDGE = 0.05  # ridge, as a fraction of the mean residual power
+CROSS_USE = 0.9  # a channel uses the correction while it has cut its squared error by 10 % lately
+CROSS_MIN_R2 = 0.1  # a channel whose fit explains less of its residual power is predicted without it
+HOLD_FORGET = 1 - 1 / 32  # the predictor choice's memory: about 32 samples
+HOLD_USE = 0.5  # a channel holds while hold would lately have missed less than half as often as its own
+HOLD_MISS = 0.99  # a step (2 eps), less a margin for rounding: a prediction this far off certainly missed
+
+
+def _feed(values: np.ndarray) -> np.ndarray:
+    """What the predictors are given (both ends): the reconstruction, clipped so they stay finite."""
+    return np.clip(values, -FEED_LIMIT, FEED_LIMIT)
+
+
+class Dual:
+    """A stream's predictor as both ends run it: the per-channel predictor (``tacit.predict``), and on top
+    a cross-channel prediction of the residual. Channels are coded in order; channel c's prediction is
+    the predictor's plus sum_j<c beta_cj z_j step_c, z_j = (reconstruction_j - prediction_j) / step_j of
+    the channels already coded in the same sample (0 if absent). beta is a ridge regression of each z_c
+    on the earlier z, over exponentially forgotten sums, refitted every ``CROSS_REFIT`` samples: from
+    reconstructions only, so both ends hold the same coefficients. A value sent raw (a glitch) is not
+    given to the predictor unless the channel's previous value was raw too (a real jump is learnt)."""
+
+    def __init__(self, spec: StreamSpec) -> None:
+        n = len(spec.channels)
+        self.base, self.step, self.cross = spec.predictor(), spec.step, spec.cross and n > 1
+        self.sums, self.beta, self.count = np.zeros((2 * n, 2 * n)), np.zeros((n, 2 * n)), 0
+        self.raw_before = np.zeros(n, dtype=bool)
+        self.previous = np.zeros(n)  # the previous sample's z (across a gap too)
+        self.errors = np.zeros((2, n))  # per channel, forgotten squared error: without, with the correction
+        self.held = np.full(n, np.nan)  # per channel, hold's prediction (NaN: no value yet)
+        self.misses = np.zeros((2, n))  # per channel, forgotten count of misses: own predictor, hold
+        self.own = np.zeros(n)  # the own predictor's prediction for the sample being coded
+
+    def predict(self) -> np.ndarray:
+        self.own = self.base.predict()
+        return self._choose()
+
+    def current(self) -> np.ndarray:
+        self.own = self.base.current()
+        return self._choose()
+
+    def _choose(self) -> np.ndarray:
+        """Per channel: the held value where hold has lately missed far less often (the Kalman filter,
+        fed reconstructions, lags a drift; hold follows it a step at a time)."""
+        hold = (self.misses[1] < HOLD_USE * self.misses[0]) & ~np.isnan(self.held)
+        return np.where(hold, self.held, self.own)
+
+    def skip(self, ticks: int = 1) -> None:
+        self.base.skip(ticks)  # the previous sample's residuals still predict (zeroing them cost 6 % on gaps)
+
+    def correction(self, c: int, z: np.ndarray) -> float:
+        """Channel c's predicted residual, in steps, from the earlier channels' ``z``."""
+        if not self.cross:
+            return 0.0
+        if not self.errors[1, c] < CROSS_USE * self.errors[0, c]:
+            return 0.0
+        n = len(z)
+        return float(self.beta[c, :c] @ z[:c] + self.beta[c, n:] @ self.previous)
+
+    def update(self, values: np.ndarray, z: np.ndarray, raw: np.ndarray) -> None:
+        """The sample's reconstruction (NaN: absent), residuals in steps (0: absent or raw), raw channels."""
+        present = ~np.isnan(values)
+        fed = np.where(raw & ~self.raw_before, np.nan, values)
+        self.raw_before = np.where(present, raw, self.raw_before)
+        self.base.update(_feed(fed))
+        self._score(fed)
+        if not self.cross:
+            return
+        zz = np.concatenate([np.clip(z, -CROSS_CLIP, CROSS_CLIP), self.previous])
+        candidate = (
+            np.tril(self.beta[:, : len(z)], -1) @ zz[: len(z)] + self.beta[:, len(z) :] @ self.previous
+        )
+        self.errors = self.errors * CROSS_FORGET + np.where(present, np.array([z, z - candidate]) ** 2, 0.0)
+        self.previous = zz[: len(z)]
+        self.sums = self.sums * CROSS_FORGET + np.outer(zz, zz)
+        self.count += 1
+        if self.count % CROSS_REFIT == 0:
+            self._refit()
+
+    def _score(self, fed: np.ndarray) -> None:
+        """Count which of the two predictions certainly missed the values fed: by more than a step from
+        the reconstruction, so more than eps from the value (the one in use misses by whole steps, q != 0;
+        counting the other's near misses too would favour whichever is in use). The held value then
+        moves only as far as to lie within eps/2 of the reconstruction: a value dithering across a step's
+        edge (a quantised sensor, noise) does not make hold miss at every crossing, as send-on-delta's
+        exact value does not."""
+        seen = ~np.isnan(fed)
+        with np.errstate(over="ignore", invalid="ignore"):
+            missed = np.abs(fed - np.array([self.own, self.held])) > HOLD_MISS * self.step
+            kept = np.clip(self.held, fed - self.step / 4, fed + self.step / 4)
+        missed[1] |= np.isnan(self.held)
+        self.misses = self.misses * HOLD_FORGET + np.where(seen, missed, 0.0)
+        self.held = np.where(seen, np.where(np.isnan(self.held), fed, kept), self.held)
+
+    def _refit(self) -> None:
+        n = len(self.step)
+        ridge = CROSS_RIDGE * float(np.trace(self.sums)) / (2 * n) + 1e-9
+        for c in range(n):
+            used = np.r_[0:c, n : 2 * n]
+            a = self.sums[np.ix_(used, used)] + ridge * np.eye(len(used))
+            b = self.sums[used, c]
+            beta = np.linalg.solve(a, b)
+            explained = float(beta @ b) / (self.sums[c, c] + 1e-12)  # R^2 of the fit
+            self.beta[c, used] = beta if explained >= CROSS_MIN_R2 else 0.0
+        self.beta[:, :n] = np.tril(self.beta[:, :n], -1)
+
+    def state(self) -> Any:
+        return (
+            self.base.state(),
+            self.sums.copy(),
+            self.beta.copy(),
+            self.count,
+            self.raw_before.copy(),
+            self.previous.copy(),
+            self.errors.copy(),
+            self.held.copy(),
+            self.misses.copy(),
+        )
+
+    def restore(self, state: Any) -> None:
+        base, sums, beta, count, raw_before, previous, errors, held, misses = state
+        self.held, self.misses = np.array(held, dtype=np.float64), np.array(misses, dtype=np.float64)
+        self.previous, self.errors = np.array(previous, dtype=np.float64), np.array(errors, dtype=np.float64)
+        self.base.restore(base)
+        self.sums, self.beta = np.array(sums, dtype=np.float64), np.array(beta, dtype=np.float64)
+        self.count = int(count)
+        self.raw_before = np.array(raw_before, dtype=bool)

@@ -1,0 +1,323 @@
+"""Telemetry export through the API: CSV, Parquet and NetCDF (CF) files for a vehicle, a stream and a time
+window, written to disk and read back: absent samples are empty cells (CSV), nulls (Parquet) and NaN
+fill values (NetCDF); each row says how far it may be believed, and each file what its values mean."""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from fastapi.testclient import TestClient
+from scipy.io import netcdf_file
+from sqlalchemy import insert
+
+from server.app import create_app
+from server.core.config import Settings
+from server.core.db import writing
+from server.telemetry import repository
+from server.telemetry.models import PacketTrust, Telemetry
+from tacit.streams import ENV_PERIOD
+
+OP = {"Authorization": "Bearer operator-token"}
+OBS = {"Authorization": "Bearer observer-token"}
+T0 = 1_700_000_000.0
+HEADER = [
+    "time (seconds since 1970-01-01T00:00:00Z)",
+    "tick",
+    "certain",
+    "verification",
+    "temperature (degree_Celsius)",
+    "depth (m)",
+    "oxygen (mg/L)",
+]
+# the packets the samples came in: (auth, trusted), a sample verified when its packet is trusted
+PACKETS = {
+    "trusted": (PacketTrust.VERIFIED, True),
+    "pending": (PacketTrust.PENDING, False),
+    "untrusted": (PacketTrust.VERIFIED, False),
+    "forged": (PacketTrust.FORGED, False),
+}
+# tick: its packet and the verification the export gives it (every other tick: "trusted", verified)
+TICKS = {
+    4: ("pending", "pending"),
+    5: ("untrusted", "unverifiable"),
+    6: (None, "unverifiable"),
+    8: ("forged", "forged"),
+}
+
+
+def env(
+    tick: int,
+    values: list,
+    certain: bool = True,
+    vehicle_id: int = 1,
+    packet: str | None = "trusted",
+    ids: dict[str | None, int | None] | None = None,
+) -> dict:
+    packet_id = (ids or {}).get(packet)
+    return {
+        "vehicle_id": vehicle_id,
+        "stream": "env",
+        "tick": tick,
+        "time": T0 + tick,
+        "values": values,
+        "certain": certain,
+        "packet_id": packet_id,
+        "verified": packet_id is not None and packet == "trusted",
+    }
+
+
+def add_packets(s, vehicle_id: int) -> dict[str | None, int | None]:
+    frame = repository.add_frame(s, {"direction": "in", "src": 2, "dest": 1, "data": b""})
+    ids: dict[str | None, int | None] = {None: None}
+    for seq, (name, (auth, trusted)) in enumerate(PACKETS.items()):
+        ids[name] = repository.add_packet(
+            s,
+            {
+                "frame_id": frame,
+                "vehicle_id": vehicle_id,
+                "type": "priority",
+                "seq": seq,
+                "body": {},
+                "auth": auth,
+                "trusted": trusted,
+            },
+        )
+    return ids
+
+
+@pytest.fixture
+def client(tmp_path: Path):
+    settings = Settings(
+        database_url=f"sqlite:///{tmp_path}/tacit.db",
+        modem_url="",
+        map_enabled=False,
+        write_tokens=["operator-token"],
+        read_tokens=["observer-token"],
+        ping_interval=3600,
+    )
+    with TestClient(create_app(settings)) as c:
+        for name, address in (("rov1", 2), ("rov2", 3)):
+            c.post("/api/v1/vehicles", json={"name": name, "address": address}, headers=OP)
+        with writing(c.app.state.shore.db) as s:  # type: ignore[attr-defined]
+            ids = add_packets(s, 1)
+            rows = [
+                env(i, [20.0 + 0.01 * i, 1.5, 8.0], packet=TICKS.get(i, ("trusted",))[0], ids=ids)
+                for i in range(12_000)
+            ]  # several fetches and row groups
+            rows[3] = env(3, [20.5, None, 8.0], ids=ids)  # an absent sample
+            rows[4] = env(4, [], certain=False, packet="pending", ids=ids)  # a lost span
+            rows.append(env(9, [66.0, 6.6, 6.6], packet="forged", ids=ids))  # a forgery beside a genuine one
+            rows.append(env(5, [99.0, 9.0, 9.0], vehicle_id=2))  # another vehicle's
+            rows.append({**env(6, [1.0] * 9), "stream": "imu"})  # another stream
+            s.execute(insert(Telemetry), rows)
+            s.commit()
+        yield c
+
+
+def download(client: TestClient, path: Path, url: str, **params: object) -> Path:
+    response = client.get(url, params=params, headers=OBS)
+    assert response.status_code == 200, response.text
+    assert "attachment" in response.headers["content-disposition"]
+    path.write_bytes(response.content)
+    return path
+
+
+def test_csv_of_a_vehicle_stream_and_window(client: TestClient, tmp_path: Path) -> None:
+    path = download(client, tmp_path / "env.csv", "/api/v1/telemetry.csv", vehicle_id=1, stream="env")
+    with path.open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert list(rows[0]) == HEADER  # one plain header row: each name with its units
+    time, temperature, depth = HEADER[0], HEADER[4], HEADER[5]
+    assert len(rows) == 11_999 and [int(r["tick"]) for r in rows[:5]] == [0, 1, 2, 3, 4]  # less the forged
+    assert float(rows[2][time]) == T0 + 2 and float(rows[2][temperature]) == pytest.approx(20.02)
+    assert rows[3][depth] == "" and rows[3][temperature] == "20.5"  # absent: an empty cell
+    assert [r["certain"] for r in rows[3:5]] == ["1", "0"] and rows[4][temperature] == ""
+    window = download(
+        client,
+        tmp_path / "w.csv",
+        "/api/v1/telemetry.csv",
+        vehicle_id=1,
+        stream="env",
+        since=T0 + 10,
+        until=T0 + 19,
+    )
+    with window.open(newline="") as f:
+        assert [int(r["tick"]) for r in csv.DictReader(f)] == list(range(10, 20))
+
+
+@pytest.mark.parametrize("suffix", ["csv", "parquet", "nc"])
+def test_each_sample_says_how_far_it_may_be_believed(client: TestClient, tmp_path: Path, suffix: str) -> None:
+    """verified (its packet and its chain vouched for), pending (no check-point yet; a lost span keeps its
+    packet's), unverifiable (vouched for, decoded on an unvouched state; or no packet at all), forged: left
+    out unless asked for."""
+    for include_forged in (False, True):
+        path = download(
+            client,
+            tmp_path / f"env.{suffix}",
+            f"/api/v1/telemetry.{suffix}",
+            vehicle_id=1,
+            stream="env",
+            until=T0 + 20,
+            include_forged=include_forged,
+        )
+        ticks, verification = read_verification(path)
+        expected = [(tick, TICKS.get(tick, (None, "verified"))[1]) for tick in range(21)]
+        if include_forged:
+            expected.insert(10, (9, "forged"))  # the forgery dated as tick 9, beside it
+        else:
+            expected = [(tick, v) for tick, v in expected if v != "forged"]
+        assert list(zip(ticks, verification, strict=True)) == expected
+
+
+def read_verification(path: Path) -> tuple[list[int], list[str]]:
+    """Each row's tick and verification, from any of the three formats."""
+    if path.suffix == ".csv":
+        with path.open(newline="") as f:
+            rows = list(csv.DictReader(f))
+        return [int(r["tick"]) for r in rows], [r["verification"] for r in rows]
+    if path.suffix == ".parquet":
+        data = pq.read_table(path).to_pydict()
+        return data["tick"], data["verification"]
+    with netcdf_file(path, mmap=False) as f:
+        flag = f.variables["verification"]
+        meanings = flag.flag_meanings.decode().split()
+        assert list(flag.flag_values) == list(range(len(meanings)))
+        return list(f.variables["tick"][:]), [meanings[v] for v in flag[:]]
+
+
+def test_parquet_of_a_vehicle_stream_and_window(client: TestClient, tmp_path: Path) -> None:
+    path = download(client, tmp_path / "env.parquet", "/api/v1/telemetry.parquet", vehicle_id=1, stream="env")
+    table = pq.read_table(path)
+    assert table.column_names == ["time", "tick", "certain", "verification", "temperature", "depth", "oxygen"]
+    assert str(table.schema.field("depth").type) == "double" and table.num_rows == 11_999
+    assert pq.ParquetFile(path).metadata.num_row_groups >= 2
+    data = table.to_pydict()
+    assert data["tick"][:5] == [0, 1, 2, 3, 4] and data["time"][7] == T0 + 7
+    assert data["depth"][3] is None and data["temperature"][3] == 20.5  # absent: null, not 0 or NaN
+    assert data["certain"][3:5] == [True, False]
+    assert math.isclose(data["temperature"][11_998], 20.0 + 0.01 * 11_999)
+    window = pq.read_table(
+        download(
+            client,
+            tmp_path / "w.parquet",
+            "/api/v1/telemetry.parquet",
+            vehicle_id=2,
+            stream="env",
+            since=T0,
+            until=T0 + 100,
+        )
+    )
+    assert window.to_pydict()["temperature"] == [99.0]
+
+
+def test_parquet_says_what_its_values_mean(client: TestClient, tmp_path: Path) -> None:
+    schema = pq.read_schema(
+        download(client, tmp_path / "env.parquet", "/api/v1/telemetry.parquet", vehicle_id=1, stream="env")
+    )
+    meta = {k.decode(): v.decode() for k, v in schema.metadata.items()}
+    assert meta["vehicle_name"] == "rov1" and meta["vehicle_id"] == "1" and meta["stream"] == "env"
+    assert meta["stream_period"] == str(ENV_PERIOD) and meta["stream_period_units"] == "s"
+    field = {k.decode(): v.decode() for k, v in schema.field("temperature").metadata.items()}
+    assert field["units"] == "degree_Celsius" and field["error_bound"] == "0.05"
+    assert field["standard_name"] == "sea_water_temperature"
+    time = {k.decode(): v.decode() for k, v in schema.field("time").metadata.items()}
+    assert time["units"] == "seconds since 1970-01-01T00:00:00Z"
+    verification = schema.field("verification").metadata[b"comment"].decode()
+    assert all(f"{v}: " in verification for v in ("verified", "pending", "unverifiable", "forged"))
+
+
+def test_netcdf_follows_the_cf_conventions(client: TestClient, tmp_path: Path) -> None:
+    path = download(client, tmp_path / "env.nc", "/api/v1/telemetry.nc", vehicle_id=1, stream="env")
+    with netcdf_file(path, mmap=False) as f:
+        assert f.Conventions == b"CF-1.8" and f.featureType == b"trajectory"
+        assert (
+            f.vehicle_name == b"rov1"
+            and f.vehicle_id == 1
+            and f.stream == b"env"
+            and f.stream_period == ENV_PERIOD
+        )
+        assert b"rov1" in f.title and f.history and f.source
+        trajectory = f.variables["trajectory"]
+        assert trajectory.cf_role == b"trajectory_id" and trajectory._Encoding == b"utf-8"
+        assert trajectory[:].tobytes() == b"rov1"
+        time = f.variables["time"]
+        assert time.dimensions == ("obs",) and len(time[:]) == 11_999 and time[7] == T0 + 7
+        assert (time.units, time.standard_name, time.axis) == (
+            b"seconds since 1970-01-01T00:00:00Z",
+            b"time",
+            b"T",
+        )
+        temperature, depth, oxygen = (f.variables[c] for c in ("temperature", "depth", "oxygen"))
+        assert (
+            temperature.units == b"degree_Celsius" and temperature.standard_name == b"sea_water_temperature"
+        )
+        assert depth.units == b"m" and depth.standard_name == b"depth"
+        assert (
+            oxygen.units == b"mg/L" and oxygen.standard_name == b"mass_concentration_of_oxygen_in_sea_water"
+        )
+        assert (
+            temperature.error_bound == 0.05 and temperature.error_bound.dtype == np.float64
+        )  # not 0.0500000007
+        assert temperature.coordinates == b"time" and f.stream_period.dtype == np.float64
+        assert temperature.ancillary_variables == b"certain verification"
+        assert np.isnan(depth._FillValue) and depth._FillValue.dtype == np.float64 and depth.typecode() == "d"
+        assert np.isnan(depth[3]) and temperature[3] == 20.5  # absent: NaN
+        assert np.isnan(temperature[4]) and list(f.variables["certain"][3:5]) == [1, 0]
+        certain = f.variables["certain"]
+        assert list(certain.flag_values) == [0, 1] and certain.flag_meanings == b"uncertain certain"
+        assert f.variables["verification"].flag_meanings == b"verified pending unverifiable forged"
+        assert math.isclose(temperature[11_998], 20.0 + 0.01 * 11_999)
+
+
+def test_netcdf_spells_the_imu_units_as_udunits_reads_them(client: TestClient, tmp_path: Path) -> None:
+    """MAVLink's "mG" (milli-g) is no unit UDUNITS reads: the acceleration is in m s-2, scaled."""
+    response = client.get("/api/v1/telemetry.nc", params={"vehicle_id": 1, "stream": "imu"}, headers=OBS)
+    assert response.status_code == 200 and response.headers["content-type"] == "application/x-netcdf"
+    (tmp_path / "imu.nc").write_bytes(response.content)
+    with netcdf_file(tmp_path / "imu.nc", mmap=False) as f:
+        units = {name: f.variables[name].units for name in ("xacc", "xgyro", "xmag")}
+        assert units == {"xacc": b"9.80665e-3 m s-2", "xgyro": b"mrad/s", "xmag": b"mGauss"}
+        assert f.variables["xacc"].error_bound == 10.0 and not hasattr(f.variables["xacc"], "standard_name")
+        assert list(f.variables["xacc"][:]) == [1.0]
+
+
+@pytest.mark.parametrize("suffix", ["csv", "parquet", "nc"])
+def test_every_export_gives_each_channels_error_bound(client: TestClient, suffix: str) -> None:
+    response = client.get(
+        f"/api/v1/telemetry.{suffix}", params={"vehicle_id": 1, "stream": "env"}, headers=OBS
+    )
+    assert response.headers["tacit-error-bounds"] == "temperature=0.05, depth=0.05, oxygen=0.05"
+
+
+@pytest.mark.parametrize("suffix", ["csv", "parquet", "nc"])
+def test_export_refuses_an_unknown_stream_and_needs_a_reader(client: TestClient, suffix: str) -> None:
+    refused = client.get(
+        f"/api/v1/telemetry.{suffix}", params={"vehicle_id": 1, "stream": "sonar"}, headers=OBS
+    )
+    assert refused.status_code == 422 and refused.json()["field"] == "stream"
+    assert (
+        client.get(f"/api/v1/telemetry.{suffix}", params={"vehicle_id": 1, "stream": "env"}).status_code
+        == 401
+    )
+
+
+@pytest.mark.parametrize("suffix", ["csv", "parquet", "nc"])
+def test_mistakes_in_an_export_are_errors_not_empty_files(client: TestClient, suffix: str) -> None:
+    """An unknown vehicle is a 404; an inverted window, or one holding none of the stream's samples, is a
+    422 that says where the samples are (a header-only file would look like "no data was taken")."""
+    url = f"/api/v1/telemetry.{suffix}"
+    unknown = client.get(url, params={"vehicle_id": 99, "stream": "env"}, headers=OBS)
+    assert unknown.status_code == 404 and unknown.json()["field"] == "vehicle_id"
+    inverted = client.get(
+        url, params={"vehicle_id": 2, "stream": "env", "since": T0 + 10, "until": T0}, headers=OBS
+    )
+    assert inverted.status_code == 422 and "after it ends" in inverted.json()["detail"]
+    empty = client.get(url, params={"vehicle_id": 1, "stream": "imu", "since": T0 + 1e6}, headers=OBS)
+    assert empty.status_code == 422 and "they span" in empty.json()["detail"]
+    never = client.get(url, params={"vehicle_id": 2, "stream": "imu"}, headers=OBS)
+    assert never.status_code == 422 and "no imu samples yet" in never.json()["detail"]

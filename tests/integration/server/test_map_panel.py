@@ -1,0 +1,302 @@
+"""The 3D map's panel per browser, with a fake viser client: it acts for an operator's token only
+(none, a wrong one or an observer's cannot send, even by pressing the buttons over the websocket), offers
+the same fields, ranges and checks as the dashboard (from ``server.operator``), and follows the status
+of what it sent."""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import re
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from sqlmodel import Session, select
+
+from launch.demo import SQUARE
+from server.app import create_app
+from server.commands.models import CommandRecord as Command
+from server.commands.schemas import CommandIn
+from server.core.config import Settings
+from server.core.events import CommandChanged, PacketsSettled, TelemetryDecoded
+from server.map.panel import LEGEND, OperatorPanel
+from server.map.scene import OperatorMap
+from server.operators.schemas import OperatorIn
+
+OP = {"Authorization": "Bearer operator-token"}
+
+
+class Handle(SimpleNamespace):
+    def __init__(self, **kw: Any) -> None:
+        super().__init__(**{"visible": True, "disabled": False, "hint": None, "callbacks": [], **kw})
+
+    def on_click(self, cb: Any) -> Any:
+        self.callbacks.append(cb)
+        return cb
+
+    on_update = on_click
+
+    def press(self) -> None:
+        """What a websocket client does when it clicks (viser calls the callbacks, whatever the page shows)."""
+        for cb in self.callbacks:
+            cb(None)
+
+
+class FakeGui:
+    def __init__(self) -> None:
+        self.handles: dict[str, Handle] = {}
+
+    def _add(self, label: str, **kw: Any) -> Handle:
+        handle = Handle(label=label, **kw)
+        self.handles[label] = handle
+        return handle
+
+    def add_folder(self, label: str) -> contextlib.AbstractContextManager:
+        return contextlib.nullcontext()
+
+    def add_text(self, label: str, value: str, **kw: Any) -> Handle:
+        return self._add(label, value=value)
+
+    def add_number(self, label: str, value: float, **kw: Any) -> Handle:
+        return self._add(label, value=value, min=None, max=None, step=kw.get("step"))
+
+    def add_dropdown(self, label: str, options: list, initial_value: Any = None, **kw: Any) -> Handle:
+        return self._add(label, value=initial_value or options[0], options=list(options))
+
+    def add_checkbox(self, label: str, value: bool, **kw: Any) -> Handle:
+        return self._add(label, value=value)
+
+    def add_button(self, label: str, **kw: Any) -> Handle:
+        return self._add(label, visible=kw.get("visible", True))
+
+    def add_markdown(self, content: str, **kw: Any) -> Handle:
+        return Handle(content=content)
+
+    add_html = add_markdown
+
+
+class FakeScene:
+    """viser's scene: every ``add_*`` keeps its node (name, arguments) until the node is removed."""
+
+    def __init__(self) -> None:
+        self.nodes: dict[str, Handle] = {}
+
+    def __getattr__(self, method: str) -> Any:
+        def add(name: str = "", *args: Any, **kw: Any) -> Handle:
+            handle = Handle(method=method, name=name, args=args, **kw)
+            handle.remove = lambda: self.nodes.pop(name, None)
+            self.nodes[name] = handle
+            return handle
+
+        return add
+
+
+def fake_server() -> SimpleNamespace:
+    return SimpleNamespace(
+        scene=FakeScene(), initial_camera=SimpleNamespace(position=None, look_at=None, fov=None)
+    )
+
+
+@pytest.fixture
+def shore_map(tmp_path: Path):
+    settings = Settings(
+        database_url=f"sqlite:///{tmp_path}/tacit.db",
+        modem_url="",
+        map_enabled=False,
+        modem_log=str(tmp_path / "modem.log"),
+        write_tokens=["operator-token"],
+        read_tokens=["observer-token"],
+    )
+    with TestClient(create_app(settings)) as client:
+        client.post("/api/v1/vehicles", json={"name": "rov1", "address": 2, "max_distance": 50}, headers=OP)
+        shore = client.app.state.shore
+        yield (
+            shore,
+            OperatorMap(
+                shore.screens,
+                shore.commands,
+                shore.bus,
+                settings.model_copy(update={"map_port": 0}),
+                shore.operators.actor,
+            ),
+        )
+
+
+def client_post(shore: Any, body: dict) -> None:
+    """Queue a command for rov1 through the command desk, as the API does."""
+    shore.commands.submit(1, CommandIn(**body), "tester")
+
+
+def panel_for(owner: OperatorMap) -> OperatorPanel:
+    return OperatorPanel(owner, SimpleNamespace(client_id=1, gui=FakeGui(), scene=None))
+
+
+def commands(shore: Any) -> list[Command]:
+    with Session(shore.db) as s:
+        return list(s.exec(select(Command)))
+
+
+def test_no_token_wrong_token_or_observer_cannot_send(shore_map: tuple) -> None:
+    shore, owner = shore_map
+    panel = panel_for(owner)
+    assert panel.send_btn.disabled and "Watching only" in panel.role_md.content
+    panel.send_btn.press()  # a websocket client pressing Send without signing in
+    assert "sign in with an operator's token" in panel.status_md.content
+    panel.token_in.value = "guess"
+    panel.sign_in_btn.press()
+    assert "Token not accepted" in panel.role_md.content and panel.send_btn.disabled
+    assert panel.sign_in("observer-token") == "read"
+    assert panel.send_btn.disabled and "observer" in panel.role_md.content
+    panel.send_btn.press()
+    panel.confirm_btn.press()
+    panel.ask("return_home")
+    panel.confirm_btn.press()
+    assert commands(shore) == []
+
+
+def test_an_operator_sends_with_the_same_rules_as_the_dashboard(shore_map: tuple) -> None:
+    shore, owner = shore_map
+    panel, other = panel_for(owner), panel_for(owner)
+    panel.token_in.value = "operator-token"
+    panel.sign_in_btn.press()
+    assert panel.token_in.value == "" and not panel.send_btn.disabled  # the token does not stay on screen
+    assert other.send_btn.disabled  # another browser's panel is not signed in by this one
+    distance = panel.inputs["distance"]
+    # the vehicle's limit, from the form
+    assert (distance.label, panel.ranges["distance"]) == ("Distance (m)", (0.0, 50.0))
+    distance.value = 80.0  # what a client can set over the websocket whatever the page's maximum
+    panel.send_btn.press()
+    assert "Distance must be 0 .. 50 m" in panel.status_md.content and commands(shore) == []
+    panel.inputs["angle_mode"].value = "bearing (true)"
+    panel.inputs["angle_mode"].press()
+    assert panel.inputs["angle"].label == "Bearing (true) (deg)" and panel.ranges["angle"] == (0.0, 360.0)
+    distance.value, panel.inputs["angle"].value = 12.0, 270.0
+    panel.send_btn.press()
+    [sent] = commands(shore)
+    assert (sent.command, sent.distance, sent.angle, sent.absolute_angle) == ("move", 12.0, -90.0, True)
+    assert "queued" in panel.status_md.content
+    panel.command_status(CommandChanged(sent.id, sent.seq, "executed"), "- #1 move")
+    assert "**executed**" in panel.status_md.content and "executed" not in other.status_md.content
+    panel.command_dd.value = "goto_depth"
+    panel.command_dd.press()
+    assert panel.inputs["depth"].label == "Target depth (m)" and not panel.inputs["distance"].visible
+    panel.command_dd.value = "move"
+    panel.command_dd.press()
+    assert panel.inputs["depth"].label == "Depth change (m)"
+
+
+def test_the_panel_sends_as_the_named_operator_until_revoked(shore_map: tuple) -> None:
+    """An operator created through the API signs in on the map with the same rule as the API: its
+    commands carry its name; revoked, the panel cannot send, and signing in again says why."""
+    shore, owner = shore_map
+    operator, token = shore.operators.create(OperatorIn(name="alice", role="write"), "config-operator-1")
+    panel = panel_for(owner)
+    assert panel.sign_in(token) == "write"
+    panel.send(CommandIn(command="hold"))
+    assert [c.issued_by for c in commands(shore)] == ["alice"]
+    shore.operators.revoke(operator.id)
+    panel.send(CommandIn(command="hold"))
+    assert "sign in with an operator's token" in panel.status_md.content and len(commands(shore)) == 1
+    assert panel.sign_in(token) is None and "revoked at" in panel.role_md.content
+
+
+def test_a_blank_mission_number_is_refused_in_the_panel(shore_map: tuple) -> None:
+    shore, owner = shore_map
+    panel = panel_for(owner)
+    assert panel.sign_in("operator-token") == "write"
+    panel.inputs["param_id"].value = None  # a cleared number box, as a websocket client can send it
+    panel.ask("start_mission")
+    panel.confirm_btn.press()
+    assert "not a mission number" in panel.status_md.content and commands(shore) == []
+
+
+def decoded(packet_id: int, temperature: float) -> TelemetryDecoded:
+    return TelemetryDecoded(
+        packet_id=packet_id,
+        vehicle="rov1",
+        stream="env",
+        channels=["temperature", "depth"],
+        period=1.0,
+        times=[0.0],
+        values=[[temperature, 2.0]],
+        lost=None,
+    )
+
+
+def test_the_temperature_estimate_is_fitted_on_verified_samples_only(shore_map: tuple) -> None:
+    _, owner = shore_map
+    owner.server = fake_server()
+    owner._checkpoint(
+        "rov1", {"north": 5.0, "east": 5.0, "depth": 2.0, "heading": 0.0, "state": "preprogrammed"}
+    )
+    for packet_id, temperature in ((1, 20.0), (2, 40.0), (3, 21.0)):
+        owner._handle(decoded(packet_id, temperature))
+    nodes = owner.server.scene.nodes
+    assert owner.temperatures == [] and len(nodes["/temperature/pending"].args[0]) == 3
+    assert "/temperature/samples" not in nodes  # nothing coloured (nor fitted) before a check-point vouches
+    # 1 verified and trusted; 2 forged; 3 verified but decoded on a state nobody vouched for
+    owner._handle(PacketsSettled(vehicle="rov1", verified=[1, 3], forged=[2], trusted=[1]))
+    assert [t for *_, t in owner.temperatures] == [20.0] and owner.pending == {}
+    assert "/temperature/pending" not in nodes and len(nodes["/temperature/samples"].args[0]) == 1
+    panel = panel_for(owner)
+    assert "verified samples" in panel.estimate_cb.label and "grey squares" in LEGEND
+
+
+def segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    t = np.clip(np.dot(p - a, b - a) / max(float(np.dot(b - a, b - a)), 1e-9), 0.0, 1.0)
+    return float(np.linalg.norm(p - (a + t * (b - a))))
+
+
+def test_the_map_opens_top_down_with_its_labels_clear_of_the_track_and_each_other(shore_map: tuple) -> None:
+    _, owner = shore_map
+    owner.server = fake_server()
+    owner._build_scene()
+    camera = owner.server.initial_camera
+    eye = np.array(camera.position)
+    down = np.array(camera.look_at) - eye
+    assert np.degrees(np.arctan2(np.hypot(down[0], down[1]), -down[2])) < 3.0  # straight down, near enough
+
+    def seen(p: tuple) -> np.ndarray:
+        """Where the camera sees a point, on the water's surface (its perspective: deep points move in)."""
+        return (eye + (np.array(p) - eye) * eye[2] / (eye[2] - p[2]))[:2]
+
+    labels = {n: seen(h.position) for n, h in owner.server.scene.nodes.items() if h.method == "add_label"}
+    track = [seen((w["east"], w["north"], -w["depth"])) for w in SQUARE["waypoints"]]  # the demo's plan
+    for name in (n for n in labels if n.startswith("/axes/depth")):
+        nearest = min(segment_distance(labels[name], a, b) for a, b in itertools.pairwise(track))
+        assert nearest > 5.0, f"{name} lies {nearest:.1f} m from the planned track, seen from above"
+    for (a, pa), (b, pb) in itertools.combinations(labels.items(), 2):
+        assert np.linalg.norm(pa - pb) >= 3.0, f"{a} and {b} overlap seen from above"
+
+
+def test_the_command_list_is_filled_from_the_start_with_parameters_and_times(shore_map: tuple) -> None:
+    shore, owner = shore_map
+    for body in (
+        {"command": "move", "distance": 10, "angle": 45, "depth": 1, "speed": 0.5},
+        {"command": "move", "distance": 6, "angle": 270, "absolute_angle": True},
+        {"command": "hold"},
+    ):
+        client_post(shore, body)
+    text = panel_for(owner).commands_md.content
+    assert text.splitlines()[0].startswith("- #3 hold: **queued** ")
+    assert re.search(r"#1 move 10 m, turn \+45°, 1 m deeper, 0.5 m/s: \*\*queued\*\* \d\d:\d\d:\d\dZ", text)
+    assert "#2 move 6 m, bearing 270°" in text
+
+
+def test_speed_is_sent_only_when_set(shore_map: tuple) -> None:
+    shore, owner = shore_map
+    panel = panel_for(owner)
+    assert panel.sign_in("operator-token") == "write"
+    assert not panel.speed_cb.value and panel.inputs["speed"].disabled  # blank means the cruise speed
+    assert "speed" not in shore.screens.form(1)["defaults"]
+    panel.send_btn.press()
+    panel.speed_cb.value = True
+    panel.speed_cb.press()
+    assert not panel.inputs["speed"].disabled
+    panel.inputs["speed"].value = 0.4
+    panel.send_btn.press()
+    assert [c.speed for c in commands(shore)] == [0.0, 0.4]  # 0 on the wire: nothing set, the cruise speed

@@ -1,0 +1,362 @@
+"""Trust at sea, shore side, in process: forged check-points and priority packets change nothing,
+genuine ones are verified when a check-point covers them, command statuses settle, and a restarted
+shore decodes again (decoded values compared with what the vehicle measured, not row counts)."""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from sqlmodel import Session, select
+
+from server.commands.models import CommandRecord as Command
+from server.core.config import Settings
+from server.core.db import make_engine, migrate
+from server.core.events import Bus as EventBus
+from server.core.events import PacketHeard, PacketsSettled, TelemetryDecoded
+from server.link.ingest import Ingest
+from server.link.state import IncomingFrame
+from server.telemetry.models import Packet, Telemetry
+from server.vehicles.models import Vehicle
+from tacit import auth
+from tacit.packets import (
+    CheckpointPacket,
+    CommandStatus,
+    MissionState,
+    Stream,
+    cover_bitmap,
+    pack_settled,
+    with_seq,
+)
+from tacit.streams import default_streams
+from vehicle_agent.compressor import Compressor
+
+KEY = bytes(range(32))
+STRANGER = bytes(32)
+ADDRESS = 2
+ENV = default_streams()[Stream.ENVIRONMENTAL]
+
+
+class Vehicle_:
+    """The vehicle's half, as the agent builds it: compressor, shared seq counter, signed check-points."""
+
+    def __init__(self, key: bytes = KEY, warmer: float = 0.0) -> None:
+        self.key, self.warmer = key, warmer
+        self.compressor = Compressor(default_streams(), max_latency=5.0, max_silence=5.0)
+        self.seq = 0
+        self.t = math.floor(time.time()) - 300.0
+        self.truth: dict[int, list[float]] = {}
+        self.delivered: list[tuple[int, bytes]] = []
+
+    def measure(self, seconds: int) -> None:
+        for _ in range(seconds):
+            self.t += 1.0
+            values = [20.0 + self.warmer + 0.3 * math.sin(self.t / 7), 5.0 + self.t % 3, 8.0]
+            self.truth[ENV.tick(self.t)] = values
+            self.compressor.add(Stream.ENVIRONMENTAL, self.t, values)
+
+    def priority(self, delivered: bool = True) -> bytes:
+        ready = [p for p in self.compressor.ready(self.t + 100) if p[0] is Stream.ENVIRONMENTAL]
+        assert ready, "nothing ready"
+        packet = auth.tag_priority(with_seq(ready[0][1].packet, self.seq), self.key, ADDRESS)
+        self.seq += 1
+        self.compressor.resolve(Stream.ENVIRONMENTAL, delivered)
+        if delivered:
+            self.delivered.append((packet[1], packet))
+        return packet
+
+    def checkpoint(self, key: bytes | None = None, **fields: object) -> bytes:
+        seq = self.seq
+        self.seq += 1
+        cp = CheckpointPacket(
+            seq=seq % 256,
+            time=int(time.time()),
+            state=MissionState.PREPROGRAMMED,
+            covered=cover_bitmap(seq % 256, [s for s, _ in self.delivered]),
+            **fields,
+        )  # type: ignore[arg-type]
+        covered = [p for s, p in self.delivered if (seq - 1 - s) % 256 < 16]
+        frame = auth.sign_checkpoint(cp, key or self.key, 1, ADDRESS, [auth.packet_hash(p) for p in covered])
+        self.delivered = []
+        return frame
+
+
+@pytest.fixture
+def shore(tmp_path: Path):
+    url = f"sqlite:///{tmp_path}/tacit.db"
+    migrate(url)
+    db = make_engine(url)
+    with Session(db) as s:
+        s.add(Vehicle(name="rov1", address=ADDRESS, key_hex=KEY.hex(), next_seq=8))
+        s.commit()
+        for seq in range(1, 8):
+            s.add(Command(vehicle_id=1, seq=seq, command="hold", frame=b"", status="acknowledged"))
+        s.commit()
+
+    def start() -> Ingest:
+        ingest = Ingest(db, EventBus(), default_streams(), Settings())
+        ingest.load_vehicles()
+        return ingest
+
+    yield db, start
+    db.dispose()
+
+
+def send(ingest: Ingest, *packets: bytes) -> list[dict]:
+    return ingest.handle(IncomingFrame(ADDRESS, 1, b"".join(packets)))
+
+
+def rows(db, model, **where):
+    with Session(db) as s:
+        query = select(model)
+        for name, value in where.items():
+            query = query.where(getattr(model, name) == value)
+        return s.exec(query).all()
+
+
+def decoded_matches_truth(db, vehicle: Vehicle_) -> int:
+    """How many stored, certain env rows are within eps of what the vehicle measured (all must be)."""
+    good = 0
+    for row in rows(db, Telemetry, stream="env", certain=True):
+        truth = vehicle.truth[row.tick]
+        assert np.all(np.abs(np.array(row.values) - truth) <= np.array(ENV.eps) + 1e-9), (
+            row.tick,
+            row.values,
+        )
+        good += 1
+    return good
+
+
+def test_priority_data_is_unverified_until_a_checkpoint_covers_it(shore) -> None:
+    db, start = shore
+    ingest, vehicle = start(), Vehicle_()
+    vehicle.measure(10)
+    send(ingest, vehicle.priority())
+    vehicle.measure(10)
+    send(ingest, vehicle.priority())
+    assert {r.verified for r in rows(db, Telemetry)} == {False}
+    assert {p.auth for p in rows(db, Packet, type="priority")} == {"pending"}
+    send(ingest, vehicle.checkpoint())
+    assert {r.verified for r in rows(db, Telemetry)} == {True}
+    assert {p.auth for p in rows(db, Packet)} == {"verified"}
+    assert decoded_matches_truth(db, vehicle) == 20
+
+
+def test_forged_checkpoints_change_nothing(shore) -> None:
+    db, start = shore
+    ingest, vehicle = start(), Vehicle_()
+    send(ingest, vehicle.checkpoint(north=10.0))
+    forged = [
+        vehicle.checkpoint(key=STRANGER, north=-3000.0, depth=300.0, battery=0.5, last_command=7,
+                           command_status=CommandStatus.REFUSED),  # a stranger's key
+        bytes([b ^ (1 if i == 10 else 0) for i, b in enumerate(vehicle.checkpoint(north=-3000.0))]),  # flipped
+    ]  # fmt: skip
+    for frame in forged:
+        send(ingest, frame)
+    assert ingest.vehicles[ADDRESS].link.checkpoint["north"] == 10.0
+    assert {c.status for c in rows(db, Command)} == {"acknowledged"}
+    assert [p.auth for p in rows(db, Packet)] == ["verified", "forged", "forged"]
+    assert ingest.stats["verified"] == 1 and ingest.stats["forged"] == 2
+    genuine = vehicle.checkpoint(north=20.0)
+    send(ingest, genuine)
+    send(ingest, vehicle.checkpoint(north=30.0))
+    ingest.vehicles[
+        ADDRESS
+    ].link.seen.recent.clear()  # the duplicate window forgot it: the time stamp still holds
+    older = CheckpointPacket(seq=99, time=int(time.time()) - 60, state=MissionState.PREPROGRAMMED, north=-1.0)
+    send(ingest, auth.sign_checkpoint(older, KEY, 1, ADDRESS, []))
+    assert ingest.vehicles[ADDRESS].link.checkpoint["north"] == 30.0 and ingest.stats["replayed"] == 1
+
+
+def test_forged_priority_packet_with_a_genuine_seq_is_marked_forged(shore) -> None:
+    db, start = shore
+    ingest, vehicle, attacker = start(), Vehicle_(), Vehicle_(STRANGER, warmer=20.0)  # 40 C water
+    attacker.t = vehicle.t
+    vehicle.measure(10)
+    attacker.measure(10)
+    forged = attacker.priority()
+    send(ingest, forged)  # the stranger's packet arrives first, with the seq the vehicle will use
+    send(ingest, vehicle.priority())
+    send(ingest, vehicle.checkpoint())
+    by_bytes = {bytes.fromhex(p.body["payload"]): p.auth for p in rows(db, Packet, type="priority")}
+    assert by_bytes[forged[3:]] == "forged"
+    assert sorted(by_bytes.values()) == ["forged", "verified"]
+
+
+def test_a_checkpoint_settles_the_commands_before_its_last(shore) -> None:
+    db, start = shore
+    ingest, vehicle = start(), Vehicle_()
+    settled = pack_settled([CommandStatus.SUPERSEDED, CommandStatus.REFUSED, None, CommandStatus.EXECUTED])
+    send(ingest, vehicle.checkpoint(last_command=7, command_status=CommandStatus.EXECUTING, settled=settled))
+    statuses = {c.seq: c.status for c in rows(db, Command)}
+    assert statuses == {
+        1: "acknowledged",
+        2: "acknowledged",
+        3: "executed",
+        4: "acknowledged",
+        5: "refused",
+        6: "superseded",
+        7: "executing",
+    }
+
+
+def test_a_forged_packet_never_leaves_a_state_genuine_data_are_decoded_on(shore) -> None:
+    """A stranger's packet (its own seq, not one the vehicle uses) fails its tag: it is forged at once and
+    never decoded, so it leaves no decoder state a genuine packet could build on (in version 2 it did:
+    the genuine data after it stayed unverified and the vehicle had to restart its chains)."""
+    db, start = shore
+    ingest, vehicle, attacker = start(), Vehicle_(), Vehicle_(STRANGER, warmer=20.0)
+    attacker.t = vehicle.t
+    vehicle.measure(10)
+    attacker.measure(10)
+    send(ingest, vehicle.priority())
+    forged = attacker.priority()
+    send(ingest, forged[:1] + bytes([200]) + forged[2:])  # a seq of its own: no collision with the vehicle
+    vehicle.measure(10)
+    send(ingest, vehicle.priority())
+    send(ingest, vehicle.checkpoint())
+    verified = rows(db, Telemetry, stream="env", verified=True)
+    assert verified  # the first packet's data, decoded from the initial state, are vouched for
+    for row in verified:  # and every row marked verified is what the vehicle measured
+        assert np.all(np.abs(np.array(row.values) - vehicle.truth[row.tick]) <= np.array(ENV.eps) + 1e-9)
+    assert {p.auth for p in rows(db, Packet, type="priority")} == {"verified", "forged"}
+    assert decoded_matches_truth(db, vehicle) == len(verified) == 20  # all of it, verified
+    assert not ingest.vehicles[ADDRESS].link.needs_restart
+
+
+def test_a_settled_final_wins_over_superseding(shore) -> None:
+    """6 was executing; the next check-point says 7 is executing and settles 6 as executed: the vehicle's
+    word for 6 stands (superseding applies only to what it left unsettled)."""
+    db, start = shore
+    ingest, vehicle = start(), Vehicle_()
+    send(ingest, vehicle.checkpoint(last_command=6, command_status=CommandStatus.EXECUTING))
+    settled = pack_settled([CommandStatus.EXECUTED, None, None, None])
+    send(ingest, vehicle.checkpoint(last_command=7, command_status=CommandStatus.EXECUTING, settled=settled))
+    statuses = {c.seq: c.status for c in rows(db, Command)}
+    assert statuses[6] == "executed" and statuses[7] == "executing"
+
+
+def test_a_batch_that_fails_to_commit_leaves_memory_as_it_was(shore) -> None:
+    """A commit that fails (here a trigger standing in for a full disk) puts back the duplicate window and
+    the decoder: the retried frame is stored and decoded, not dropped as a duplicate."""
+    db, start = shore
+    ingest, vehicle = start(), Vehicle_()
+    vehicle.measure(10)
+    frame = vehicle.priority()
+    with db.begin() as conn:
+        conn.exec_driver_sql(
+            "CREATE TRIGGER full BEFORE INSERT ON packet BEGIN SELECT RAISE(ABORT, 'disk full'); END"
+        )
+    with pytest.raises(Exception, match="disk full"):
+        send(ingest, frame)
+    with db.begin() as conn:
+        conn.exec_driver_sql("DROP TRIGGER full")
+    send(ingest, frame)
+    assert len(rows(db, Packet, type="priority")) == 1 and decoded_matches_truth(db, vehicle) > 0
+
+
+def test_a_failing_subscriber_does_not_set_memory_back_behind_the_database(shore) -> None:
+    """Regression (review): an event subscriber that raised after the commit rolled the decoder back, so
+    the next packet's base was unknown and the vehicle had to restart its chains."""
+    db, start = shore
+    ingest, vehicle = start(), Vehicle_()
+
+    class Failing(EventBus):
+        def publish(self, kind: str, **data: object) -> None:
+            raise RuntimeError("subscriber failed")
+
+    ingest.bus = Failing()
+    vehicle.measure(10)
+    with pytest.raises(RuntimeError, match="subscriber failed"):
+        send(ingest, vehicle.priority())
+    ingest.bus = EventBus()
+    vehicle.measure(10)
+    send(ingest, vehicle.priority())
+    assert not ingest.vehicles[ADDRESS].link.needs_restart and decoded_matches_truth(db, vehicle) == 20
+
+
+def test_a_restarted_shore_decodes_again(shore) -> None:
+    db, start = shore
+    ingest, vehicle = start(), Vehicle_()
+    for _ in range(3):
+        vehicle.measure(10)
+        send(ingest, vehicle.priority())
+    before = decoded_matches_truth(db, vehicle)
+    ingest = start()  # SIGKILL and start again: nothing in memory survives, the database does
+    vehicle.measure(10)
+    send(ingest, vehicle.priority())
+    assert decoded_matches_truth(db, vehicle) == before + 10
+    send(ingest, vehicle.checkpoint())  # the hashes of the packets before the restart were saved too
+    assert {r.verified for r in rows(db, Telemetry)} == {True}
+    assert ingest.vehicles[ADDRESS].link.seen.first_time(b"x" * 32)
+
+
+def test_packets_the_shore_never_stored_are_recovered_by_one_restart_request(shore) -> None:
+    db, start = shore
+    ingest, vehicle = start(), Vehicle_()
+    vehicle.measure(10)
+    send(ingest, vehicle.priority())
+    vehicle.measure(10)
+    vehicle.priority()  # ACKed by the shore's modem while the shore's software was down: never stored
+    vehicle.measure(10)
+    send(ingest, vehicle.priority())
+    assert ingest.vehicles[ADDRESS].link.needs_restart  # the engine's next SYNC carries the request
+    vehicle.compressor.restart_chains()  # what the agent does on that SYNC
+    vehicle.measure(10)
+    send(ingest, vehicle.priority())
+    assert decoded_matches_truth(db, vehicle) == 20
+
+
+def test_the_api_shows_what_is_verified(tmp_path: Path) -> None:
+    from fastapi.testclient import TestClient
+
+    from server.app import create_app
+    from server.core.config import Settings
+
+    app = create_app(
+        Settings(
+            database_url=f"sqlite:///{tmp_path}/tacit.db",
+            map_enabled=False,
+            read_tokens=["observer"],
+            write_tokens=["operator"],
+        )
+    )
+    with TestClient(app) as client:
+        key = client.post(
+            "/api/v1/vehicles",
+            json={"name": "rov1", "address": ADDRESS},
+            headers={"Authorization": "Bearer operator"},
+        ).json()["key"]
+        ingest, vehicle = app.state.shore.link.ingest, Vehicle_(bytes.fromhex(key))
+        vehicle.measure(10)
+        send(ingest, vehicle.priority())
+        obs = {"Authorization": "Bearer observer"}
+        assert {r["verified"] for r in client.get("/api/v1/telemetry", headers=obs).json()["items"]} == {
+            False
+        }
+        assert client.get("/api/v1/packets", headers=obs).json()["items"][0]["auth"] == "pending"
+        send(ingest, vehicle.checkpoint())
+        assert {r["verified"] for r in client.get("/api/v1/telemetry", headers=obs).json()["items"]} == {True}
+        assert {p["auth"] for p in client.get("/api/v1/packets", headers=obs).json()["items"]} == {"verified"}
+
+
+def test_a_checkpoint_publishes_which_packets_it_settled(shore) -> None:
+    """The screens turn packets and samples from pending to verified or forged live, on ``PacketsSettled``;
+    every packet and sample names its packet id."""
+    db, start = shore
+    ingest, vehicle, attacker = start(), Vehicle_(), Vehicle_(STRANGER, warmer=20.0)
+    attacker.t = vehicle.t
+    vehicle.measure(10)
+    attacker.measure(10)
+    heard = send(ingest, attacker.priority()) + send(ingest, vehicle.priority())
+    ids = [e.id for e in heard if isinstance(e, PacketHeard)]
+    assert len(set(ids)) == 2 and {e.packet_id for e in heard if isinstance(e, TelemetryDecoded)} <= set(ids)
+    [settled] = [e for e in send(ingest, vehicle.checkpoint()) if isinstance(e, PacketsSettled)]
+    by_id = {p.id: p.auth for p in rows(db, Packet, type="priority")}
+    assert settled.verified == settled.trusted == [i for i, a in by_id.items() if a == "verified"]
+    # the stranger's twin failed its tag on arrival: forged then, so the check-point has none left to refuse
+    assert settled.forged == [] and list(by_id.values()).count("forged") == 1
+    assert settled.as_dict()["kind"] == "settled"

@@ -1,0 +1,58 @@
+"""The simulator's UDP MAVLink endpoint, as QGroundControl uses it: the ground station writes first (a
+HEARTBEAT), the vehicle answers whoever wrote. Nothing a ground station sends stops the vehicle."""
+
+from __future__ import annotations
+
+import json
+import time
+
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+from tests.conftest import tacit_process
+
+
+def udp_url(info: dict[str, object]) -> str:
+    vehicle = info["vehicle"]
+    assert isinstance(vehicle, dict)
+    return next(url for url in vehicle["mavlink"] if url.startswith("udpout:"))
+
+
+def streaming(conn: mavutil.mavfile, seconds: float = 2.0) -> set[str]:
+    """The kinds of message the vehicle sent over ``seconds``."""
+    kinds: set[str] = set()
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        msg = conn.recv_match(blocking=True, timeout=0.2)
+        if msg is not None:
+            kinds.add(msg.get_type())
+    return kinds
+
+
+def test_a_ground_station_over_udp_gets_heartbeats_and_telemetry_whatever_it_sends() -> None:
+    with tacit_process("sim", "--time-scale", "2") as (proc, info):
+        gcs = mavutil.mavlink_connection(udp_url(info), source_system=255, source_component=190)
+        gcs.mav.heartbeat_send(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, mav.MAV_STATE_ACTIVE)
+        vehicle = gcs.wait_heartbeat(timeout=10)
+        assert vehicle is not None and vehicle.type == mav.MAV_TYPE_SUBMARINE
+        assert {"HEARTBEAT", "ATTITUDE", "SCALED_PRESSURE2"} <= streaming(gcs)
+
+        gcs.write(b"\xfd\x09garbage, not MAVLink \x00\xff" * 3)  # a datagram no parser can take
+        gcs.mav.command_long_send(1, 1, mav.MAV_CMD_SET_MESSAGE_INTERVAL, 0, float("nan"), 0, 0, 0, 0, 0, 0)
+        gcs.mav.heartbeat_send(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, mav.MAV_STATE_ACTIVE)
+        streaming(gcs, 0.5)  # what was already on its way
+        assert {"HEARTBEAT", "ATTITUDE", "SCALED_PRESSURE2"} <= streaming(gcs)
+        assert proc.poll() is None
+    assert proc.stderr is not None
+    assert "Traceback" not in proc.stderr.read()
+
+
+def test_the_first_line_of_sim_json_is_the_json_object() -> None:
+    with tacit_process("sim") as (proc, info):
+        assert {"modems", "vehicles", "vehicle"} <= set(info)  # tacit_process parsed the first line
+        udp = mavutil.mavlink_connection(udp_url(info), source_system=255)
+        udp.mav.heartbeat_send(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, mav.MAV_STATE_ACTIVE)
+        assert udp.wait_heartbeat(timeout=10) is not None
+    assert proc.stdout is not None and proc.stderr is not None
+    assert "report" in json.loads(proc.stdout.readline())  # the only other line: the report at exit
+    assert "Traceback" not in proc.stderr.read()

@@ -1,0 +1,484 @@
+// Tacit dashboard: live from the server's event stream (SSE); no external assets.
+// The command form is built from the server's form spec (GET /api/v1/vehicles/{id}/form: the packet's
+// field table narrowed by the vehicle's limits), the same spec the 3D map's panel uses.
+"use strict";
+
+const state = { token: "", role: null, vehicles: [], vehicleId: null, form: null, config: null,
+  packets: [], commands: new Map(), timeline: [], streams: {}, series: [], channel: "env:temperature",
+  lastSent: null, estimate: null, angleMode: "relative" };
+const $ = (id) => document.getElementById(id);
+const esc = (s) => String(s ?? "").replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c]);
+
+/** 24-hour UTC: "14:03:27". */
+function utc(seconds) { return new Date(seconds * 1000).toISOString().slice(11, 19); }
+function ago(seconds) {
+  const s = Math.max(0, Math.round(seconds));
+  return s < 120 ? `${s} s ago` : s < 7200 ? `${Math.round(s / 60)} min ago` : `${(s / 3600).toFixed(1)} h ago`;
+}
+
+async function api(path, options = {}) {
+  const headers = { ...(options.headers || {}) };
+  if (state.token) headers.Authorization = `Bearer ${state.token}`;
+  if (options.body) headers["Content-Type"] = "application/json";
+  const response = await fetch(`/api/v1${path}`, { ...options, headers });
+  const body = response.headers.get("content-type")?.includes("json") ? await response.json() : null;
+  if (!response.ok) throw Object.assign(new Error(body?.detail || response.statusText), { body, status: response.status });
+  return body;
+}
+
+// --- sign-in ----------------------------------------------------------------------------------------
+
+/** A token in the URL fragment (#token=...) signs in at once: fragments never reach the server or its
+ * logs, and the fragment is removed from the address bar (and history) straight away. */
+function tokenFromFragment() {
+  const match = location.hash.match(/[#&]token=([^&]+)/);
+  if (!match) return null;
+  history.replaceState(null, "", location.pathname + location.search);
+  return decodeURIComponent(match[1]);
+}
+
+async function signIn(token) {
+  // a token that does not work never replaces one that does (a stray #token= link must not sign an
+  // operator out), and one that works is kept for the next visit
+  const before = { token: state.token, role: state.role };
+  state.token = token;
+  $("login-error").hidden = true;
+  let error = null;
+  try {
+    state.role = (await api("/whoami")).role;
+    localStorage.setItem("tacit-token", token);
+  } catch (e) {
+    state.role = null;
+    error = e;
+  }
+  if (!state.role && before.role) {
+    Object.assign(state, before);
+    $("login-error").textContent = "That link's token was not accepted; you are still signed in as before.";
+    $("login-error").hidden = false;
+    return;
+  }
+  if (!state.role) {
+    localStorage.removeItem("tacit-token");
+    state.token = "";
+    const why = error?.status === 401 ? "That token was not accepted: check it for a typo, or ask for a new one."
+      : `Could not sign in: ${error?.message || "no answer from the server"}.`;
+    $("login-error").textContent = token ? why : "Enter a token first.";
+    $("login-error").hidden = false;
+  }
+  showRole();
+  if (state.role) await load();
+}
+
+function signOut() {
+  localStorage.removeItem("tacit-token");
+  location.reload();
+}
+
+function showRole() {
+  const write = state.role === "write";
+  $("role").textContent = write ? "operator" : state.role === "read" ? "observer (read only)" : "not signed in";
+  $("welcome").hidden = !!state.role;
+  $("main").hidden = !state.role;
+  $("sign-in-fields").hidden = !!state.role;  // one of the two, by state
+  $("sign-out").hidden = !state.role;
+  $("observer-note").hidden = state.role !== "read";
+  for (const el of document.querySelectorAll(".write")) el.disabled = !write;
+  for (const el of document.querySelectorAll("#fields input, #fields select, #cmd")) el.disabled = !write;
+}
+
+// --- loading ----------------------------------------------------------------------------------------
+
+async function load() {
+  const config = await api("/config");
+  state.config = config;
+  state.streams = config.streams;
+  if (config.time_scale && config.time_scale !== 1) {
+    $("scale-badge").textContent = `simulation ×${config.time_scale}`;
+    $("scale-badge").title = `Simulated time runs ${config.time_scale} times faster than the clock`;
+    $("scale-badge").hidden = false;
+  }
+  if (config.map_port) {
+    const url = `${location.protocol}//${location.hostname}:${config.map_port}`;
+    $("map").src = url;
+    $("map-link").href = url;
+  }
+  const select = $("stream-channel");
+  select.innerHTML = "";
+  for (const [stream, spec] of Object.entries(config.streams)) {
+    spec.channels.forEach((channel, i) => select.add(new Option(`${stream}: ${channel} (${spec.units?.[i] || "-"})`, `${stream}:${channel}`)));
+  }
+  select.value = state.channel;
+  state.vehicles = await api("/vehicles");
+  state.vehicleId = state.vehicles[0]?.id ?? null;
+  $("vehicle-name").textContent = state.vehicles[0]?.name ?? "(none registered)";
+  state.form = state.vehicleId !== null ? await api(`/vehicles/${state.vehicleId}/form`) : config.form;
+  buildForm();
+  if (state.vehicleId !== null) {
+    const recent = await api(`/vehicles/${state.vehicleId}/commands?limit=10`);
+    await Promise.all(recent.map((c) => loadCommand(c.id)));
+  }
+  const page = await api("/packets?limit=100");
+  state.packets = page.items.map(packetRow).reverse();
+  for (const p of state.packets) state.timeline.push({ at: p.at, kind: p.type === "checkpoint" ? "cp" : `p${p.priority}` });
+  await loadSeries();
+  renderAll();
+  await Promise.all([refreshLink(), refreshEstimate()]);
+  connect();
+}
+
+/** A command with its history: the timeline's control row gets one mark per transmission. */
+async function loadCommand(id) {
+  const c = await api(`/commands/${id}`);
+  const known = state.commands.get(id);
+  state.commands.set(id, c);
+  const marked = new Set(state.timeline.filter((e) => e.kind === "ctl").map((e) => `${e.id}@${e.at}`));
+  for (const h of c.history) {
+    if (h.status === "sent" && !marked.has(`${id}@${h.at}`)) state.timeline.push({ at: h.at, kind: "ctl", id });
+  }
+  if (state.lastSent === id) showResult(c);
+  return known;
+}
+
+function packetRow(p) {
+  const name = p.vehicle ?? state.vehicles.find((v) => v.id === p.vehicle_id)?.name ?? p.vehicle_id;
+  return { id: p.id, at: p.at, vehicle: name, type: p.type, seq: p.seq, priority: p.priority, size: p.size ?? 32, snr: p.snr, auth: p.auth };
+}
+
+async function loadSeries() {
+  const [stream] = state.channel.split(":");
+  if (state.vehicleId === null) return;
+  const since = Date.now() / 1000 - 3600;
+  const page = await api(`/telemetry?vehicle_id=${state.vehicleId}&stream=${stream}&since=${since}&limit=5000`);
+  // the API's rows do not name their packet: one still pending is fetched again when a check-point settles packets
+  state.series = page.items.map((row) => ({ time: row.time, values: row.values, certain: row.certain, trust: row.verified ? "verified" : "pending" }));
+}
+
+function connect() {
+  // fetch, not EventSource: it can send the Authorization header (tokens never go in URLs)
+  const source = new EventTarget();
+  (async function read() {
+    try {
+      const response = await fetch("/api/v1/events", { headers: { Authorization: `Bearer ${state.token}` } });
+      if (!response.ok) throw new Error(response.statusText);
+      const reader = response.body.pipeThrough(new TextDecoderStream()).getReader();
+      let buffer = "";
+      for (;;) {
+        const { value, done } = await reader.read();
+        if (done) break;
+        buffer += value;
+        const frames = buffer.split("\n\n");
+        buffer = frames.pop();
+        for (const frame of frames) {
+          const kind = frame.match(/^event: (.*)$/m)?.[1], data = frame.match(/^data: (.*)$/m)?.[1];
+          if (kind && data) source.dispatchEvent(new MessageEvent(kind, { data }));
+        }
+      }
+    } catch (error) { /* fall through to reconnect */ }
+    setBadge("events: reconnecting", "down");
+    setTimeout(read, 3000);
+  })();
+  source.addEventListener("packet", (e) => {
+    const p = JSON.parse(e.data);
+    state.packets.push(packetRow(p));
+    state.packets = state.packets.slice(-300);
+    state.timeline.push({ at: p.at ?? Date.now() / 1000, kind: p.type === "checkpoint" ? "cp" : `p${p.priority}` });
+    renderPackets(); renderTimeline();
+  });
+  source.addEventListener("command", async (e) => {
+    const c = JSON.parse(e.data);
+    try { await loadCommand(c.id); } catch (error) { return; }
+    renderCommands(); renderTimeline();
+  });
+  source.addEventListener("vehicle", () => refreshEstimate());
+  source.addEventListener("telemetry", (e) => {
+    const t = JSON.parse(e.data);
+    if (t.stream !== state.channel.split(":")[0]) return;
+    // several samples may share a tick and ticks may be skipped: each sample's own time, never its index
+    t.values.forEach((values, i) => state.series.push({ time: t.times[i], values, certain: true, trust: "pending", packet: t.packet_id }));
+    renderPlot();
+  });
+  source.addEventListener("settled", (e) => settle(JSON.parse(e.data)));
+  source.addEventListener("link", () => refreshLink());
+}
+
+/** A check-point settled priority packets: the packet log's trust and the plotted samples' change live. A
+ * verified packet's samples are believed only if its chain is trusted too (``trusted``); otherwise they stay
+ * unverified for good. */
+function settle(s) {
+  const trust = new Map([...s.verified.map((id) => [id, "verified"]), ...s.forged.map((id) => [id, "forged"])]);
+  for (const p of state.packets) if (trust.has(p.id)) p.auth = trust.get(p.id);
+  const trusted = new Set(s.trusted);
+  const sampleTrust = (id) => (trusted.has(id) ? "verified" : trust.get(id) === "forged" ? "forged" : "unverifiable");
+  for (const p of state.series) if (p.trust === "pending" && trust.has(p.packet)) p.trust = sampleTrust(p.packet);
+  renderPackets();
+  if (state.series.some((p) => p.trust === "pending" && p.packet === undefined)) loadSeries().then(renderPlot); else renderPlot();
+}
+
+// --- the vehicle and the link -----------------------------------------------------------------------
+
+async function refreshEstimate() {
+  if (state.vehicleId === null) return;
+  try { state.estimate = await api(`/vehicles/${state.vehicleId}/estimate`); } catch (error) { return; }
+  state.estimateAt = Date.now() / 1000;
+  renderVehicle();
+}
+
+function renderVehicle() {
+  const e = state.estimate;
+  if (!e || !e.reported) { $("vehicle-state").textContent = "No check-point from the vehicle yet: nothing is known of where it is."; return; }
+  const cp = e.reported, p = e.predicted;
+  const age = e.age_s + (Date.now() / 1000 - state.estimateAt);
+  const grown = p.radius_m + e.drift_mps * (Date.now() / 1000 - state.estimateAt);
+  const toward = p.target ? `toward north ${p.target[0].toFixed(1)}, east ${p.target[1].toFixed(1)} m${e.speed_mps ? ` at ${e.speed_mps} m/s` : ""}` : "staying put";
+  $("vehicle-state").innerHTML = `
+    <div class="reported"><span class="what">Last report</span> <strong title="${esc(e.state_hint)}">${esc(e.state_label)}</strong>,
+      <span class="age ${age > 120 ? "old" : ""}">${ago(age)}</span> (${utc(e.heard_at)} UTC)<br>
+      <span class="hint" id="state-hint">${esc(e.state_hint)}</span><br>
+      mission ${cp.mission_id}, waypoint ${cp.waypoint}<br>
+      north ${cp.north.toFixed(1)} m, east ${cp.east.toFixed(1)} m, depth ${cp.depth.toFixed(2)} m, heading ${cp.heading.toFixed(0)}&deg;<br>
+      water ${cp.temperature.toFixed(2)} &deg;C, battery ${cp.battery.toFixed(1)} V</div>
+    <div class="predicted" title="The shore's dead reckoning since the last report: the circle grows while the vehicle is silent">
+      <span class="what">Predicted now</span> north ${p.north.toFixed(1)} m, east ${p.east.toFixed(1)} m, depth ${p.depth.toFixed(1)} m
+      <strong>&plusmn; ${grown.toFixed(1)} m</strong><br><span class="note">dead reckoning ${toward}</span></div>`;
+}
+
+async function refreshLink() {
+  try {
+    const [link, shares, vehicles] = await Promise.all([api("/link"), api("/link/shares"), api("/vehicles")]);
+    setBadge(`modem: ${link.modem}`, link.modem === "ready" ? "ready" : "down");
+    const rows = [];
+    for (const [name, v] of Object.entries(link.vehicles)) {
+      const heard = v.last_heard ? `${ago(Date.now() / 1000 - v.last_heard)} (${utc(v.last_heard)} UTC)` : "never";
+      rows.push([`${esc(name)} last heard`, heard], ["SNR in / out (dB)", `${v.snr_in ?? "-"} / ${v.snr_out ?? "-"}`],
+        ["range (m)", v.range_m?.toFixed(0) ?? "-"]);
+    }
+    for (const v of vehicles) rows.push([`${esc(v.name)} key`, keyState(v)]);
+    const names = { commands: "commands", polls: "polls", checkpoints: "check-points", priority: "priority data" };
+    for (const [k, label] of Object.entries(names)) {
+      const share = shares.shares[k] * 100;
+      rows.push([`airtime: ${label}`, `<span class="bar" style="width:${(share * 0.08).toFixed(2)}rem"></span> ${share.toFixed(0)} % <span class="sub">(${shares.counts[k]}, ${shares.airtime_s[k]} s)</span>`]);
+    }
+    const saved = shares.bits.saved_share;
+    rows.push(["bits saved by compression", saved === null ? "-" : `${(saved * 100).toFixed(0)} % <span class="sub">of ${shares.bits.every_sample} bits for every sample</span>`]);
+    $("link-stats").tBodies[0].innerHTML = rows.map(([k, v]) => `<tr><th>${k}</th><td>${v}</td></tr>`).join("");
+  } catch (error) { setBadge("link: ?", "down"); }
+}
+
+// A key rotation waits until the vehicle proves it holds the new key (commands and SYNCs stay signed
+// with the confirmed one meanwhile); the operator sees it and can cancel it.
+function keyState(v) {
+  const r = v.key_rotation;
+  if (!r) return `version ${v.key_version}`;
+  return `rotation to version ${r.pending_version} waiting for the vehicle since ${utc(r.since)} UTC ` +
+    `<span class="sub">(${r.probes} probe SYNCs sent; cancel: DELETE /api/v1/vehicles/${v.id}/key/pending)</span>`;
+}
+
+function setBadge(text, kind) { const b = $("link-badge"); b.textContent = text; b.className = `badge ${kind}`; }
+
+// --- the command form (from the server's spec) -------------------------------------------------------
+
+function buildForm() {
+  const select = $("cmd");
+  select.innerHTML = "";
+  for (const name of Object.keys(state.form.commands)) select.add(new Option(name.replace(/_/g, " "), name));
+  select.value = "move";
+  renderFields();
+}
+
+function fieldSpecs() {
+  return state.form.commands[$("cmd").value].fields.map((f) => (f.modes ? f.modes[state.angleMode] : f));
+}
+
+function renderFields() {
+  const command = state.form.commands[$("cmd").value];
+  const kept = Object.fromEntries([...document.querySelectorAll("#fields input")].map((i) => [i.id.slice(2), i.value]));
+  const parts = [];
+  for (const f of command.fields) {
+    const spec = f.modes ? f.modes[state.angleMode] : f;
+    const value = kept[spec.name] ?? state.form.defaults[spec.name] ?? "";
+    const range = `${spec.min} .. ${spec.max}${spec.unit ? ` ${spec.unit}` : ""}`;
+    // the angle's mode is a field of its own ("Angle is"); the number's label follows the mode
+    if (f.modes) parts.push(`<label title="Relative to the vehicle's heading, or a true bearing from north">Angle is
+      <select id="angle-mode">${state.form.angle_modes.map((m) => `<option value="${m}" ${m === state.angleMode ? "selected" : ""}>${m === "bearing" ? "bearing (true)" : "turn from heading"}</option>`).join("")}</select></label>`);
+    parts.push(`<label title="${esc(spec.hint)}">${esc(spec.label)}${spec.unit ? ` (${esc(spec.unit)})` : ""}${spec.required ? "" : " <span class=\"sub\">optional</span>"}
+      <input id="f-${spec.name}" type="number" min="${spec.min}" max="${spec.max}" step="${spec.step}" value="${esc(value)}" placeholder="${esc(spec.placeholder ?? "")}" aria-describedby="h-${spec.name}">
+      <span id="h-${spec.name}" class="hint">${esc(range)}</span></label>`);
+  }
+  $("fields").innerHTML = parts.join("") || `<p class="note">No fields: this command is the whole packet.</p>`;
+  $("cmd-hint").textContent = command.hint;
+  $("angle-mode")?.addEventListener("change", (e) => { state.angleMode = e.target.value; renderFields(); });
+  showRole();
+}
+
+/** The form's values as the request body, or an error naming the field: blank required fields and values
+ * outside the spec's range never leave the page (server.screens.form.check_form is the same rule). */
+function formBody() {
+  const body = { command: $("cmd").value };
+  for (const spec of fieldSpecs()) {
+    const input = $(`f-${spec.name}`);
+    input.classList.remove("invalid");
+    const raw = input.value.trim();
+    const fail = (message) => { input.classList.add("invalid"); input.focus(); throw Object.assign(new Error(message), { field: spec.name }); };
+    if (raw === "" || input.validity.badInput) {
+      if (spec.required || input.validity.badInput) fail(`${spec.label} is required${input.validity.badInput ? " (a number)" : ""}`);
+      continue;
+    }
+    const value = Number(raw);
+    if (!Number.isFinite(value) || value < spec.min || value > spec.max) fail(`${spec.label} must be ${spec.min} .. ${spec.max}${spec.unit ? ` ${spec.unit}` : ""}`);
+    body[spec.name] = spec.name === "param_id" ? Math.round(value) : value;
+  }
+  if ("angle" in body) body.absolute_angle = state.angleMode === "bearing";
+  return body;
+}
+
+function describe(c) {
+  const deg = (a) => `${a.toFixed(a % 1 ? 2 : 0)}°`;
+  if (c.command === "move") {
+    const dir = c.absolute_angle ? `bearing ${deg(((c.angle % 360) + 360) % 360)}` : `turn ${c.angle >= 0 ? "+" : ""}${deg(c.angle)}`;
+    const depth = c.depth ? `, ${Math.abs(c.depth)} m ${c.depth > 0 ? "deeper" : "shallower"}` : "";
+    return `move ${c.distance} m, ${dir}${depth}${c.speed ? ` at ${c.speed} m/s` : ""}`;
+  }
+  if (c.command === "goto_depth") return `go to depth ${c.depth} m`;
+  if (c.command === "start_mission") return `start mission ${c.param_id}`;
+  if (c.command === "set_param") return `set parameter ${c.param_id} = ${c.param_value}`;
+  return c.command.replace(/_/g, " ");
+}
+
+function showResult(c) {
+  const last = c.history?.[c.history.length - 1];
+  const when = last ? ` at ${utc(last.at)} UTC` : "";
+  $("command-result").className = `status-${c.status}`;
+  $("command-result").textContent = `#${c.id} ${describe(c)} (seq ${c.seq}${c.issued_by ? `, by ${c.issued_by}` : ""}): ${c.status}${when}${c.reason ? `: ${c.reason}` : ""}`;
+}
+
+/** What each packet trust means (server.telemetry.models.PacketTrust); the packet log's legend says the same. */
+const TRUST = {
+  verified: "a check-point's MAC vouched for it",
+  pending: "no check-point has covered it yet",
+  forged: "its MAC failed, or a verified check-point vouched for another packet with its seq",
+  replayed: "a check-point older than the last one applied: ignored",
+  unverifiable: "a check-point covering a packet this shore never received",
+};
+
+// --- rendering --------------------------------------------------------------------------------------
+
+function renderPackets() {
+  const rows = state.packets.slice(-100).reverse().map((p) => `<tr data-id="${p.id}"><td>${utc(p.at)}</td>
+    <td>${esc(p.vehicle)}</td><td>${p.type}</td><td>${p.seq}</td><td>${p.priority}</td><td>${p.size}</td><td>${p.snr ?? "-"}</td>
+    <td class="trust trust-${esc(p.auth)}" title="${esc(TRUST[p.auth] ?? "")}">${esc(p.auth)}</td></tr>`);
+  $("packets").tBodies[0].innerHTML = rows.join("");
+}
+
+function renderCommands() {
+  const rows = [...state.commands.values()].sort((a, b) => b.id - a.id).slice(0, 10).map((c) => {
+    const history = (c.history || []).map((h) => `<span class="step status-${h.status}" title="${esc(h.detail)}">${h.status} ${utc(h.at)}</span>`).join(" → ");
+    return `<tr><td>${c.id}</td><td>${esc(describe(c))}<br><span class="sub">seq ${c.seq}${c.issued_by ? ` · by ${esc(c.issued_by)}` : ""}</span></td><td class="status-${c.status}">${c.status}</td>
+      <td class="history">${history}</td><td>${c.attempts}</td><td>${esc(c.reason || "")}</td></tr>`;
+  });
+  $("commands").tBodies[0].innerHTML = rows.join("");
+}
+
+function renderTimeline() {
+  const canvas = $("timeline"), ctx = canvas.getContext("2d");
+  canvas.width = canvas.clientWidth;
+  ctx.clearRect(0, 0, canvas.width, canvas.height);
+  const now = Date.now() / 1000, span = 600, left = 100, x = (t) => left + (canvas.width - left - 10) * (1 - (now - t) / span);
+  const rows = { ctl: 20, cp: 60, p0: 100, p1: 100, p2: 100, p3: 100 };
+  const colours = { ctl: "#000", cp: "#0a0", p0: "#2a5ad8", p1: "#e0b000", p2: "#f08020", p3: "#d01010" };
+  ctx.font = "14px system-ui"; ctx.fillStyle = "#333";
+  ctx.fillText("control", 4, 30); ctx.fillText("check-point", 4, 70); ctx.fillText("priority", 4, 110);
+  ctx.strokeStyle = "#999"; ctx.beginPath(); ctx.moveTo(left, 130); ctx.lineTo(canvas.width - 10, 130); ctx.stroke();
+  for (let k = 0; k <= 5; k++) {
+    const t = now - span + k * span / 5;
+    ctx.fillText(utc(t).slice(0, 5), x(t) - 18, 150);
+  }
+  for (const e of state.timeline.filter((e) => now - e.at < span)) {
+    ctx.fillStyle = colours[e.kind]; ctx.beginPath();
+    if (e.kind === "ctl") ctx.rect(x(e.at) - 5, rows.ctl, 10, 10); else ctx.arc(x(e.at), rows[e.kind] + 5, 6, 0, 2 * Math.PI);
+    ctx.fill();
+  }
+}
+
+function renderPlot() {
+  const canvas = $("plot"), ctx = canvas.getContext("2d");
+  canvas.width = canvas.clientWidth;
+  ctx.clearRect(0, 0, canvas.width, canvas.height);
+  const [stream, channel] = state.channel.split(":");
+  const spec = state.streams[stream];
+  if (!spec) return;
+  const index = spec.channels.indexOf(channel), eps = spec.eps[index], unit = spec.units?.[index] || "";
+  const points = state.series.slice(-600);
+  // a sample is drawn only where the channel has a value: an absent one (a blank cell, a silent sensor) is a gap
+  // forged samples (their packet was not the one a check-point vouched for) are left out, and counted
+  const forged = points.filter((p) => p.trust === "forged").length;
+  const present = (p) => p.certain && p.trust !== "forged" && p.values.length && p.values[index] !== null && p.values[index] !== undefined;
+  const values = points.filter(present).map((p) => p.values[index]);
+  ctx.font = "14px system-ui"; ctx.fillStyle = "#000";
+  if (!values.length) { ctx.fillText("no data yet", 10, 20); return; }
+  const left = 70, bottom = canvas.height - 40, top = 20, right = canvas.width - 10;
+  const lo = Math.min(...values) - eps, hi = Math.max(...values) + eps, t0 = points[0].time, t1 = points[points.length - 1].time;
+  const x = (t) => left + (right - left) * (t - t0) / Math.max(t1 - t0, 1), y = (v) => top + (bottom - top) * (hi - v) / Math.max(hi - lo, 1e-9);
+  ctx.strokeStyle = "#000"; ctx.lineWidth = 1; ctx.beginPath(); ctx.moveTo(left, top); ctx.lineTo(left, bottom); ctx.lineTo(right, bottom); ctx.stroke();
+  for (let k = 0; k <= 4; k++) {
+    const v = lo + (hi - lo) * k / 4, t = t0 + (t1 - t0) * k / 4;
+    ctx.fillText(v.toFixed(2), 4, y(v) + 5);
+    ctx.fillText(utc(t), Math.min(x(t) - 28, right - 60), bottom + 18);
+  }
+  ctx.save(); ctx.translate(14, top + (bottom - top) / 2 + 40); ctx.rotate(-Math.PI / 2); ctx.fillText(`${channel} (${unit})`, 0, 0); ctx.restore();
+  ctx.fillText("time (UTC)", right - 80, bottom + 36);
+  ctx.fillStyle = "rgba(0, 64, 160, 0.18)";
+  for (const p of points) if (present(p)) ctx.fillRect(x(p.time) - 1, y(p.values[index] + eps), 2, y(p.values[index] - eps) - y(p.values[index] + eps));
+  ctx.strokeStyle = "#0040a0"; ctx.lineWidth = 2; ctx.beginPath();
+  let pen = false;
+  for (const p of points) {
+    if (p.trust === "forged") continue;
+    if (!p.certain || !p.values.length) { pen = false; ctx.fillStyle = "rgba(200,0,0,0.35)"; ctx.fillRect(x(p.time) - 1, top, 3, bottom - top); continue; }
+    if (!present(p)) { pen = false; continue; }
+    pen ? ctx.lineTo(x(p.time), y(p.values[index])) : ctx.moveTo(x(p.time), y(p.values[index])); pen = true;
+  }
+  ctx.stroke();
+  ctx.fillStyle = "#d07000";  // not covered by a check-point's MAC (yet): shown, but not vouched for
+  for (const p of points) if (present(p) && p.trust !== "verified") ctx.fillRect(x(p.time) - 2, y(p.values[index]) - 2, 4, 4);
+  ctx.fillText(`red: lost span; gap: no sample; orange: not verified${forged ? `; ${forged} forged samples hidden` : ""}`, left + 10, top);
+  ctx.fillStyle = "#000";
+  ctx.fillText(`eps ±${eps} ${unit}`, right - 120, top);
+}
+
+function renderAll() { renderPackets(); renderCommands(); renderTimeline(); renderPlot(); }
+
+// --- wiring -----------------------------------------------------------------------------------------
+
+$("login").addEventListener("submit", (e) => { e.preventDefault(); signIn($("token").value.trim()); $("token").value = ""; });
+$("sign-out").addEventListener("click", signOut);
+$("cmd").addEventListener("change", renderFields);
+$("stream-channel").addEventListener("change", async (e) => { state.channel = e.target.value; await loadSeries(); renderPlot(); });
+$("command-form").addEventListener("submit", async (e) => {
+  e.preventDefault();
+  if (state.vehicleId === null) { $("command-result").textContent = "no vehicle registered"; return; }
+  let body;
+  try { body = formBody(); } catch (error) {
+    $("command-result").className = "status-refused";
+    $("command-result").textContent = `Not sent: ${error.message}`;
+    return;
+  }
+  try {
+    const c = await api(`/vehicles/${state.vehicleId}/commands`, { method: "POST", body: JSON.stringify(body) });
+    state.lastSent = c.id;
+    await loadCommand(c.id);
+    showResult(state.commands.get(c.id));
+    renderCommands();
+  } catch (error) {
+    $("command-result").className = "status-refused";
+    $("command-result").textContent = `Refused: ${error.message}${error.body?.field ? ` (${error.body.field})` : ""}`;
+  }
+});
+setInterval(() => { $("clock").textContent = `${utc(Date.now() / 1000)} UTC`; }, 1000);
+setInterval(() => { if (state.role) { renderTimeline(); renderVehicle(); } }, 2000);
+setInterval(() => { if (state.role) { refreshLink(); refreshEstimate(); } }, 10000);
+$("clock").textContent = `${utc(Date.now() / 1000)} UTC`;
+{
+  const fromLink = tokenFromFragment();
+  const saved = fromLink ?? localStorage.getItem("tacit-token");
+  if (saved) signIn(saved); else showRole();
+}
+window.addEventListener("hashchange", () => { const token = tokenFromFragment(); if (token) signIn(token); });
