@@ -29,6 +29,7 @@ from server.core.db import make_engine, migrate
 from server.link import endpoints as link
 from server.missions import endpoints as missions
 from server.operators import endpoints as operators
+from server.safety import endpoints as safety
 from server.screens import endpoints as screens
 from server.shore import Shore
 from server.telemetry import endpoints as telemetry
@@ -60,6 +61,7 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     settings = shore.settings
     await asyncio.to_thread(migrate, settings.database_url)
     shore.bus.bind(asyncio.get_running_loop())
+    shore.watcher.start()
     await shore.link.start()
     operator_map = None
     if settings.map_enabled:
@@ -76,6 +78,7 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         if operator_map:
             operator_map.stop()
         await shore.link.stop()
+        await asyncio.to_thread(shore.watcher.stop)
 
 
 class Pages(StaticFiles):
@@ -114,7 +117,7 @@ def create_app(settings: Settings) -> FastAPI:
             response.headers["Content-Security-Policy"] = DOCS_CSP
         return response
 
-    for module in (system, operators, vehicles, commands, missions, telemetry, link, screens):
+    for module in (system, operators, vehicles, commands, missions, telemetry, link, screens, safety):
         app.include_router(module.router)
     errors.install(app)
     _offline_docs(app)

@@ -14,7 +14,9 @@ from server.core.events import Bus
 from server.core.security import Actor, Role, open_reads
 from server.link.engine import LinkEngine
 from server.missions.service import Missions
+from server.missions.teams import Teams
 from server.operators.service import Operators
+from server.safety.service import Separation
 from server.screens.service import Screens
 from server.shore import Shore
 from server.telemetry.service import TelemetryReader
@@ -47,6 +49,14 @@ def _missions(shore: ShoreDep) -> Missions:
     return shore.missions
 
 
+def _teams(shore: ShoreDep) -> Teams:
+    return shore.teams
+
+
+def _safety(shore: ShoreDep) -> Separation:
+    return shore.safety
+
+
 def _telemetry(shore: ShoreDep) -> TelemetryReader:
     return shore.telemetry
 
@@ -70,6 +80,8 @@ def _operators(shore: ShoreDep) -> Operators:
 VehiclesDep = Annotated[Vehicles, Depends(_vehicles)]
 CommandsDep = Annotated[CommandDesk, Depends(_commands)]
 MissionsDep = Annotated[Missions, Depends(_missions)]
+TeamsDep = Annotated[Teams, Depends(_teams)]
+SafetyDep = Annotated[Separation, Depends(_safety)]
 TelemetryDep = Annotated[TelemetryReader, Depends(_telemetry)]
 ScreensDep = Annotated[Screens, Depends(_screens)]
 LinkDep = Annotated[LinkEngine, Depends(_link)]

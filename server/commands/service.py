@@ -191,6 +191,8 @@ class CommandDesk:
         self.pose = pose  # by modem address: the last check-point's pose, if any
         self.max_queued = max_queued  # Settings.max_queued_commands
         self.wake: Callable[[], None] = lambda: None  # the link's: send what was queued now
+        # the safety functions' check of the command's path against the other vehicles' (raises Refused)
+        self.guard: Callable[[int, CommandIn], None] = lambda _vehicle_id, _body: None
 
     def submit(
         self, vehicle_id: int, body: CommandIn, issued_by: str, then: Callable[[Tx], None] | None = None
@@ -198,7 +200,9 @@ class CommandDesk:
         """Queue a command sent by the operator named ``issued_by``; ``then(s)`` runs in the same transaction (a mission's new status). Refused with
         ``TooMany`` while the vehicle already has ``max_queued`` commands waiting for the link: at a few
         seconds per attempt, a longer queue would only hold the link for minutes (and each command would
-        run long after the operator asked for it)."""
+        run long after the operator asked for it). First the guard: a command whose path passes too close
+        to another vehicle's is refused (``server.safety``)."""
+        self.guard(vehicle_id, body)
         with writing(self.db) as s:
             vehicle = vehicles.get(s, vehicle_id)
             waiting = repo.pending_count(s, vehicle_id)

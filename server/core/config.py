@@ -65,6 +65,15 @@ class Settings(BaseSettings):
     restart_sends: int = Field(2, ge=1)  # a chain-restart request is sent this often, ACKed or not
     max_skew: float = Field(120.0, gt=0)  # s a check-point may be ahead of the shore's clock and raise the
     # replay floor to its time (beyond, only to the shore's time)
+    # The center's safety functions (server/safety): a command whose planned path passes closer than this
+    # to another vehicle's is refused; predicted positions within it plus both uncertainties warn.
+    separation: float = Field(5.0, gt=0)  # m, centre to centre
+    separation_check_interval: float = Field(5.0, gt=0)  # s between warning checks (silence grows doubt)
+    # The team missions' restructuring rule (server/missions/plans.py ``restructure``): when a team vehicle
+    # reports a time-sensitive anomaly, this many of the others get a waypoint this far from it.
+    restructure_vehicles: int = Field(2, ge=0)
+    restructure_radius: float = Field(15.0, gt=0)  # m
+    restructure_auto: bool = False  # apply the proposal at once; otherwise an operator confirms it
 
     @field_validator("write_tokens", "read_tokens", "cors_origins", mode="before")
     @classmethod
