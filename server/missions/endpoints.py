@@ -50,7 +50,8 @@ def abort_mission(mission_id: Id, missions: MissionsDep, actor: Writer) -> Comma
 
 
 def _team(team: TeamMission, teams: TeamsDep) -> TeamOut:
-    return TeamOut.model_validate({**team.model_dump(), "link": teams.cost(team)})
+    fields = {name: getattr(team, name) for name in TeamOut.model_fields if name != "link"}
+    return TeamOut.model_validate({**fields, "link": teams.cost(team)})
 
 
 def _proposal(proposal: TeamProposal) -> ProposalOut:

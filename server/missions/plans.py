@@ -12,7 +12,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-from server.safety.geometry import Flat, Point, area, crossings, is_simple
+from server.safety.geometry import Flat, Point, area, convex_hull, crossings, is_simple
 from tacit import rates
 
 
@@ -30,10 +30,10 @@ class Lane:
 def lanes(polygon: Sequence[Flat], spacing: float) -> list[Lane]:
     """The lanes covering a simple polygon, west to east: where a lane's line crosses a concave area
     more than once, each span inside it is a lane of its own."""
-    if len(polygon) < 3 or area(polygon) <= 0:
+    if len(convex_hull(polygon)) < 3:
         raise PlanError("the area is empty: it needs at least three corners enclosing some water")
-    if not is_simple(polygon):
-        raise PlanError("the area's edges cross each other: give a simple polygon")
+    if not is_simple(polygon) or area(polygon) <= 0:
+        raise PlanError("the area's edges cross or touch each other: give a simple polygon")
     west, east = min(p[1] for p in polygon), max(p[1] for p in polygon)
     count = math.floor((east - west) / spacing + 1e-9)
     if count < 1:

@@ -39,18 +39,15 @@ class MissionOut(BaseModel):
     created_at: float
 
 
-Coordinate = Field(ge=_NORTH.lo, le=_NORTH.hi)  # m in the fleet's frame, as a check-point can report it
-
-
 class AreaIn(BaseModel):
     """The survey area in the fleet's frame: a rectangle (``south``, ``north``, ``west``, ``east``, m) or a
     simple polygon (``polygon``: [north, east] corners, in order)."""
 
     model_config = STRICT
-    south: float | None = Coordinate
-    north: float | None = Coordinate
-    west: float | None = Coordinate
-    east: float | None = Coordinate
+    south: float | None = Field(None, ge=_NORTH.lo, le=_NORTH.hi)
+    north: float | None = Field(None, ge=_NORTH.lo, le=_NORTH.hi)
+    west: float | None = Field(None, ge=_NORTH.lo, le=_NORTH.hi)
+    east: float | None = Field(None, ge=_NORTH.lo, le=_NORTH.hi)
     polygon: list[tuple[float, float]] | None = Field(None, max_length=64)
 
     @model_validator(mode="after")

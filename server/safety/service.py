@@ -85,7 +85,8 @@ class Planned:
 
 
 def _where(p: Point) -> str:
-    return f"({p[0]:.1f} N, {p[1]:.1f} E, {p[2]:.1f} m deep)"
+    n, e, d = (round(x, 1) + 0.0 for x in p)  # + 0.0: no "-0.0"
+    return f"({n:.1f} N, {e:.1f} E, {d:.1f} m deep)"
 
 
 class Separation:
