@@ -15,6 +15,8 @@ from dataclasses import dataclass
 from server.safety.geometry import Flat, Point, area, convex_hull, crossings, is_simple
 from tacit import rates
 
+MAX_LANES = 500  # a team mission's lanes: each is about two legs, each leg about 15 s of the channel
+
 
 class PlanError(ValueError):
     """An area or a split that cannot make a survey: the message says why."""
@@ -36,6 +38,10 @@ def lanes(polygon: Sequence[Flat], spacing: float) -> list[Lane]:
         raise PlanError("the area's edges cross or touch each other: give a simple polygon")
     west, east = min(p[1] for p in polygon), max(p[1] for p in polygon)
     count = math.floor((east - west) / spacing + 1e-9)
+    if count > MAX_LANES:
+        raise PlanError(
+            f"the area holds {count} lanes at {spacing:g} m, more than {MAX_LANES}: space them wider"
+        )
     if count < 1:
         raise PlanError(f"the area is {east - west:g} m wide, narrower than one {spacing:g} m lane")
     first = west + (east - west - (count - 1) * spacing) / 2

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, Field, model_validator
 
@@ -39,16 +39,20 @@ class MissionOut(BaseModel):
     created_at: float
 
 
+# m in the fleet's frame, within what a check-point can report
+Coordinate = Annotated[float, Field(ge=_NORTH.lo, le=_NORTH.hi)]
+
+
 class AreaIn(BaseModel):
     """The survey area in the fleet's frame: a rectangle (``south``, ``north``, ``west``, ``east``, m) or a
     simple polygon (``polygon``: [north, east] corners, in order)."""
 
     model_config = STRICT
-    south: float | None = Field(None, ge=_NORTH.lo, le=_NORTH.hi)
-    north: float | None = Field(None, ge=_NORTH.lo, le=_NORTH.hi)
-    west: float | None = Field(None, ge=_NORTH.lo, le=_NORTH.hi)
-    east: float | None = Field(None, ge=_NORTH.lo, le=_NORTH.hi)
-    polygon: list[tuple[float, float]] | None = Field(None, max_length=64)
+    south: Coordinate | None = None
+    north: Coordinate | None = None
+    west: Coordinate | None = None
+    east: Coordinate | None = None
+    polygon: list[tuple[Coordinate, Coordinate]] | None = Field(None, max_length=64)
 
     @model_validator(mode="after")
     def _one_form(self) -> AreaIn:
@@ -80,7 +84,7 @@ class TeamIn(BaseModel):
     name: str = Field(min_length=1, max_length=128)
     vehicles: list[TeamVehicleIn] = Field(min_length=1, max_length=16, description="west to east")
     area: AreaIn
-    spacing: float = Field(gt=0, le=1000, description="m between lanes")
+    spacing: float = Field(ge=1, le=1000, description="m between lanes")
     depth: float = Field(ge=0, le=_DEPTH.hi, description="survey depth, m")
 
 
