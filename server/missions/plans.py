@@ -98,27 +98,29 @@ class LegCost:
         )
 
 
-def restructure(anomaly: Point, helpers: Mapping[str, Point], radius: float, count: int) -> dict[str, Point]:
+def restructure(
+    anomaly: Point, helpers: Mapping[str, Point], radius: float, count: int, apart: float
+) -> dict[str, Point]:
     """The restructuring rule: when a team vehicle reports a time-sensitive anomaly (the warm plume) at
     ``anomaly`` (its predicted position then), the ``count`` other team vehicles nearest to it (by their
     predicted positions, ``helpers``) each get one new waypoint ``radius`` m from it, at its depth.
 
-    The waypoints are spread evenly around the anomaly, starting on the nearest helper's side and going
-    round in the order the helpers stand around it, so no two helpers' new paths cross and they sample
-    the plume from different sides while the finder (which turns towards the warmer water on its own,
-    Algorithm 2) works its centre. Every resulting command still passes the separation check."""
+    Each helper's waypoint is on its own side of the anomaly (the point of that circle nearest to it), so
+    no helper crosses the anomaly or the finder's work to get there (the finder turns towards the warmer
+    water on its own, Algorithm 2). Helpers on the same side are turned apart around the circle, in
+    bearing order, until their waypoints are at least ``apart`` m from each other (the separation). Every
+    resulting command still passes the separation check."""
     chosen = sorted(helpers, key=lambda name: math.dist(helpers[name][:2], anomaly[:2]))[:count]
-    if not chosen:
-        return {}
 
     def bearing(name: str) -> float:
         dn, de = helpers[name][0] - anomaly[0], helpers[name][1] - anomaly[1]
         return math.degrees(math.atan2(de, dn)) % 360
 
-    start = bearing(chosen[0])
-    around = sorted(chosen, key=lambda name: (bearing(name) - start) % 360)
+    gap = math.degrees(2 * math.asin(min(1.0, apart / (2 * radius))))
     out: dict[str, Point] = {}
-    for k, name in enumerate(around):
-        b = math.radians(start + 360 * k / len(around))
+    last = -math.inf
+    for name in sorted(chosen, key=bearing):
+        last = max(bearing(name), last + gap)
+        b = math.radians(last)
         out[name] = (anomaly[0] + radius * math.cos(b), anomaly[1] + radius * math.sin(b), anomaly[2])
     return out

@@ -310,7 +310,11 @@ class Teams:
             if where is None or not helpers:
                 return
             targets = plans.restructure(
-                where.start, helpers, self.settings.restructure_radius, self.settings.restructure_vehicles
+                where.start,
+                helpers,
+                self.settings.restructure_radius,
+                self.settings.restructure_vehicles,
+                self.settings.separation,
             )
             ids = {m["name"]: m["vehicle_id"] for m in others}
             work = [

@@ -76,16 +76,19 @@ def test_a_leg_costs_a_command_and_two_check_points_at_rate_0() -> None:
     assert 14.0 < cost.channel_s < 16.0  # about 15 s of an 80 bit/s channel per leg
 
 
-def test_the_restructuring_rule_spreads_the_nearest_helpers_around_the_anomaly() -> None:
+def test_the_restructuring_rule_sends_the_nearest_helpers_to_their_side_of_the_anomaly() -> None:
     anomaly = (10.0, 10.0, 2.0)
     helpers = {"near": (10.0, 30.0, 1.0), "far": (10.0, 90.0, 1.0), "south": (-20.0, 10.0, 1.0)}
-    work = restructure(anomaly, helpers, radius=15.0, count=2)
+    work = restructure(anomaly, helpers, radius=15.0, count=2, apart=5.0)
     assert set(work) == {"near", "south"}  # the two nearest
     assert work["near"] == pytest.approx((10.0, 25.0, 2.0))  # on its own side (east), at the anomaly's depth
-    assert math.dist(work["south"][:2], anomaly[:2]) == pytest.approx(15.0)
-    assert math.dist(work["near"][:2], work["south"][:2]) == pytest.approx(30.0)  # opposite sides
-    assert restructure(anomaly, {}, 15.0, 2) == {}
-    assert restructure(anomaly, helpers, 15.0, 0) == {}
+    assert work["south"] == pytest.approx((-5.0, 10.0, 2.0))
+    same_side = {"a": (10.0, 30.0, 1.0), "b": (10.5, 30.0, 1.0)}
+    turned = restructure(anomaly, same_side, radius=15.0, count=2, apart=5.0)
+    assert math.dist(turned["a"], turned["b"]) == pytest.approx(5.0)  # turned apart to the separation
+    assert all(math.dist(t[:2], anomaly[:2]) == pytest.approx(15.0) for t in turned.values())
+    assert restructure(anomaly, {}, 15.0, 2, 5.0) == {}
+    assert restructure(anomaly, helpers, 15.0, 0, 5.0) == {}
 
 
 def test_lost_link_actions_must_keep_the_vehicles_apart() -> None:
