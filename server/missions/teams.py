@@ -15,7 +15,7 @@ import copy
 import itertools
 import logging
 import threading
-from typing import Any
+from typing import Any, TypeGuard
 
 from sqlalchemy import Engine
 
@@ -42,7 +42,7 @@ from server.telemetry.models import PacketTrust
 from server.vehicles.models import Vehicle
 from server.vehicles.service import Vehicles
 from tacit.navigation import Pose, distance_and_angle
-from tacit.packets import Command, ControlPacket, Priority
+from tacit.packets import Command, ControlPacket, Priority, Stream
 
 log = logging.getLogger("tacit.server.teams")
 ENDS = {CommandState.REFUSED, CommandState.FAILED, CommandState.SUPERSEDED}  # a leg that will not run
@@ -94,6 +94,19 @@ def link_cost(team: TeamMission, settings: Settings) -> dict[str, Any]:
         "channel_s_per_leg": round(per.channel_s, 2),
         "channel_s": round(legs * per.channel_s, 1),
     }
+
+
+def is_water_anomaly(event: Event) -> TypeGuard[PacketHeard]:
+    """A priority packet the vehicle marked time-sensitive for its water samples (the warm plume: the
+    agent flags the sample, and the packet's header names the environmental stream), whose tag passed.
+    A packet time-sensitive for a large kinematic surprise (a manoeuvre) is no anomaly of the water."""
+    return (
+        isinstance(event, PacketHeard)
+        and event.type == "priority"
+        and event.priority == Priority.TIME_SENSITIVE
+        and event.body.get("stream") == Stream.ENVIRONMENTAL.name.lower()
+        and event.auth != PacketTrust.FORGED.value
+    )
 
 
 class Teams:
@@ -246,15 +259,11 @@ class Teams:
     # --- what the link reports (the watcher's thread) -----------------------------------------------
 
     def on_event(self, event: Event) -> None:
-        """A leg's command ended (next leg, or the vehicle's part stops); a time-sensitive priority
-        packet from a team vehicle (a proposal)."""
+        """A leg's command ended (next leg, or the vehicle's part stops); a time-sensitive anomaly in
+        the water from a team vehicle (a proposal)."""
         if isinstance(event, CommandChanged) and event.status in (CommandState.EXECUTED, *ENDS):
             self._leg_ended(event)
-        elif (
-            isinstance(event, PacketHeard)
-            and event.priority == Priority.TIME_SENSITIVE
-            and event.auth != PacketTrust.FORGED.value
-        ):
+        elif is_water_anomaly(event):
             self._anomaly(event.vehicle)
 
     def _leg_ended(self, event: CommandChanged) -> None:

@@ -85,9 +85,10 @@ def report(
     shore(client).ingest.handle(IncomingFrame(ADDRESS[name], 1, frame, at=time.time() - age))
 
 
-def plume(client: TestClient, name: str) -> None:
-    """A time-sensitive priority packet (the warm plume), tagged under the vehicle's key."""
-    packet = PriorityPacket(next(_stamps) % 256, Priority.TIME_SENSITIVE, Stream.ENVIRONMENTAL, bytes(29))
+def plume(client: TestClient, name: str, stream: Stream = Stream.ENVIRONMENTAL) -> None:
+    """A time-sensitive priority packet (the warm plume: its header names the environmental stream),
+    tagged under the vehicle's key."""
+    packet = PriorityPacket(next(_stamps) % 256, Priority.TIME_SENSITIVE, stream, bytes(29))
     frame = auth.tag_priority(packet, bytes.fromhex(KEYS[name]), ADDRESS[name])
     shore(client).ingest.handle(IncomingFrame(ADDRESS[name], 1, frame))
 
@@ -280,11 +281,13 @@ def test_a_plume_found_by_one_vehicle_proposes_work_near_it_for_the_others(clien
     report(client, "rov3", 10.0, 40.0)  # far east, on its lanes
     report(client, "rov2", 10.0, 20.0)
     report(client, "rov1", 10.0, 2.5)
+    plume(client, "rov1", Stream.KINEMATIC)  # time-sensitive for a manoeuvre: no anomaly of the water
     plume(client, "rov2")
     proposals = wait_for(
         lambda: client.get("/api/v1/proposals", headers=OP).json(), timeout=10, what="a proposal"
     )
     proposal = proposals[0]
+    assert len(proposals) == 1
     assert (proposal["team_id"], proposal["finder"], proposal["status"]) == (team, "rov2", "proposed")
     assert proposal["anomaly"][:2] == pytest.approx([10.0, 20.0], abs=0.5)
     assert {w["name"] for w in proposal["work"]} == {"rov1", "rov3"}
