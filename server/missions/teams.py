@@ -14,6 +14,7 @@ from __future__ import annotations
 import copy
 import itertools
 import logging
+import math
 import threading
 from typing import Any, TypeGuard
 
@@ -45,6 +46,7 @@ from tacit.navigation import Pose, distance_and_angle
 from tacit.packets import Command, ControlPacket, Priority, Stream
 
 log = logging.getLogger("tacit.server.teams")
+ARRIVE_M = 2.0  # m: a leg that ends farther from its waypoint is run once more (``off_target``)
 ENDS = {CommandState.REFUSED, CommandState.FAILED, CommandState.SUPERSEDED}  # a leg that will not run
 
 
@@ -94,6 +96,17 @@ def link_cost(team: TeamMission, settings: Settings) -> dict[str, Any]:
         "channel_s_per_leg": round(per.channel_s, 2),
         "channel_s": round(legs * per.channel_s, 1),
     }
+
+
+def off_target(member: dict[str, Any], report: dict[str, Any] | None) -> bool:
+    """Whether the vehicle reported ending its leg more than ``ARRIVE_M`` from the waypoint it was sent
+    to, for the first time at that waypoint. A leg is a relative move computed from where the shore
+    thought the vehicle was (its prediction, when a proposal redirects it mid-leg): the error shows at
+    the end, and one more leg from the reported position corrects it."""
+    if not report or member.get("corrected") == member["next"] or "north" not in report:
+        return False
+    aim = member["waypoints"][member["next"]]
+    return math.dist((report["north"], report["east"]), aim[:2]) > ARRIVE_M
 
 
 def is_water_anomaly(event: Event) -> TypeGuard[PacketHeard]:
@@ -273,7 +286,10 @@ class Teams:
                 return
             team, members, member = found
             if event.status == CommandState.EXECUTED:
-                member["next"] += 1
+                if off_target(member, event.report):
+                    member["corrected"] = member["next"]  # the same waypoint once more, from there
+                else:
+                    member["next"] += 1
                 self._next_leg(member, event.report, "team")
             else:
                 member.update(

@@ -170,6 +170,16 @@ def test_a_team_mission_runs_its_lanes_leg_by_leg(client: TestClient) -> None:
         0.29, abs=0.01
     )
     assert second["issued_by"] == "team"
+    report(client, "rov1", 16.0, 2.5, command=second["seq"], status=CommandStatus.EXECUTED)  # 4 m short
+    wait_for(
+        lambda: member(client, created["id"], "rov1")["command_id"] != second["id"],
+        timeout=10,
+        what="a correction",
+    )
+    correction = command(client, member(client, created["id"], "rov1")["command_id"])
+    assert member(client, created["id"], "rov1")["next"] == 1 and correction["distance"] == 4.0
+    report(client, "rov1", 19.0, 2.5, command=correction["seq"], status=CommandStatus.EXECUTED)  # once only
+    wait_for(lambda: member(client, created["id"], "rov1")["next"] == 2, timeout=10, what="rov1's third leg")
 
     report(
         client,
