@@ -292,12 +292,9 @@ class Teams:
                     member["next"] += 1
                 self._next_leg(member, event.report, "team")
             else:
-                member.update(
-                    state=MemberState.STOPPED.value,
-                    reason=f"leg {member['next'] + 1} {event.status}: {event.reason or event.detail}".rstrip(
-                        ": "
-                    ),
-                )
+                why = event.reason or event.detail
+                ended = f"leg {member['next'] + 1} {event.status}"
+                member.update(state=MemberState.STOPPED.value, reason=f"{ended}: {why}" if why else ended)
             done = all(m["state"] != MemberState.RUNNING.value for m in members)
             self._save(saved_id(team), members, TeamStatus.FINISHED if done else TeamStatus(team.status))
         self.bus.publish(
@@ -309,8 +306,8 @@ class Teams:
         if member["next"] >= len(member["waypoints"]):
             member.update(state=MemberState.DONE.value, command_id=None)
             return
-        start = self._start_of(member["vehicle_id"], report)
         try:
+            start = self._start_of(member["vehicle_id"], report)
             body = leg(start, tuple(member["waypoints"][member["next"]]))
             command = self.desk.submit(member["vehicle_id"], body, issued_by)
         except ApiError as exc:
