@@ -205,7 +205,10 @@ function connect() {
  * verified packet's samples are believed only if its chain is trusted too (``trusted``); otherwise they stay
  * unverified for good. */
 function settle(s) {
-  const trust = new Map([...s.verified.map((id) => [id, "verified"]), ...s.forged.map((id) => [id, "forged"])]);
+  const trust = new Map([
+    ...s.verified.map((id) => [id, "verified"]), ...s.forged.map((id) => [id, "forged"]),
+    ...s.unverifiable.map((id) => [id, "unverifiable"]),
+  ]);
   for (const p of state.packets) if (trust.has(p.id)) p.auth = trust.get(p.id);
   const trusted = new Set(s.trusted);
   const sampleTrust = (id) => (trusted.has(id) ? "verified" : trust.get(id) === "forged" ? "forged" : "unverifiable");

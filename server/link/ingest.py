@@ -292,7 +292,7 @@ class Ingest:
         if cp.unsynced:
             v.link.echo = cp.mac  # the heartbeat answers it at the vehicle's next slot
         events: list[Event] = [VehicleReported(vehicle=v.name, checkpoint=body)]
-        events += self.verifier.vouch(s, batch, v, verdict.covered)
+        events += self.verifier.vouch(s, batch, v, cp.seq, verdict.covered)
         if vehicle.previous_key_hex and verdict.version == vehicle.key_version:
             events.append(self._key_confirmed(s, batch, v, vehicle.key_version))
         return PacketTrust.VERIFIED, events + list(commands.apply_checkpoint(s, vehicle, cp, body))

@@ -353,10 +353,10 @@ class OperatorMap:
 
     def _settled(self, event: PacketsSettled) -> None:
         """A check-point settled packets: the trusted ones' samples join the verified ones; the rest (forged,
-        or decoded on a chain nobody vouched for) are dropped."""
+        decoded on a chain nobody vouched for, or out of every check-point's reach) are dropped."""
         trusted = set(event.trusted)
         with self._lock:
-            for packet_id in [*event.verified, *event.forged]:
+            for packet_id in [*event.verified, *event.forged, *event.unverifiable]:
                 samples = self.pending.pop(packet_id, [])
                 if packet_id in trusted:
                     self.temperatures.extend(samples)

@@ -18,7 +18,7 @@ class PacketTrust(enum.StrEnum):
     VERIFIED = "verified"  # a check-point's MAC vouched for it (a check-point: its own MAC held)
     FORGED = "forged"  # its MAC failed, or a verified check-point vouched for another packet with its seq
     REPLAYED = "replayed"  # a check-point older than the last one applied
-    UNVERIFIABLE = "unverifiable"  # a check-point covering a packet this shore never received
+    UNVERIFIABLE = "unverifiable"  # a check-point covering a packet never received; a packet out of reach
 
 
 class SampleTrust(enum.StrEnum):

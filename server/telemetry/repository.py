@@ -59,6 +59,16 @@ def set_trust(s: Session, packet_ids: Sequence[int], trust: PacketTrust) -> None
         s.execute(update(Packet).where(col(Packet.id).in_(packet_ids)).values(auth=trust.value))
 
 
+def settle_pending(s: Session, packet_ids: Sequence[int], trust: PacketTrust) -> list[int]:
+    """Of the packets, those still pending get ``trust``: their ids."""
+    if not packet_ids:
+        return []
+    pending = col(Packet.id).in_(packet_ids) & (col(Packet.auth) == PacketTrust.PENDING.value)
+    ids = [int(i) for i in s.exec(select(Packet.id).where(pending)).all() if i is not None]
+    set_trust(s, ids, trust)
+    return ids
+
+
 def trust_data(s: Session, packet_ids: Sequence[int]) -> None:
     """The packets' data may be believed: they and their samples are marked so."""
     if packet_ids:
