@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import sys
 import time
 from typing import Any
 
@@ -28,10 +29,13 @@ from nats.errors import Error as NatsError
 from nats.js import JetStreamContext
 from nats.js.api import AckPolicy, ConsumerConfig, DeliverPolicy
 from nats.js.errors import NotFoundError
+from sqlalchemy.exc import InterfaceError, OperationalError
 
-from server.backhaul import broker, subjects
+from server.backhaul import access, broker, subjects
+from server.backhaul.access import BrokerAuth
+from server.backhaul.guard import Guard
 from server.backhaul.relay import RelayedIncoming, RelayIngest
-from server.backhaul.subjects import CommandMessage, EventMessage, FrameMessage, PayloadError
+from server.backhaul.subjects import CommandMessage
 
 log = logging.getLogger("tacit.backhaul.center")
 
@@ -47,8 +51,10 @@ class Center:
         batch: int = 64,
         ack_wait: float = 30.0,
         duplicate_window: float = subjects.DUPLICATE_WINDOW,
+        auth: BrokerAuth | None = None,
     ) -> None:
         self.ingest = ingest
+        self.auth = auth
         self.url = url
         self.durable = durable
         self.batch = batch
@@ -59,9 +65,10 @@ class Center:
         self.sub: JetStreamContext.PullSubscription | None = None
         self.gateways: dict[str, dict[str, Any]] = {}  # each gateway's last heartbeat
         self.counters = {"messages": 0, "batches": 0, "malformed": 0, "retries": 0}
+        self.guard = Guard()
 
     async def connect(self) -> None:
-        self.nc = await broker.connect(self.url, "tacit-center")
+        self.nc = await broker.connect(self.url, "tacit-center", auth=self.auth)
         self.js = self.nc.jetstream()
         await broker.ensure_streams(self.js, self.duplicate_window)
         self.sub = await self._subscribe(self.js)
@@ -112,49 +119,53 @@ class Center:
             msgs = await self.sub.fetch(self.batch, timeout=timeout)
         except (TimeoutError, NatsError):
             return 0
-        frames, good = [], []
+        batch: list[tuple[RelayedIncoming, Msg]] = []
         for msg in msgs:
-            try:
-                frame = FrameMessage.decode(msg.data)
-                if msg.subject != subjects.frames(frame.gateway) or not frame.id.startswith(
-                    f"{frame.gateway}-"
-                ):
-                    raise PayloadError(
-                        f"gateway {frame.gateway!r}, id {frame.id!r} on another gateway's subject"
-                    )
-                frames.append(RelayedIncoming.of(frame))
-                good.append(msg)
-            except PayloadError as exc:
+            frame = self.guard.frame(msg.subject, msg.data)
+            if frame is None:
                 self.counters["malformed"] += 1
-                log.error("backhaul: malformed frame message on %s dropped: %s", msg.subject, exc)
                 await msg.term()
-        await self._store(frames, good)
-        for msg in good:
+            else:
+                batch.append((RelayedIncoming.of(frame), msg))
+        for msg in await self._store(batch) if batch else []:
             await msg.ack()
         self.counters["messages"] += len(msgs)
         self.counters["batches"] += 1
         return len(msgs)
 
-    async def _store(self, frames: list[RelayedIncoming], msgs: list[Msg]) -> None:
-        """Ingest the batch; retried (the messages kept in progress) until it commits."""
+    async def _store(self, batch: list[tuple[RelayedIncoming, Msg]]) -> list[Msg]:
+        """Ingest the batch in one transaction; the messages stored. Retried while the database is away
+        (the messages kept in progress, nothing later fetched). A batch refused for what it holds is
+        stored frame by frame, and a frame refused alone is dropped, logged with its stream sequence
+        (still in the stream, to look at): one bad frame must not stop every gateway's."""
         wait = 0.2
-        while frames:
+        while True:
             try:
-                await asyncio.to_thread(self.ingest.handle_batch, list(frames))
-                return
-            except Exception:  # the database away: nothing is acked, nothing later fetched
+                await asyncio.to_thread(self.ingest.handle_batch, [frame for frame, _ in batch])
+                return [msg for _, msg in batch]
+            except (OperationalError, InterfaceError):  # the database away, or locked
                 self.counters["retries"] += 1
-                log.exception("backhaul: storing %d frames failed; retrying in %.1f s", len(frames), wait)
-                for msg in msgs:
+                log.exception("backhaul: storing %d frames failed; retrying in %.1f s", len(batch), wait)
+                for _, msg in batch:
                     await msg.in_progress()
                 await asyncio.sleep(wait)
                 wait = min(wait * 2, 5.0)
+            except Exception:
+                if len(batch) > 1:
+                    return [msg for one in batch for msg in await self._store([one])]
+                frame, msg = batch[0]
+                self.counters["malformed"] += 1
+                log.exception(
+                    "backhaul: frame %s (stream seq %d) refused by the store",
+                    frame.id,
+                    msg.metadata.sequence.stream,
+                )
+                await msg.term()
+                return []
 
     async def _event(self, msg: Msg) -> None:
-        try:
-            event = EventMessage.decode(msg.data)
-        except PayloadError as exc:
-            log.warning("backhaul: malformed event on %s: %s", msg.subject, exc)
+        event = self.guard.event(msg.subject, msg.data, time.time())
+        if event is None:
             return
         if event.kind == "heartbeat":
             self.gateways[event.gateway] = {**event.detail, "at": event.at, "seen": time.time()}
@@ -172,7 +183,10 @@ class Center:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--nats", default="nats://127.0.0.1:4222", help="the broker (default %(default)s)")
+    parser.add_argument(
+        "--nats", default=None, help="the broker (default TACIT_NATS_URL or nats://127.0.0.1:4222)"
+    )
+    access.add_arguments_for_client(parser, {})  # their defaults are the settings' (TACIT_NATS_*)
     parser.add_argument(
         "--database-url",
         default=None,
@@ -190,12 +204,29 @@ def run(args: argparse.Namespace) -> int:
     from server.core.events import Bus
     from tacit.streams import default_streams
 
-    settings = Settings() if args.database_url is None else Settings(database_url=args.database_url)
+    settings = Settings()
+    overrides = {
+        "database_url": args.database_url,
+        "nats_url": args.nats,
+        "nats_credentials": args.nats_credentials,
+        "nats_ca": args.nats_ca,
+    }
+    for name, value in overrides.items():
+        if value is not None:
+            setattr(settings, name, value)
+    try:
+        auth = BrokerAuth.load(settings.nats_credentials, settings.nats_ca)
+    except access.CredentialsError as exc:
+        print(f"tacit center: {exc}", file=sys.stderr)
+        return 2
     migrate(settings.database_url)
     ingest = RelayIngest(make_engine(settings.database_url), Bus(), default_streams(), settings)
     ingest.load_vehicles()
     log.info(
-        "center: %d vehicles; consuming %s from %s", len(ingest.vehicles), subjects.frames(">"), args.nats
+        "center: %d vehicles; consuming %s from %s",
+        len(ingest.vehicles),
+        subjects.frames(">"),
+        settings.nats_url,
     )
-    asyncio.run(Center(ingest, args.nats, durable=args.durable).run())
+    asyncio.run(Center(ingest, settings.nats_url, durable=args.durable, auth=auth).run())
     return 0

@@ -63,6 +63,9 @@ class Settings(BaseSettings):
     )  # s: an unauthenticated packet asks for a chain restart at
     # most this often (the agent's check-point interval)
     restart_sends: int = Field(2, ge=1)  # a chain-restart request is sent this often, ACKed or not
+    nats_url: str = "nats://127.0.0.1:4222"  # the center's broker (docs/backhaul.md)
+    nats_credentials: str = ""  # this role's credentials file (`tacit broker-config`); empty: no accounts
+    nats_ca: str = ""  # the CA of the broker's certificate, for a tls:// URL
     max_skew: float = Field(120.0, gt=0)  # s a check-point may be ahead of the shore's clock and raise the
     # replay floor to its time (beyond, only to the shore's time)
 
