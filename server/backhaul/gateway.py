@@ -105,7 +105,7 @@ class Gateway:
                 await task
         self._tasks = []
         if self.nc is not None:
-            with contextlib.suppress(NatsError):
+            with contextlib.suppress(NatsError, OSError):  # the backhaul may be down: closed all the same
                 await self.nc.close()
             self.nc = None
         if self.driver is not None:
