@@ -18,9 +18,11 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import logging
 import sys
 import time
+from collections import Counter
 from typing import Any
 
 from nats.aio.client import Client
@@ -66,9 +68,15 @@ class Center:
         self.gateways: dict[str, dict[str, Any]] = {}  # each gateway's last heartbeat
         self.counters = {"messages": 0, "batches": 0, "malformed": 0, "retries": 0}
         self.guard = Guard()
+        self.frames: Counter[str] = Counter()  # frame messages consumed, by gateway
+        self.pending = 0  # frame messages in the stream not yet delivered to this center
+        self.up, self.since = False, time.time()  # the broker connection, and since when
+
+    def _state(self, up: bool) -> None:
+        self.up, self.since = up, time.time()
 
     async def connect(self) -> None:
-        self.nc = await broker.connect(self.url, "tacit-center", auth=self.auth)
+        self.nc = await broker.connect(self.url, "tacit-center", self._state, auth=self.auth)
         self.js = self.nc.jetstream()
         await broker.ensure_streams(self.js, self.duplicate_window)
         self.sub = await self._subscribe(self.js)
@@ -76,8 +84,10 @@ class Center:
 
     async def close(self) -> None:
         if self.nc is not None:
-            await self.nc.close()
+            with contextlib.suppress(NatsError, OSError):  # the backhaul may be down: closed all the same
+                await self.nc.close()
         self.nc = self.js = self.sub = None
+        self._state(False)
 
     async def run(self) -> None:
         await self.connect()
@@ -127,6 +137,8 @@ class Center:
                 await msg.term()
             else:
                 batch.append((RelayedIncoming.of(frame), msg))
+                self.frames[frame.gateway] += 1
+        self.pending = msgs[-1].metadata.num_pending if msgs else 0
         for msg in await self._store(batch) if batch else []:
             await msg.ack()
         self.counters["messages"] += len(msgs)
@@ -196,12 +208,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--durable", default=DURABLE, help="the consumer's durable name (default %(default)s)"
     )
+    parser.add_argument(
+        "--metrics-port",
+        type=int,
+        default=None,
+        help="serve /metrics (Prometheus) on this port of TACIT_METRICS_HOST; 0: none "
+        "(default TACIT_METRICS_PORT or 9464)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     from server.core.config import Settings
     from server.core.db import make_engine, migrate
     from server.core.events import Bus
+    from server.ops.process import operate
     from tacit.streams import default_streams
 
     settings = Settings()
@@ -210,6 +230,7 @@ def run(args: argparse.Namespace) -> int:
         "nats_url": args.nats,
         "nats_credentials": args.nats_credentials,
         "nats_ca": args.nats_ca,
+        "metrics_port": args.metrics_port,
     }
     for name, value in overrides.items():
         if value is not None:
@@ -228,5 +249,6 @@ def run(args: argparse.Namespace) -> int:
         subjects.frames(">"),
         settings.nats_url,
     )
-    asyncio.run(Center(ingest, settings.nats_url, durable=args.durable, auth=auth).run())
+    center = Center(ingest, settings.nats_url, durable=args.durable, auth=auth)
+    asyncio.run(operate(center, center.run(), ingest.db, settings))
     return 0

@@ -17,6 +17,7 @@ from __future__ import annotations
 import logging
 import math
 from collections import Counter
+from dataclasses import dataclass
 
 from server.backhaul import subjects
 from server.backhaul.subjects import EventMessage, FrameMessage, PayloadError
@@ -27,11 +28,20 @@ STALE_BEATS = 3  # heartbeats missed before another incarnation may take a gatew
 MAX_ID = 128  # characters: the store's column
 
 
+@dataclass
+class Announced:
+    """A gateway's heartbeats: its outbox's incarnation, since when it beats without a gap, the last."""
+
+    incarnation: str
+    since: float
+    last: float
+
+
 class Guard:
     def __init__(self, heartbeat: float = 10.0) -> None:
         self.heartbeat = heartbeat
         self.refused: Counter[str] = Counter()  # by reason: malformed, foreign, twice
-        self.incarnations: dict[str, tuple[str, float]] = {}  # gateway: (incarnation, last heartbeat)
+        self.announced: dict[str, Announced] = {}  # by gateway name
 
     def frame(self, subject: str, data: bytes) -> FrameMessage | None:
         """The frame in a message from ``subject``, or None (refused, logged)."""
@@ -65,17 +75,24 @@ class Guard:
             return None
         return event
 
+    def up(self, gateway: str, now: float) -> bool:
+        """Its last heartbeat came less than ``STALE_BEATS`` heartbeats ago."""
+        held = self.announced.get(gateway)
+        return held is not None and now - held.last < STALE_BEATS * self.heartbeat
+
     def _one_incarnation(self, event: EventMessage, now: float) -> bool:
         incarnation = str(event.detail.get("incarnation", ""))
-        held = self.incarnations.get(event.gateway)
-        if held is not None and held[0] != incarnation and now - held[1] < STALE_BEATS * self.heartbeat:
+        held = self.announced.get(event.gateway)
+        up = self.up(event.gateway, now)
+        if held is not None and up and held.incarnation != incarnation:
             self._refuse(
                 "twice",
-                f"gateway {event.gateway!r} announced twice (outboxes {held[0]!r} and {incarnation!r}): "
-                f"two gateways share a name or credentials; {held[0]!r} keeps it",
+                f"gateway {event.gateway!r} announced twice (outboxes {held.incarnation!r} and "
+                f"{incarnation!r}): two gateways share a name or credentials; {held.incarnation!r} keeps it",
             )
             return False
-        self.incarnations[event.gateway] = (incarnation, now)
+        since = held.since if held is not None and up else now
+        self.announced[event.gateway] = Announced(incarnation, since, now)
         return True
 
     def _refuse(self, reason: str, message: str) -> None:
