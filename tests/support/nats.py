@@ -55,15 +55,35 @@ class NatsServer:
 
 
 class Secured(NatsServer):
-    """With the configuration ``tacit broker-config`` writes for ``gateways``; each role's credentials
-    file is ``credentials(user)``."""
+    """With the configuration ``tacit broker-config`` writes for ``gateways`` (TLS with ``tls``, a
+    certificate and its key); each role's credentials are ``credentials(user)``."""
 
-    def __init__(self, folder: Path, gateways: list[str]) -> None:
+    def __init__(self, folder: Path, gateways: list[str], tls: tuple[str, str] | None = None) -> None:
         super().__init__(folder)
-        access.write(folder, gateways, f"127.0.0.1:{self.port}", str(folder / "jetstream"))
+        access.write(folder, gateways, f"127.0.0.1:{self.port}", str(folder / "jetstream"), tls)
+        if tls is not None:
+            self.url = f"tls://127.0.0.1:{self.port}"
 
     def arguments(self) -> list[str]:
         return ["-c", str(self.folder / "nats-server.conf")]
 
-    def credentials(self, user: str) -> access.BrokerAuth:
-        return access.BrokerAuth.load(self.folder / f"{user}.toml")
+    def credentials(self, user: str, ca_file: str | None = None) -> access.BrokerAuth:
+        return access.BrokerAuth.load(self.folder / f"{user}.toml", ca_file)
+
+
+def certificates(folder: Path) -> tuple[str, str, str]:
+    """A CA and a certificate it signs for 127.0.0.1 (openssl): (CA, certificate, key), PEM files."""
+    folder.mkdir(parents=True, exist_ok=True)
+    ca, ca_key, cert, key, csr, ext = (
+        str(folder / n) for n in ("ca.pem", "ca.key", "server.pem", "server.key", "server.csr", "ext")
+    )
+    Path(ext).write_text("subjectAltName=IP:127.0.0.1\n")
+    ec = ["-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes"]
+    for args in (
+        ["req", "-x509", *ec, "-keyout", ca_key, "-out", ca, "-days", "1", "-subj", "/CN=tacit test CA"],
+        ["req", *ec, "-keyout", key, "-out", csr, "-subj", "/CN=127.0.0.1"],
+        ["x509", "-req", "-in", csr, "-CA", ca, "-CAkey", ca_key, "-CAcreateserial", "-out", cert,
+         "-days", "1", "-extfile", ext],
+    ):  # fmt: skip
+        subprocess.run(["openssl", *args], check=True, capture_output=True)
+    return ca, cert, key

@@ -6,6 +6,7 @@ and goes on."""
 from __future__ import annotations
 
 import asyncio
+import shutil
 import stat
 import time
 from collections.abc import Iterator
@@ -23,7 +24,7 @@ from server.backhaul.outbox import Outbox
 from server.backhaul.subjects import CommandMessage, EventMessage, FrameMessage
 from server.core.db import migrate
 from tests.integration.server.test_backhaul import hear, ingest_on, stored, until
-from tests.support.nats import NATS_SERVER, NatsServer, Secured
+from tests.support.nats import NATS_SERVER, NatsServer, Secured, certificates
 
 pytestmark = pytest.mark.skipif(not Path(NATS_SERVER).exists(), reason="nats-server is not installed")
 
@@ -279,6 +280,31 @@ def test_a_gateway_announcing_itself_twice_is_refused_but_its_frames_are_stored(
     with caplog.at_level("ERROR"):
         asyncio.run(main())
     assert any("announced twice" in r.getMessage() for r in caplog.records)
+
+
+@pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl is not installed")
+def test_over_tls_the_broker_is_reached_with_its_ca_only(tmp_path: Path, sqlite_url: str) -> None:
+    ca, cert, key = certificates(tmp_path / "pki")
+    server = Secured(tmp_path / "broker", ["ship"], tls=(cert, key))
+    server.start()
+
+    async def main() -> None:
+        center = Center(ingest_on(sqlite_url), server.url, auth=server.credentials("center", ca))
+        await center.connect()  # verified against the CA, streams created
+        try:
+            gateway = server.credentials("gateway-ship").options()  # no CA: the certificate is not trusted
+            with pytest.raises((NatsError, OSError)):
+                await nats.connect(server.url, allow_reconnect=False, connect_timeout=2, **gateway)
+            plain = server.url.replace("tls://", "nats://")
+            with pytest.raises((NatsError, OSError)):
+                await nats.connect(plain, allow_reconnect=False, connect_timeout=2, **gateway)
+        finally:
+            await center.close()
+
+    try:
+        asyncio.run(main())
+    finally:
+        server.stop()
 
 
 def test_broker_config_writes_private_files_and_keeps_passwords(tmp_path: Path) -> None:
