@@ -147,9 +147,9 @@ class Center:
 
     async def _store(self, batch: list[tuple[RelayedIncoming, Msg]]) -> list[Msg]:
         """Ingest the batch in one transaction; the messages stored. Retried while the database is away
-        (the messages kept in progress, nothing later fetched). A batch refused for what it holds is
-        stored frame by frame, and a frame refused alone is dropped, logged with its stream sequence
-        (still in the stream, to look at): one bad frame must not stop every gateway's."""
+        (the messages kept in progress, nothing later fetched). A batch the pipeline fails on for what it
+        holds is taken frame by frame, and a frame it fails on alone is stored undecoded, logged with its
+        stream sequence: one bad frame must not stop every gateway's, nor be lost."""
         wait = 0.2
         while True:
             try:
@@ -165,15 +165,24 @@ class Center:
             except Exception:
                 if len(batch) > 1:
                     return [msg for one in batch for msg in await self._store([one])]
-                frame, msg = batch[0]
-                self.counters["malformed"] += 1
-                log.exception(
-                    "backhaul: frame %s (stream seq %d) refused by the store",
-                    frame.id,
-                    msg.metadata.sequence.stream,
-                )
-                await msg.term()
-                return []
+                return await self._undecoded(*batch[0])
+
+    async def _undecoded(self, frame: RelayedIncoming, msg: Msg) -> list[Msg]:
+        log.exception(
+            "backhaul: frame %s (stream seq %d) failed in the pipeline; stored undecoded",
+            frame.id,
+            msg.metadata.sequence.stream,
+        )
+        try:
+            await asyncio.to_thread(self.ingest.keep_undecoded, frame)
+        except (OperationalError, InterfaceError):
+            return []  # the database went away meanwhile: not acked, it comes again
+        except Exception:  # not even its bytes can be stored: refused, left in the stream to look at
+            self.counters["malformed"] += 1
+            log.exception("backhaul: frame %s refused by the store", frame.id)
+            await msg.term()
+            return []
+        return [msg]
 
     async def _event(self, msg: Msg) -> None:
         event = self.guard.event(msg.subject, msg.data, time.time())

@@ -191,8 +191,8 @@ def test_bad_input_across_the_broker_is_a_logged_refusal(
     open_broker: NatsServer, sqlite_url: str, caplog: pytest.LogCaptureFixture
 ) -> None:
     """Malformed messages, a frame on its own gateway's subject with a name no subject has, a stranger's
-    frame (stored, not decoded) and a frame the store refuses (alone, the rest of its batch stored): the
-    center goes on, and the good frames after them are stored, in order."""
+    frame (stored, not decoded) and a frame the pipeline fails on (stored undecoded, alone: the rest of
+    its batch decoded): the center goes on, and every frame is stored, in order."""
 
     async def main() -> None:
         center = Center(ingest_on(sqlite_url), open_broker.url, batch=4)
@@ -215,9 +215,9 @@ def test_bad_input_across_the_broker_is_a_logged_refusal(
         poison = FrameMessage("ship-0a0b0c0d-8", "ship", 2, 0, b"poison", at=time.time())
         handle_batch = center.ingest.handle_batch
 
-        def picky(frames: list) -> list:  # a store that refuses one frame, whatever the batch
+        def picky(frames: list) -> list:  # a pipeline that fails on one frame, whatever the batch
             if any(f.data == b"poison" for f in frames):
-                raise ValueError("the store refuses this one")
+                raise ValueError("the pipeline fails on this one")
             return handle_batch(frames)
 
         center.ingest.handle_batch = picky  # type: ignore[method-assign]
@@ -233,11 +233,13 @@ def test_bad_input_across_the_broker_is_a_logged_refusal(
             assert [d for _, d, _ in stored(sqlite_url)] == [
                 good[0].data,
                 stranger.data,
+                poison.data,
                 good[1].data,
                 good[2].data,
             ]
             assert center.guard.refused == {"malformed": 6, "foreign": 1}
-            assert center.counters["malformed"] == 8
+            assert center.counters["malformed"] == 7
+            assert center.ingest.stats["undecoded"] == 1
             # no vehicle is known here: every frame stored, none decoded
             assert center.ingest.stats["unknown_vehicle"] == 4
         finally:
@@ -246,7 +248,7 @@ def test_bad_input_across_the_broker_is_a_logged_refusal(
     with caplog.at_level("WARNING"):
         asyncio.run(main())
     assert sum("dropped" in r.getMessage() for r in caplog.records) == 7
-    assert any("ship-0a0b0c0d-8 (stream seq" in r.getMessage() for r in caplog.records)
+    assert any("ship-0a0b0c0d-8 (stream seq 10) failed" in r.getMessage() for r in caplog.records)
     assert any("unknown modem address 77" in r.getMessage() for r in caplog.records)
 
 
