@@ -43,7 +43,7 @@ class Gateway:
         outbox: Outbox,
         url: str,
         driver: mm.ModemDriver | None = None,
-        heartbeat: float = 10.0,
+        heartbeat: float = subjects.HEARTBEAT,
         duplicate_window: float = subjects.DUPLICATE_WINDOW,
         auth: BrokerAuth | None = None,
     ) -> None:

@@ -38,7 +38,7 @@ class Announced:
 
 
 class Guard:
-    def __init__(self, heartbeat: float = 10.0) -> None:
+    def __init__(self, heartbeat: float = subjects.HEARTBEAT) -> None:
         self.heartbeat = heartbeat
         self.refused: Counter[str] = Counter()  # by reason: malformed, foreign, twice
         self.announced: dict[str, Announced] = {}  # by gateway name
