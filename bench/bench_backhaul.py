@@ -175,12 +175,15 @@ def readers(url: str, count: int) -> tuple[list[multiprocessing.Process], Flag, 
 class Profiled:
     """cProfile of the event loop's thread and of the ingest's worker threads, merged."""
 
-    def __init__(self) -> None:
+    def __init__(self, enabled: bool) -> None:
+        self.enabled = enabled
         self.main = cProfile.Profile()
         self.workers: list[cProfile.Profile] = []
         self._local = threading.local()
 
     def wrap(self, ingest: RelayIngest) -> None:
+        if not self.enabled:
+            return
         handle = ingest.handle_batch
 
         def profiled(batch: list[IncomingFrame]) -> list[Event]:
@@ -214,12 +217,14 @@ async def consume(center: Center, total: int, profile: Profiled) -> float:
     await center.connect()
     bar = tqdm(total=total, desc="center", unit="frame")
     start = time.perf_counter()
-    profile.main.enable()
+    if profile.enabled:
+        profile.main.enable()
     try:
         while center.counters["messages"] < total:
             bar.update(await center.step())
     finally:
-        profile.main.disable()
+        if profile.enabled:
+            profile.main.disable()
         bar.close()
     elapsed = time.perf_counter() - start
     await center.close()
@@ -241,7 +246,7 @@ def run(options: argparse.Namespace, url: str, folder: Path) -> None:
         center = Center(RelayIngest(make_engine(url), Bus(), default_streams(), settings), nats_url,
                         batch=options.batch, auth=access.BrokerAuth.load(folder / "broker" / "center.toml"))  # fmt: skip
         center.ingest.load_vehicles()
-        profile, latencies = Profiled(), list[float]()
+        profile, latencies = Profiled(options.profile), list[float]()
         profile.wrap(center.ingest)
 
         async def phases() -> tuple[float, float]:
@@ -262,8 +267,9 @@ def run(options: argparse.Namespace, url: str, folder: Path) -> None:
 
         published, consumed = asyncio.run(phases())
     report(options, center, url, total, checkpoints, published, consumed, sorted(latencies))
-    print(f"\nwhere the center's time goes (cProfile, top {options.top} by own time):")
-    print(profile.top(options.top))
+    if options.profile:
+        print(f"\nwhere the center's time goes (cProfile, top {options.top}; profiling slows it):")
+        print(profile.top(options.top))
 
 
 def report(options: argparse.Namespace, center: Center, url: str, total: int, checkpoints: int,
@@ -306,6 +312,9 @@ def main() -> None:
     )
     parser.add_argument("--batch", type=int, default=64, help="frames per fetch and commit")
     parser.add_argument("--top", type=int, default=20, help="cProfile entries printed")
+    parser.add_argument(
+        "--no-profile", dest="profile", action="store_false", help="measure without cProfile (it costs time)"
+    )
     parser.add_argument(
         "--database-url", default=POSTGRES, help="a PostgreSQL server: a fresh database on it"
     )
