@@ -6,6 +6,7 @@ and goes on."""
 from __future__ import annotations
 
 import asyncio
+import json
 import shutil
 import stat
 import time
@@ -176,6 +177,17 @@ def test_a_gateway_cannot_read_another_gateways_commands(
                 await js.pull_subscribe(
                     subjects.commands("buoy"), durable="mine", stream=subjects.COMMANDS_STREAM
                 )
+            own = "$JS.API.CONSUMER.CREATE.TACIT_COMMANDS.gateway-ship.tacit.v1.commands.ship"
+            config = {
+                "name": "gateway-ship",
+                "filter_subject": subjects.commands("buoy"),
+                "ack_policy": "explicit",
+            }
+            request = {"stream_name": subjects.COMMANDS_STREAM, "config": config}
+            answer = await ship.request(
+                own, json.dumps(request).encode(), timeout=2
+            )  # its subject, the buoy's filter
+            assert json.loads(answer.data)["error"]["err_code"] == 10131  # "did not match filtered subject"
             await asyncio.sleep(0.3)
             assert snooped == []
             assert sum("permissions violation for subscription" in e for e in errors) == 4
