@@ -63,6 +63,12 @@ class Settings(BaseSettings):
     )  # s: an unauthenticated packet asks for a chain restart at
     # most this often (the agent's check-point interval)
     restart_sends: int = Field(2, ge=1)  # a chain-restart request is sent this often, ACKed or not
+    nats_url: str = "nats://127.0.0.1:4222"  # the center's broker (docs/backhaul.md)
+    nats_credentials: str = ""  # this role's credentials file (`tacit broker-config`); empty: no accounts
+    nats_ca: str = ""  # the CA of the broker's certificate, for a tls:// URL
+    metrics_host: str = "127.0.0.1"  # the center's /metrics listener (Prometheus)
+    metrics_port: int = Field(9464, ge=0, le=65535)  # 0: none
+    retention_days: float = Field(0.0, ge=0)  # relayed frames' records older are deleted; 0: kept for ever
     max_skew: float = Field(120.0, gt=0)  # s a check-point may be ahead of the shore's clock and raise the
     # replay floor to its time (beyond, only to the shore's time)
 
@@ -71,6 +77,14 @@ class Settings(BaseSettings):
     def _comma_separated(cls, value: Any) -> Any:
         if isinstance(value, str):
             return [item.strip() for item in value.split(",") if item.strip()]
+        return value
+
+    @field_validator("retention_days")
+    @classmethod
+    def _outlives_the_stream(cls, value: float) -> float:
+        """A record must outlive every redelivery of its message: the frames stream keeps them 7 days."""
+        if 0 < value < 8:
+            raise ValueError("retention_days is 0 (keep) or at least 8 (the frames stream keeps 7 days)")
         return value
 
     @field_validator("shore_position", mode="before")
