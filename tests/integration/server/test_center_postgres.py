@@ -1,6 +1,6 @@
 """The center's pipeline on PostgreSQL with a vehicle's real packets: an IMU priority packet's samples
 (ticks are UNIX time over the period, beyond a 32-bit INTEGER) and the check-point that vouches for it.
-Found by bench/bench_backhaul.py: before migration 0011 PostgreSQL refused every IMU sample."""
+Found by bench/bench_backhaul.py: before migration 0009 PostgreSQL refused every IMU sample."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """telemetry.tick is a BIGINT: a tick is UNIX time over the stream's period (7e9 for the IMU's 0.25 s
 today), beyond PostgreSQL's INTEGER (SQLite's integers were 64-bit already)
 
-Revision ID: 0011
+Revision ID: 0009
 Revises: 0008
 """
 
@@ -10,7 +10,7 @@ from collections.abc import Sequence
 import sqlalchemy as sa
 from alembic import op
 
-revision: str = "0011"
+revision: str = "0009"
 down_revision: str | None = "0008"
 branch_labels: str | Sequence[str] | None = None
 depends_on: str | Sequence[str] | None = None
