@@ -2,16 +2,21 @@
 
 from __future__ import annotations
 
+from typing import Annotated
+
 from pydantic import BaseModel, Field, JsonValue, ValidationInfo, field_validator
 
 from server.commands.models import CommandState
-from server.core.schemas import STRICT
+from server.core.schemas import DB_INT_MAX, STRICT
 from tacit.navigation import wrap180
 from tacit.packets import FLOAT32_MAX, Command
 from tacit.packets import ControlPacket as WIRE
 
 #: What an operator may send: every command but the shore's own heartbeat.
 COMMAND_NAMES = [c.name.lower() for c in Command if c.from_operator]
+#: What may go to the whole fleet in one action (one command per vehicle): the fleet's stop is "abort all"
+#: (docs/protocol.md says why there is no broadcast stop).
+FLEET_COMMANDS = ("abort_mission", "return_home", "hold")
 
 
 class CommandIn(BaseModel):
@@ -57,6 +62,27 @@ class CommandIn(BaseModel):
 
     def kind(self) -> Command:
         return Command[self.command.upper()]
+
+
+class FleetCommandIn(BaseModel):
+    """One operator action for several vehicles: the same command queued for each, each with its own
+    sequence number, signature and status."""
+
+    model_config = STRICT
+    command: str = Field(
+        json_schema_extra={"enum": list[JsonValue](FLEET_COMMANDS)},
+        description="what to ask of every vehicle",
+    )
+    vehicle_ids: list[Annotated[int, Field(ge=1, le=DB_INT_MAX)]] | None = Field(
+        None, min_length=1, max_length=127, description="the vehicles (default: every registered vehicle)"
+    )
+
+    @field_validator("command")
+    @classmethod
+    def _for_a_fleet(cls, command: str) -> str:
+        if command not in FLEET_COMMANDS:
+            raise ValueError(f"{command!r} does not go to a fleet; one of {', '.join(FLEET_COMMANDS)}")
+        return command
 
 
 class CommandOut(BaseModel):
@@ -113,3 +139,7 @@ class CommandListed(CommandOut):
     history: list[CommandStepOut] | None = Field(
         None, description="with ?history=true: as GET /commands/{id}"
     )
+
+
+class FleetCommandsOut(BaseModel):
+    commands: list[CommandOut] = Field(description="one per vehicle, in the order of vehicle_ids (or of id)")

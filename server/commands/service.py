@@ -195,36 +195,57 @@ class CommandDesk:
     def submit(
         self, vehicle_id: int, body: CommandIn, issued_by: str, then: Callable[[Tx], None] | None = None
     ) -> CommandRecord:
-        """Queue a command sent by the operator named ``issued_by``; ``then(s)`` runs in the same transaction (a mission's new status). Refused with
-        ``TooMany`` while the vehicle already has ``max_queued`` commands waiting for the link: at a few
-        seconds per attempt, a longer queue would only hold the link for minutes (and each command would
-        run long after the operator asked for it)."""
+        """Queue a command sent by the operator named ``issued_by``; ``then(s)`` runs in the same transaction (a mission's new status)."""
         with writing(self.db) as s:
             vehicle = vehicles.get(s, vehicle_id)
-            waiting = repo.pending_count(s, vehicle_id)
-            if waiting >= self.max_queued:
-                raise TooMany(
-                    f"vehicle {vehicle.name} has {waiting} commands waiting for the link (the most it "
-                    "may have); wait for them to be sent, or to fail if it cannot be reached, then "
-                    "send again",
-                    RETRY_AFTER_S,
-                )
-            command = queue(s, vehicle, body, issued_by, self.pose(vehicle.address))
+            command = self._queue(s, vehicle, body, issued_by)
             if then is not None:
                 then(s)
             s.commit()
-        log.info("vehicle %s: command %s seq %d queued", vehicle.name, command.command, command.seq)
-        self.bus.publish(
-            CommandChanged(
-                saved_id(command),
-                command.seq,
-                CommandState.QUEUED,
-                vehicle=vehicle.name,
-                command=command.command,
-            )
-        )
-        self.wake()
+        self._announce([(command, vehicle.name)])
         return command
+
+    def submit_fleet(
+        self, vehicle_ids: list[int] | None, body: CommandIn, issued_by: str
+    ) -> list[CommandRecord]:
+        """One operator action for several vehicles (every registered one if ``vehicle_ids`` is None): the
+        command queued once per vehicle, each with its own seq and status, all or none (one transaction:
+        an unknown vehicle, or one whose queue is full, refuses the action before anything is queued)."""
+        with writing(self.db) as s:
+            fleet = [vehicles.get(s, i) for i in vehicle_ids] if vehicle_ids else vehicle_repo.every(s)
+            if not fleet:
+                raise Refused("no vehicle is registered", "vehicle_ids")
+            if len({v.id for v in fleet}) < len(fleet):
+                raise Refused("a vehicle is named twice", "vehicle_ids")
+            queued = [(self._queue(s, vehicle, body, issued_by), vehicle.name) for vehicle in fleet]
+            s.commit()
+        self._announce(queued)
+        return [command for command, _ in queued]
+
+    def _queue(self, s: Tx, vehicle: Vehicle, body: CommandIn, issued_by: str) -> CommandRecord:
+        """Check and queue one command for ``vehicle``. Refused with ``TooMany`` while the vehicle already
+        has ``max_queued`` commands waiting for the link: at a few seconds per attempt, a longer queue would
+        only hold the link for minutes (and each command would run long after the operator asked for it)."""
+        waiting = repo.pending_count(s, saved_id(vehicle))
+        if waiting >= self.max_queued:
+            raise TooMany(
+                f"vehicle {vehicle.name} has {waiting} commands waiting for the link (the most it "
+                "may have); wait for them to be sent, or to fail if it cannot be reached, then "
+                "send again",
+                RETRY_AFTER_S,
+            )
+        return queue(s, vehicle, body, issued_by, self.pose(vehicle.address))
+
+    def _announce(self, queued: list[tuple[CommandRecord, str]]) -> None:
+        """Each queued command (with its vehicle's name) on the bus, then the link woken to send them."""
+        for command, name in queued:
+            log.info("vehicle %s: command %s seq %d queued", name, command.command, command.seq)
+            self.bus.publish(
+                CommandChanged(
+                    saved_id(command), command.seq, CommandState.QUEUED, vehicle=name, command=command.command
+                )
+            )
+        self.wake()
 
     # --- what the link asks ---------------------------------------------------------------------
 

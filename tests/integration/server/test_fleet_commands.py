@@ -1,0 +1,92 @@
+"""Commands for the whole fleet (abort all, return all home, hold all): one operator action, one command per
+vehicle, each with its own seq and status; unknown vehicles are a 404 and bad bodies a 422, and neither
+queues anything."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+
+from server.app import create_app
+from server.core.config import Settings
+
+OP = {"Authorization": "Bearer operator-token"}
+OBSERVER = {"Authorization": "Bearer observer-token"}
+
+
+@pytest.fixture
+def client(tmp_path: Path):
+    settings = Settings(
+        database_url=f"sqlite:///{tmp_path}/tacit.db",
+        modem_url="",
+        map_enabled=False,
+        write_tokens=["operator-token"],
+        read_tokens=["observer-token"],
+    )
+    with TestClient(create_app(settings)) as c:
+        for name, address in (("rov1", 2), ("rov2", 3), ("rov3", 4)):
+            created = c.post("/api/v1/vehicles", json={"name": name, "address": address}, headers=OP)
+            assert created.status_code == 201
+        yield c
+
+
+def _queued(client: TestClient) -> list[dict]:
+    return [c for v in (1, 2, 3) for c in client.get(f"/api/v1/vehicles/{v}/commands", headers=OP).json()]
+
+
+def test_abort_all_queues_one_command_per_vehicle_each_with_its_own_status(client: TestClient) -> None:
+    sent = client.post("/api/v1/fleet/commands", json={"command": "abort_mission"}, headers=OP)
+    assert sent.status_code == 202
+    commands = sent.json()["commands"]
+    assert [c["vehicle_id"] for c in commands] == [1, 2, 3]
+    assert {c["command"] for c in commands} == {"abort_mission"}
+    assert {c["status"] for c in commands} == {"queued"}
+    assert len({c["id"] for c in commands}) == 3
+    assert {c["issued_by"] for c in commands} == {"config-operator-1"}
+    for c in commands:  # each followed on its own
+        one = client.get(f"/api/v1/commands/{c['id']}", headers=OP).json()
+        assert one["vehicle_id"] == c["vehicle_id"] and [h["status"] for h in one["history"]] == ["queued"]
+
+
+def test_a_fleet_command_to_some_vehicles_reaches_only_them(client: TestClient) -> None:
+    sent = client.post("/api/v1/fleet/commands", json={"command": "hold", "vehicle_ids": [3, 1]}, headers=OP)
+    assert sent.status_code == 202
+    assert [c["vehicle_id"] for c in sent.json()["commands"]] == [3, 1]
+    assert client.get("/api/v1/vehicles/2/commands", headers=OP).json() == []
+
+
+@pytest.mark.parametrize(
+    ("body", "field"),
+    [
+        ({"command": "move"}, "command"),  # not a fleet command: it needs a target per vehicle
+        ({"command": "sync"}, "command"),
+        ({"command": "hold", "vehicle_ids": []}, "vehicle_ids"),
+        ({"command": "hold", "vehicle_ids": [0]}, "vehicle_ids.0"),
+        ({"command": "hold", "vehicle_ids": [1, 1]}, "vehicle_ids"),
+        ({"command": "hold", "distance": 5}, "distance"),
+        ({}, "command"),
+    ],
+)
+def test_a_bad_fleet_command_is_a_422_naming_the_field_and_queues_nothing(
+    client: TestClient, body: dict, field: str
+) -> None:
+    refused = client.post("/api/v1/fleet/commands", json=body, headers=OP)
+    assert refused.status_code == 422, refused.text
+    assert refused.json()["field"] == field
+    assert _queued(client) == []
+
+
+def test_an_unknown_vehicle_is_a_404_and_queues_nothing_for_the_others(client: TestClient) -> None:
+    refused = client.post(
+        "/api/v1/fleet/commands", json={"command": "return_home", "vehicle_ids": [1, 9]}, headers=OP
+    )
+    assert refused.status_code == 404
+    assert refused.json() == {"detail": "no vehicle 9", "field": "vehicle_id"}
+    assert _queued(client) == []
+
+
+def test_observers_cannot_send_to_the_fleet(client: TestClient) -> None:
+    assert client.post("/api/v1/fleet/commands", json={"command": "hold"}, headers=OBSERVER).status_code == 403
+    assert _queued(client) == []
