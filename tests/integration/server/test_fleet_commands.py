@@ -88,5 +88,7 @@ def test_an_unknown_vehicle_is_a_404_and_queues_nothing_for_the_others(client: T
 
 
 def test_observers_cannot_send_to_the_fleet(client: TestClient) -> None:
-    assert client.post("/api/v1/fleet/commands", json={"command": "hold"}, headers=OBSERVER).status_code == 403
+    assert (
+        client.post("/api/v1/fleet/commands", json={"command": "hold"}, headers=OBSERVER).status_code == 403
+    )
     assert _queued(client) == []
