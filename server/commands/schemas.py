@@ -109,6 +109,12 @@ class CommandReport(BaseModel):
     """What the vehicle's check-point said with a status: when (its clock) and where."""
 
     time: float = Field(description="vehicle time, UNIX s (whole seconds): when the status changed on board")
+    shore_time: float | None = Field(
+        None,
+        description="the latest shore time (UNIX s) it can have happened: the vehicle's time on the shore's "
+        "clock (its offset from the vehicle's check-points), never after the shore heard it and never "
+        "before its cause (server.telemetry.clock); None in reports stored before it was kept",
+    )
     state: str = Field(description="the vehicle's mission state then")
     north: float = Field(description="m from home")
     east: float = Field(description="m from home")

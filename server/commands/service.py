@@ -25,6 +25,8 @@ from server.commands.schemas import CommandIn
 from server.core.db import Tx, reading, saved_id, writing
 from server.core.errors import NotFound, Refused, TooMany
 from server.core.events import Bus, CommandChanged
+from server.telemetry import clock
+from server.telemetry import service as telemetry
 from server.vehicles import keys
 from server.vehicles import repository as vehicle_repo
 from server.vehicles import service as vehicles
@@ -149,7 +151,9 @@ def apply_checkpoint(s: Tx, vehicle: Vehicle, cp: CheckpointPacket, body: dict) 
         return []
     latest = vehicle.next_seq - 1  # the check-point names the latest seq with these low 16 bits
     last = latest - ((latest - cp.last_command) % 65536)
-    report = report_of(body)
+    heard_at = time.time()
+    vehicle_offset = telemetry.clock_offset(s, saved_id(vehicle), (cp.time, heard_at))
+    report = {**report_of(body), "shore_time": clock.on_shore_clock(cp.time, heard_at, vehicle_offset)}
     settled: list[tuple[int, CommandStatus | None, dict | None]] = [
         (last - k, status, None) for k, status in enumerate(unpack_settled(cp.settled), start=1)
     ]
