@@ -15,6 +15,7 @@ import logging
 import math
 import time
 from collections.abc import Callable
+from dataclasses import replace
 
 from sqlalchemy import Engine
 
@@ -58,11 +59,17 @@ class CommandRefused(Refused):
 
 
 def check_limits(body: CommandIn, vehicle: Vehicle, pose: Pose | None = None) -> None:
-    """Raise ``CommandRefused`` if the command breaks one of the vehicle's limits (``tacit.limits``)."""
+    """Raise ``CommandRefused`` if the command breaks one of the vehicle's limits (``tacit.limits``); ``pose``
+    is in the fleet's frame (a check-point's), the geofence around the vehicle's home."""
     if not math.isfinite(body.param_value):
         raise CommandRefused("param_value must be a finite number", "param_value")
+    from_home = (
+        None
+        if pose is None
+        else replace(pose, north=pose.north - vehicle.home_north, east=pose.east - vehicle.home_east)
+    )
     refused = vehicle.limits().check(
-        body.kind(), body.distance, body.angle, body.depth, body.speed, body.absolute_angle, pose
+        body.kind(), body.distance, body.angle, body.depth, body.speed, body.absolute_angle, from_home
     )
     if refused is not None:
         raise CommandRefused(refused.message, refused.field)

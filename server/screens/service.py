@@ -69,7 +69,8 @@ class Screens:
             mission = mission_repo.numbered(s, vehicle_id, int(cp.get("mission_id", 0)))
             followed = _commanded(s, vehicle, cp)
         speed = _speed(rows, vehicle, self.settings.time_scale)
-        target = estimate.target_of(cp, mission.plan.get("waypoints") if mission else None, followed)
+        waypoints = mission.plan.get("waypoints") if mission else None
+        target = estimate.target_of(cp, waypoints, followed, vehicle.home)
         guess = estimate.estimate(cp, last.at, time.time() if now is None else now, target, speed)
         label, hint = states.label(cp.get("state", ""))
         return {
@@ -84,11 +85,14 @@ class Screens:
         }
 
     def route(self, vehicle_id: int) -> list[tuple[float, float, float]]:
-        """The waypoints (north, east, depth) of the vehicle's started mission."""
+        """The waypoints (north, east, depth) of the vehicle's started mission, in the fleet's frame (a
+        plan's are relative to the vehicle's home)."""
         with reading(self.db) as s:
+            vehicle = vehicles.get(s, vehicle_id)
             mission = mission_repo.started(s, vehicle_id)
+        north, east = vehicle.home
         return [
-            (w["north"], w["east"], w["depth"])
+            (north + w["north"], east + w["east"], w["depth"])
             for w in (mission.plan.get("waypoints", []) if mission else [])
         ]
 

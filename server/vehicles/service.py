@@ -63,6 +63,8 @@ class Vehicles:
                 name=body.name,
                 address=body.address,
                 key_hex=_unshared(s, _key(body.key)).hex(),
+                home_north=body.home[0],
+                home_east=body.home[1],
                 **body.model_dump(include=set(LimitsIn.model_fields)),
             )
             return repo.save(s, vehicle)
