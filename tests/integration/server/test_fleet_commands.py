@@ -92,3 +92,24 @@ def test_observers_cannot_send_to_the_fleet(client: TestClient) -> None:
         client.post("/api/v1/fleet/commands", json={"command": "hold"}, headers=OBSERVER).status_code == 403
     )
     assert _queued(client) == []
+
+
+def test_the_fleet_lists_every_vehicle_in_its_own_colour_with_the_one_origin(tmp_path: Path) -> None:
+    settings = Settings(
+        database_url=f"sqlite:///{tmp_path}/tacit.db",
+        modem_url="",
+        map_enabled=False,
+        write_tokens=["operator-token"],
+        origin=(40.0, -74.0),
+    )
+    with TestClient(create_app(settings)) as c:
+        for name, address, east in (("rov1", 2, 0.0), ("rov2", 3, 30.0)):
+            body = {"name": name, "address": address, "home": [0.0, east]}
+            assert c.post("/api/v1/vehicles", json=body, headers=OP).status_code == 201
+        fleet = c.get("/api/v1/fleet", headers=OP).json()
+    assert fleet["origin"] == {"lat": 40.0, "lon": -74.0}
+    rov1, rov2 = fleet["vehicles"]
+    assert (rov1["name"], rov2["name"]) == ("rov1", "rov2") and rov2["home"] == [0.0, 30.0]
+    assert [rov1["colour"], rov2["colour"]] == fleet["palette"][:2] and rov1["colour"] != rov2["colour"]
+    assert rov1["overdue"] and rov1["reported"] is None  # never heard: greyed
+    assert rov1["airtime_s"]["total"] == 0.0
