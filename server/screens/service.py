@@ -40,6 +40,7 @@ class Channel:
     planned: dict[int, dict[str, Any]]  # LinkEngine.schedule_status()'s vehicles, by vehicle id
     frames_sent: dict[int, int]  # by modem address
     packets: dict[tuple[int, str], int]  # by (vehicle id, packet type)
+    colours: dict[str, str]  # by vehicle name
 
     def slots(self) -> list[tuple[float, float]]:
         """Each planned vehicle's (share, slot length)."""
@@ -124,7 +125,7 @@ class Screens:
         fleet's one origin (latitude and longitude, None when not known) and the palette."""
         now = time.time() if now is None else now
         channel = self._channel()
-        rows = [self._member(i, v, channel, now) for i, v in enumerate(self.vehicles())]
+        rows = [self._member(v, channel, now) for v in self.vehicles()]
         total = sum(r["airtime_s"]["total"] for r in rows)
         for row in rows:
             row["airtime_share"] = round(row["airtime_s"]["total"] / total, 4) if total else 0.0
@@ -139,9 +140,13 @@ class Screens:
         with reading(self.db) as s:
             sent, packets = telemetry.frames_sent_by_dest(s), telemetry.packets_by_vehicle_and_type(s)
         planned = {p["vehicle_id"]: p for p in self.link.schedule_status()["vehicles"]}
-        return Channel(self.link.status()["vehicles"], planned, sent, packets)
+        return Channel(self.link.status()["vehicles"], planned, sent, packets, self.colours())
 
-    def _member(self, index: int, vehicle: Vehicle, channel: Channel, now: float) -> dict[str, Any]:
+    def colours(self) -> dict[str, str]:
+        """Each vehicle's colour by name: the palette in order of registration (``fleet.colour``)."""
+        return {v.name: fleet.colour(i) for i, v in enumerate(self.vehicles())}
+
+    def _member(self, vehicle: Vehicle, channel: Channel, now: float) -> dict[str, Any]:
         """One vehicle's row: what it last reported (on both clocks), where the shore predicts it, its link,
         whether it is overdue (``fleet``) and its airtime."""
         vehicle_id = saved_id(vehicle)
@@ -163,7 +168,7 @@ class Screens:
             "id": vehicle_id,
             "name": vehicle.name,
             "address": vehicle.address,
-            "colour": fleet.colour(index),
+            "colour": channel.colours[vehicle.name],
             "home": list(vehicle.home),
             **{
                 k: known.get(k)
