@@ -52,6 +52,7 @@ IN_FLIGHT = (
     CommandState.EXECUTING,
 )  # a check-point will end it
 RETRY_AFTER_S = 10  # a full queue's answer: about two command attempts at the default range
+ABORTED = "by an abort before it was sent"  # what happens to the commands an abort overtakes
 
 
 class CommandRefused(Refused):
@@ -207,13 +208,13 @@ class CommandDesk:
         self, vehicle_id: int, body: CommandIn, issued_by: str, then: Callable[[Tx], None] | None = None
     ) -> CommandRecord:
         """Queue a command sent by the operator named ``issued_by``; ``then(s)`` runs in the same transaction (a mission's new status)."""
+        events: list[CommandChanged] = []
         with writing(self.db) as s:
-            vehicle = vehicles.get(s, vehicle_id)
-            command = self._queue(s, vehicle, body, issued_by)
+            command = self._queue(s, vehicles.get(s, vehicle_id), body, issued_by, events)
             if then is not None:
                 then(s)
             s.commit()
-        self._announce([(command, vehicle.name)])
+        self._announce(events)
         return command
 
     def submit_fleet(
@@ -222,21 +223,34 @@ class CommandDesk:
         """One operator action for several vehicles (every registered one if ``vehicle_ids`` is None): the
         command queued once per vehicle, each with its own seq and status, all or none (one transaction:
         an unknown vehicle, or one whose queue is full, refuses the action before anything is queued)."""
+        events: list[CommandChanged] = []
         with writing(self.db) as s:
             fleet = [vehicles.get(s, i) for i in vehicle_ids] if vehicle_ids else vehicle_repo.every(s)
             if not fleet:
                 raise Refused("no vehicle is registered", "vehicle_ids")
             if len({v.id for v in fleet}) < len(fleet):
                 raise Refused("a vehicle is named twice", "vehicle_ids")
-            queued = [(self._queue(s, vehicle, body, issued_by), vehicle.name) for vehicle in fleet]
+            queued = [self._queue(s, vehicle, body, issued_by, events) for vehicle in fleet]
             s.commit()
-        self._announce(queued)
-        return [command for command, _ in queued]
+        self._announce(events)
+        return queued
 
-    def _queue(self, s: Tx, vehicle: Vehicle, body: CommandIn, issued_by: str) -> CommandRecord:
-        """Check and queue one command for ``vehicle``. Refused with ``TooMany`` while the vehicle already
-        has ``max_queued`` commands waiting for the link: at a few seconds per attempt, a longer queue would
-        only hold the link for minutes (and each command would run long after the operator asked for it)."""
+    def _queue(
+        self, s: Tx, vehicle: Vehicle, body: CommandIn, issued_by: str, events: list[CommandChanged]
+    ) -> CommandRecord:
+        """Check and queue one command for ``vehicle``, its events added to ``events``. An abort (the fleet's
+        stop) first supersedes the vehicle's commands not yet sent: they would only run after it, and they
+        never hold it back. Otherwise refused with ``TooMany`` while the vehicle already has ``max_queued``
+        commands waiting for the link: at a few seconds per attempt, a longer queue would only hold the
+        link for minutes (and each command would run long after the operator asked for it)."""
+        if body.kind() is Command.ABORT_MISSION:
+            events += [
+                CommandChanged(
+                    saved_id(c), c.seq, CommandState.SUPERSEDED, vehicle=vehicle.name, detail=ABORTED
+                )
+                for c in repo.queued(s, saved_id(vehicle))
+                if advance(s, c, CommandState.SUPERSEDED, ABORTED)
+            ]
         waiting = repo.pending_count(s, saved_id(vehicle))
         if waiting >= self.max_queued:
             raise TooMany(
@@ -245,17 +259,23 @@ class CommandDesk:
                 "send again",
                 RETRY_AFTER_S,
             )
-        return queue(s, vehicle, body, issued_by, self.pose(vehicle.address))
-
-    def _announce(self, queued: list[tuple[CommandRecord, str]]) -> None:
-        """Each queued command (with its vehicle's name) on the bus, then the link woken to send them."""
-        for command, name in queued:
-            log.info("vehicle %s: command %s seq %d queued", name, command.command, command.seq)
-            self.bus.publish(
-                CommandChanged(
-                    saved_id(command), command.seq, CommandState.QUEUED, vehicle=name, command=command.command
-                )
+        command = queue(s, vehicle, body, issued_by, self.pose(vehicle.address))
+        log.info("vehicle %s: command %s seq %d queued", vehicle.name, command.command, command.seq)
+        events.append(
+            CommandChanged(
+                saved_id(command),
+                command.seq,
+                CommandState.QUEUED,
+                vehicle=vehicle.name,
+                command=command.command,
             )
+        )
+        return command
+
+    def _announce(self, events: list[CommandChanged]) -> None:
+        """What was queued (and superseded) on the bus once committed, then the link woken to send it."""
+        for event in events:
+            self.bus.publish(event)
         self.wake()
 
     # --- what the link asks ---------------------------------------------------------------------

@@ -113,3 +113,21 @@ def test_the_fleet_lists_every_vehicle_in_its_own_colour_with_the_one_origin(tmp
     assert [rov1["colour"], rov2["colour"]] == fleet["palette"][:2] and rov1["colour"] != rov2["colour"]
     assert rov1["overdue"] and rov1["reported"] is None  # never heard: greyed
     assert rov1["airtime_s"]["total"] == 0.0
+
+
+def test_abort_all_overtakes_a_full_queue_and_what_was_not_sent_never_runs_after_it(
+    client: TestClient,
+) -> None:
+    """No modem here: every command stays queued, as behind a busy channel."""
+    for _ in range(20):  # Settings.max_queued_commands: the queue is full
+        assert (
+            client.post("/api/v1/vehicles/1/commands", json={"command": "hold"}, headers=OP).status_code
+            == 202
+        )
+    assert client.post("/api/v1/vehicles/1/commands", json={"command": "hold"}, headers=OP).status_code == 429
+    abort = client.post("/api/v1/fleet/commands", json={"command": "abort_mission"}, headers=OP)
+    assert abort.status_code == 202
+    rov1 = client.get("/api/v1/vehicles/1/commands?history=true", headers=OP).json()
+    assert rov1[0]["command"] == "abort_mission" and rov1[0]["status"] == "queued"
+    assert {c["status"] for c in rov1[1:]} == {"superseded"} and len(rov1) == 21
+    assert rov1[1]["history"][-1]["detail"] == "by an abort before it was sent"
