@@ -271,7 +271,7 @@ function latlon([lat, lon]) {
 function clockOffset(v) {
   if (v.clock_offset_s === null) return "";
   const s = v.clock_offset_s;
-  return `<span class="sub" title="The vehicle's clock minus the shore's, at least (from its recent check-points); report times on the shore's clock are corrected by it">clock ${s >= 0 ? "+" : "−"}${Math.abs(s).toFixed(1)} s</span>`;
+  return `<span class="sub" title="The vehicle's clock minus the shore's, at least (from its recent check-points); report times on the shore's clock are corrected by it">clock ≥ ${s >= 0 ? "+" : "−"}${Math.abs(s).toFixed(1)} s</span>`;
 }
 
 function fleetRow(v, since) {
