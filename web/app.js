@@ -249,6 +249,11 @@ function settle(s) {
 async function refreshFleet() {
   let fleet;
   try { fleet = await api("/fleet"); } catch (error) { return; }
+  if (fleet.vehicles.map((v) => v.id).join() !== state.vehicles.map((v) => v.id).join()) {  // one registered meanwhile
+    state.vehicles = await api("/vehicles");
+    buildVehicleSelect();
+    $("vehicle").value = state.vehicleId ?? "";
+  }
   state.fleet = fleet.vehicles;
   state.origin = fleet.origin;
   state.fleetAt = Date.now() / 1000;

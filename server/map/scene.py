@@ -454,6 +454,10 @@ class OperatorMap:
             lines.append(f"**{name}**: heard {heard}, SNR {snr}, range {rng}")
         for vehicle in known["vehicles"]:
             self._prediction(vehicle)
+            share = vehicle["airtime_share"] * 100
+            lines.append(
+                f"airtime **{vehicle['name']}**: {vehicle['airtime_s']['total']:.0f} s ({share:.0f} %)"
+            )
         listing = fleet_html(known)
         for panel in list(self.panels.values()):
             if names and list(panel.vehicle_dd.options) != names:

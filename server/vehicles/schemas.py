@@ -36,6 +36,13 @@ NORTH = CheckpointPacket.field("north")  # a position in the fleet's frame a che
 Coordinate = Annotated[float, Field(ge=NORTH.lo, le=NORTH.hi)]
 
 
+class HomeIn(BaseModel):
+    model_config = STRICT
+    home: tuple[Coordinate, Coordinate] = Field(
+        description="m north, east of the fleet's origin where it starts (its agent's [nav] home)"
+    )
+
+
 class VehicleIn(LimitsIn):
     name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")
     address: int = Field(ge=1, le=127, description="the vehicle modem's address")

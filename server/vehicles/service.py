@@ -83,6 +83,13 @@ class Vehicles:
             vehicle.share = share
             return repo.save(s, vehicle)
 
+    def set_home(self, vehicle_id: int, home: tuple[float, float]) -> Vehicle:
+        """Where the vehicle starts in the fleet's frame (as its agent's ``[nav] home`` says)."""
+        with writing(self.db) as s:
+            vehicle = get(s, vehicle_id)
+            vehicle.home_north, vehicle.home_east = home
+            return repo.save(s, vehicle)
+
     def rotate_key(self, vehicle_id: int, key_hex: str | None = None) -> Vehicle:
         """A new key for the vehicle. Commands already queued are re-signed with it when sent; the agent
         needs the same key in its configuration (done at the surface: an acoustic link must never carry

@@ -103,9 +103,13 @@ def test_the_fleet_lists_every_vehicle_in_its_own_colour_with_the_one_origin(tmp
         origin=(40.0, -74.0),
     )
     with TestClient(create_app(settings)) as c:
-        for name, address, east in (("rov1", 2, 0.0), ("rov2", 3, 30.0)):
+        for name, address, east in (("rov1", 2, 0.0), ("rov2", 3, 15.0)):
             body = {"name": name, "address": address, "home": [0.0, east]}
             assert c.post("/api/v1/vehicles", json=body, headers=OP).status_code == 201
+        moved = c.put("/api/v1/vehicles/2/home", json={"home": [0.0, 30.0]}, headers=OP)
+        assert moved.status_code == 200 and moved.json()["home"] == [0.0, 30.0]
+        assert c.put("/api/v1/vehicles/2/home", json={"home": [0.0, 1e6]}, headers=OP).status_code == 422
+        assert c.put("/api/v1/vehicles/9/home", json={"home": [0.0, 1.0]}, headers=OP).status_code == 404
         fleet = c.get("/api/v1/fleet", headers=OP).json()
     assert fleet["origin"] == {"lat": 40.0, "lon": -74.0}
     rov1, rov2 = fleet["vehicles"]
