@@ -98,9 +98,7 @@ class OperatorMap:
         self.markers: list[tuple[float, float, float, int]] = []
         self.last_heard: dict[str, float] = {}
         self.reports: dict[str, dict] = {}  # by vehicle name: its last verified check-point
-        self.colours: dict[
-            str, str
-        ] = {}  # by vehicle name: its colour on both screens (server.screens.fleet)
+        self.colours: dict[str, str] = {}  # by vehicle name: as on the dashboard (server.screens.fleet)
         self._nodes: dict[str, dict[str, Any]] = {}
         self.panels: dict[int, OperatorPanel] = {}  # by viser client id: one panel per browser
         self.estimate_cloud: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # points, colours, front
@@ -180,12 +178,7 @@ class OperatorMap:
         """The fleet's one origin (north = east = 0 for every vehicle), with its latitude and longitude when
         known."""
         origin = self.settings.origin
-        where = (
-            ""
-            if origin is None
-            else f", {abs(origin[0]):.5f}°{'N' if origin[0] >= 0 else 'S'} {abs(origin[1]):.5f}°{'E' if origin[1] >= 0 else 'W'}"
-        )
-        return f"fleet origin (0, 0){where}"
+        return "fleet origin (0, 0)" + ("" if origin is None else f", {fleet.latlon_text(*origin)}")
 
     def _depth_scale(self) -> None:
         """The depth scale, off to the south-west of home (``DEPTH_SCALE``): a vertical line with its labels

@@ -31,8 +31,14 @@ def rgb(hex_colour: str) -> tuple[int, int, int]:
     return (value >> 16) & 255, (value >> 8) & 255, value & 255
 
 
+def latlon_text(lat: float, lon: float) -> str:
+    """``40.48620° N, 74.45180° W``."""
+    return f"{abs(lat):.5f}° {'N' if lat >= 0 else 'S'}, {abs(lon):.5f}° {'E' if lon >= 0 else 'W'}"
+
+
 def report_gap(heard: Sequence[float]) -> float | None:
-    """The median time between the shore hearing consecutive check-points (``heard``, any order)."""
+    """The median time between the shore hearing consecutive check-points (``heard``, any order: the
+    screens take the last 8, the window of ``server.telemetry.clock``)."""
     times = sorted(heard)
     gaps = [b - a for a, b in zip(times, times[1:], strict=False)]
     return statistics.median(gaps) if gaps else None

@@ -31,6 +31,15 @@ from server.vehicles.models import Vehicle
 from tacit.navigation import Origin, Pose
 from tacit.streams import UNITS
 
+REPORTED = (
+    "reported",
+    "heard_at",
+    "age_s",
+    "state_label",
+    "state_hint",
+    "predicted",
+)  # estimate()'s, per row
+
 
 @dataclass(frozen=True)
 class Channel:
@@ -147,65 +156,42 @@ class Screens:
         return {v.name: fleet.colour(i) for i, v in enumerate(self.vehicles())}
 
     def _member(self, vehicle: Vehicle, channel: Channel, now: float) -> dict[str, Any]:
-        """One vehicle's row: what it last reported (on both clocks), where the shore predicts it, its link,
-        whether it is overdue (``fleet``) and its airtime."""
+        """One vehicle's row: what it last reported, its link, whether it is overdue, its airtime."""
         vehicle_id = saved_id(vehicle)
         known = self.estimate(vehicle_id, now)
         with reading(self.db) as s:
             heard = [r.at for r in telemetry.checkpoints(s, vehicle_id, clock.WINDOW)]
             offset = telemetry_service.clock_offset(s, vehicle_id)
-        link, plan, cp = (
-            channel.link.get(vehicle.name, {}),
-            channel.planned.get(vehicle_id),
-            known["reported"],
-        )
-        limit = fleet.overdue_after(
-            fleet.report_gap(heard), fleet.slot_interval(vehicle.share, channel.slots())
-        )
-        last = link.get("last_heard")
-        predicted = known["predicted"]
+        plan = channel.planned.get(vehicle_id)
         return {
             "id": vehicle_id,
             "name": vehicle.name,
             "address": vehicle.address,
             "colour": channel.colours[vehicle.name],
             "home": list(vehicle.home),
-            **{
-                k: known.get(k)
-                for k in ("reported", "heard_at", "age_s", "state_label", "state_hint", "predicted")
-            },
-            "predicted_latlon": None
-            if predicted is None
-            else self._latlon(predicted["north"], predicted["east"]),
-            "reported_shore_time": None
-            if cp is None
-            else clock.on_shore_clock(cp["time"], known["heard_at"], offset),
-            "clock_offset_s": None if offset is None else round(offset, 2),
-            "battery_v": None if cp is None else cp.get("battery"),
-            **{k: link.get(k) for k in ("last_heard", "snr_in", "snr_out", "range_m")},
-            "overdue": last is None or (limit is not None and now - last > limit),
-            "overdue_after_s": None if limit is None else round(limit, 1),
+            **self._reported(known, offset),
+            **_heard(vehicle, channel, heard, now),
             "next_slot": None if plan is None else plan["next_slot"],
             "share": vehicle.share,
-            "airtime_s": self._airtime(vehicle, plan, channel),
+            "airtime_s": _airtime(vehicle, plan, channel),
         }
+
+    def _reported(self, known: dict[str, Any], offset: float | None) -> dict[str, Any]:
+        """What the vehicle last reported (``estimate``), its time on the shore's clock with the vehicle's
+        clock offset, and the prediction in latitude and longitude."""
+        cp, predicted = known["reported"], known["predicted"]
+        return {
+            **{k: known.get(k) for k in REPORTED},
+            "predicted_latlon": None if predicted is None else self._latlon(predicted["north"], predicted["east"]),
+            "reported_shore_time": None if cp is None else clock.on_shore_clock(cp["time"], known["heard_at"], offset),
+            "clock_offset_s": None if offset is None else round(offset, 2),
+            "battery_v": None if cp is None else cp.get("battery"),
+        }  # fmt: skip
 
     def _latlon(self, north: float, east: float) -> list[float] | None:
         """A point of the fleet's frame in latitude and longitude, when the origin is known."""
         origin = self.settings.origin
         return None if origin is None else [round(x, 7) for x in Origin(*origin).to_global(north, east)]
-
-    @staticmethod
-    def _airtime(vehicle: Vehicle, plan: dict[str, Any] | None, channel: Channel) -> dict[str, float]:
-        """The vehicle's seconds on the air by use (what was sent to it, polls since start), and their total."""
-        vehicle_id = saved_id(vehicle)
-        seconds = airtime.by_use(
-            channel.frames_sent.get(vehicle.address, 0),
-            0 if plan is None else plan["polls"],
-            channel.packets.get((vehicle_id, "checkpoint"), 0),
-            channel.packets.get((vehicle_id, "priority"), 0),
-        )
-        return {**{k: round(v, 1) for k, v in seconds.items()}, "total": round(sum(seconds.values()), 1)}
 
     # --- the link ---------------------------------------------------------------------------------
 
@@ -254,6 +240,31 @@ class Screens:
             "form": command_form(),
             "time_scale": self.settings.time_scale,
         }
+
+
+def _heard(vehicle: Vehicle, channel: Channel, heard: list[float], now: float) -> dict[str, Any]:
+    """The vehicle's link (last frame heard, SNR, range) and whether it is overdue for its place in the
+    schedule (``fleet.overdue_after``: ``heard`` are its last check-points' arrival times)."""
+    link = channel.link.get(vehicle.name, {})
+    limit = fleet.overdue_after(fleet.report_gap(heard), fleet.slot_interval(vehicle.share, channel.slots()))
+    last = link.get("last_heard")
+    return {
+        **{k: link.get(k) for k in ("last_heard", "snr_in", "snr_out", "range_m")},
+        "overdue": last is None or (limit is not None and now - last > limit),
+        "overdue_after_s": None if limit is None else round(limit, 1),
+    }
+
+
+def _airtime(vehicle: Vehicle, plan: dict[str, Any] | None, channel: Channel) -> dict[str, float]:
+    """The vehicle's seconds on the air by use (what was sent to it, polls since start), and their total."""
+    vehicle_id = saved_id(vehicle)
+    seconds = airtime.by_use(
+        channel.frames_sent.get(vehicle.address, 0),
+        0 if plan is None else plan["polls"],
+        channel.packets.get((vehicle_id, "checkpoint"), 0),
+        channel.packets.get((vehicle_id, "priority"), 0),
+    )
+    return {**{k: round(v, 1) for k, v in seconds.items()}, "total": round(sum(seconds.values()), 1)}
 
 
 def _speed(rows: list[Packet], vehicle: Vehicle, time_scale: float) -> float | None:
