@@ -573,7 +573,7 @@ function renderPlot() {
     ctx.fillText(utc(t), Math.min(x(t) - 28, right - 60), bottom + 18);
   }
   ctx.save(); ctx.translate(14, top + (bottom - top) / 2 + 40); ctx.rotate(-Math.PI / 2); ctx.fillText(`${channel} (${unit})`, 0, 0); ctx.restore();
-  ctx.fillText("time (UTC)", right - 80, bottom + 36);
+  ctx.fillText("time (UTC, vehicle clock)", right - 170, bottom + 36);
   ctx.fillStyle = "rgba(0, 64, 160, 0.18)";
   for (const p of points) if (present(p)) ctx.fillRect(x(p.time) - 1, y(p.values[index] + eps), 2, y(p.values[index] - eps) - y(p.values[index] + eps));
   ctx.strokeStyle = "#0040a0"; ctx.lineWidth = 2; ctx.beginPath();

@@ -41,6 +41,9 @@ REPORTED = (
 )  # estimate()'s, per row
 
 
+COUNTS_TTL_S = 5.0  # s the fleet's airtime counts are kept before they are counted again
+
+
 @dataclass(frozen=True)
 class Channel:
     """What the link says of every vehicle, read once per listing of the fleet."""
@@ -62,6 +65,7 @@ class Screens:
         self.db = db
         self.link = link
         self.map_port: Callable[[], int | None] = lambda: None  # set when the map runs
+        self._counted: tuple[float, dict[int, int], dict[tuple[int, str], int]] = (-1e18, {}, {})
 
     # --- vehicles ---------------------------------------------------------------------------------
 
@@ -146,10 +150,18 @@ class Screens:
         }
 
     def _channel(self) -> Channel:
-        with reading(self.db) as s:
-            sent, packets = telemetry.frames_sent_by_dest(s), telemetry.packets_by_vehicle_and_type(s)
         planned = {p["vehicle_id"]: p for p in self.link.schedule_status()["vehicles"]}
+        sent, packets = self._counts()
         return Channel(self.link.status()["vehicles"], planned, sent, packets, self.colours())
+
+    def _counts(self) -> tuple[dict[int, int], dict[tuple[int, str], int]]:
+        """Frames sent by address and packets by vehicle and type, counted again at most every
+        ``COUNTS_TTL_S``: the map lists the fleet every second, and the counts scan whole tables."""
+        if time.monotonic() - self._counted[0] > COUNTS_TTL_S:
+            with reading(self.db) as s:
+                counts = telemetry.frames_sent_by_dest(s), telemetry.packets_by_vehicle_and_type(s)
+            self._counted = (time.monotonic(), *counts)
+        return self._counted[1], self._counted[2]
 
     def colours(self) -> dict[str, str]:
         """Each vehicle's colour by name: the palette in order of registration (``fleet.colour``)."""
