@@ -354,7 +354,7 @@ function renderVehicle() {
   const toward = p.target ? `toward north ${p.target[0].toFixed(1)}, east ${p.target[1].toFixed(1)} m${e.speed_mps ? ` at ${e.speed_mps} m/s` : ""}` : "staying put";
   $("vehicle-state").innerHTML = `
     <div class="reported"><span class="what">Last report</span> <strong title="${esc(e.state_hint)}">${esc(e.state_label)}</strong>,
-      <span class="age ${age > 120 ? "old" : ""}">${ago(age)}</span> (heard ${utc(e.heard_at)} UTC; stamped ${utc(cp.time)} on the vehicle's clock
+      <span class="age ${age > 120 ? "old" : ""}">${ago(age)}</span> (heard ${utc(e.heard_at)} UTC; stamped ${utc(cp.time)} by the vehicle,
       ${clockOffset(state.fleet.find((v) => v.id === state.vehicleId) ?? { clock_offset_s: null })})<br>
       <span class="hint" id="state-hint">${esc(e.state_hint)}</span><br>
       mission ${cp.mission_id}, waypoint ${cp.waypoint}<br>

@@ -74,7 +74,10 @@ class FleetCommandIn(BaseModel):
         description="what to ask of every vehicle",
     )
     vehicle_ids: list[Annotated[int, Field(ge=1, le=DB_INT_MAX)]] | None = Field(
-        None, min_length=1, max_length=127, description="the vehicles (default: every registered vehicle)"
+        None,
+        min_length=1,
+        max_length=127,  # a vehicle per modem address (1 .. 127): no fleet is larger
+        description="the vehicles (default: every registered vehicle)",
     )
 
     @field_validator("command")
