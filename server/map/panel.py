@@ -98,9 +98,10 @@ def _fleet_row(v: dict[str, Any]) -> str:
     if cp is None or p is None:
         return f'<div style="font-size:0.8em;{style}">{head}</div>'
     snr = "-" if v["snr_in"] is None else f"{v['snr_in']:.0f}"
+    offset = "" if v["clock_offset_s"] is None else f" (its clock ≥ {v['clock_offset_s']:+.1f} s)"
     return (
         f'<div style="font-size:0.8em;margin-bottom:4px;{style}">{head}<br>'
-        f"report {v['age_s']:.0f} s ago: N {cp['north']:.1f}, E {cp['east']:.1f}, {cp['depth']:.1f} m deep; "
+        f"report {v['age_s']:.0f} s ago{offset}: N {cp['north']:.1f}, E {cp['east']:.1f}, {cp['depth']:.1f} m deep; "
         f"battery {cp['battery']:.1f} V, SNR {snr} dB<br>"
         f"predicted N {p['north']:.1f}, E {p['east']:.1f} m <b>± {p['radius_m']:.1f} m</b></div>"
     )
