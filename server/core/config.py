@@ -22,6 +22,8 @@ class SettingsError(ValueError):
 
 
 Csv = Annotated[list[str], NoDecode]
+Latitude = Annotated[float, Field(ge=-90, le=90)]
+Longitude = Annotated[float, Field(ge=-180, le=180)]
 
 
 class Settings(BaseSettings):
@@ -46,6 +48,9 @@ class Settings(BaseSettings):
     confirm_timeout: float = Field(120.0, gt=0)  # s: an ACKed command no check-point confirmed is sent again
     sound_speed: float = Field(1500.0, gt=0)
     shore_position: tuple[float, float, float] = (0.0, 0.0, 1.0)  # north, east, depth of the shore modem
+    # latitude, longitude (deg) of the fleet's one origin, where north = east = 0 for every vehicle; None:
+    # not known (the screens then show metres only)
+    origin: tuple[Latitude, Longitude] | None = None
     default_range: float = Field(1000.0, gt=0)  # used for slot timing until a ping measures it
     sync_interval: float = Field(
         60.0, gt=0
@@ -87,7 +92,7 @@ class Settings(BaseSettings):
             raise ValueError("retention_days is 0 (keep) or at least 8 (the frames stream keeps 7 days)")
         return value
 
-    @field_validator("shore_position", mode="before")
+    @field_validator("shore_position", "origin", mode="before")
     @classmethod
     def _position(cls, value: Any) -> Any:
         return tuple(float(x) for x in value.split(",")) if isinstance(value, str) else value

@@ -185,6 +185,20 @@ def packets_by_type(s: Session) -> dict[str, int]:
     return {kind: int(n) for kind, n in s.exec(select(Packet.type, func.count()).group_by(Packet.type)).all()}
 
 
+def frames_sent_by_dest(s: Session) -> dict[int, int]:
+    """Frames the shore sent, by the modem address they went to."""
+    query = select(Frame.dest, func.count()).where(Frame.direction == "out").group_by(col(Frame.dest))
+    return {int(dest): int(n) for dest, n in s.exec(query).all()}
+
+
+def packets_by_vehicle_and_type(s: Session) -> dict[tuple[int, str], int]:
+    """Vehicle packets stored, by (vehicle id, type)."""
+    query = select(Packet.vehicle_id, Packet.type, func.count()).group_by(
+        col(Packet.vehicle_id), col(Packet.type)
+    )
+    return {(int(vehicle), kind): int(n) for vehicle, kind, n in s.exec(query).all() if vehicle is not None}
+
+
 def certain_ticks_by_stream(s: Session) -> dict[str, int]:
     query = (
         select(Telemetry.stream, func.count())

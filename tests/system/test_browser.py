@@ -95,7 +95,7 @@ def test_dashboard_and_map_in_a_real_browser(demo: dict) -> None:
         map_page.get_by_text(
             re.compile(r"Command #\d+ seq \d+: (acknowledged|executing|executed)")
         ).first.wait_for(timeout=90_000)
-        map_page.get_by_text(re.compile(r"#\d+ move 10 m, turn \+0°.*\d\d:\d\d:\d\dZ")).first.wait_for()
+        map_page.get_by_text(re.compile(r"#\d+ rov1 move 10 m, turn \+0°.*\d\d:\d\d:\d\dZ")).first.wait_for()
         time.sleep(2)  # the map opens top-down: this is what an operator sees first
         # headless Chromium renders WebGL in software, and viser says so in a notice over the scene
         for close in map_page.locator(".mantine-Notification-closeButton").all():
