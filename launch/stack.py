@@ -26,11 +26,13 @@ from typing import IO, Any, TypeVar
 
 from launch.processes import stop
 from tacit.config import dump_toml
+from tacit.navigation import Origin
 from tacit.private import open_private, private_dir
 
 T = TypeVar("T")
 SHORE_ADDRESS = 1
 VEHICLE_ADDRESS = 2  # the first vehicle's; the others follow (3, 4, ...)
+SIM_ORIGIN = Origin()  # where the simulator's GPS puts the fleet's origin (simulators.mavlink_vehicle)
 SPACING_M = 30.0  # the fleet's homes, east of each other: the demo's 20 m squares do not overlap
 
 
@@ -97,7 +99,12 @@ class Member:
 
     def registration(self) -> dict[str, Any]:
         """The body of ``POST /api/v1/vehicles`` for it."""
-        return {"name": self.name, "address": self.address, **({"key": self.key} if self.key else {})}
+        return {
+            "name": self.name,
+            "address": self.address,
+            "home": list(self.home),
+            **({"key": self.key} if self.key else {}),
+        }
 
 
 def _unique(what: str, values: list[Any]) -> None:
@@ -208,6 +215,7 @@ class Stack:
             "database_url": f"sqlite:///{self.dir / 'tacit.db'}", "modem_url": str(self.pty("shore")),
             "modem_log": str(self.dir / "shore-modem.log"), "write_tokens": list(c.write_tokens),
             "read_tokens": list(c.read_tokens), "time_scale": c.time_scale, "default_range": c.range_m,
+            "origin": (SIM_ORIGIN.lat, SIM_ORIGIN.lon),
         }  # fmt: skip
         values.update(overrides)
         return values

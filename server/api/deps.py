@@ -11,6 +11,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from server.commands.service import CommandDesk
 from server.core.config import Settings
 from server.core.events import Bus
+from server.core.schemas import DB_INT_MAX
 from server.core.security import Actor, Role, open_reads
 from server.link.engine import LinkEngine
 from server.missions.service import Missions
@@ -129,7 +130,6 @@ def require_write(shore: ShoreDep, request: Request, credentials: Credentials) -
     return found
 
 
-DB_INT_MAX = 2**31 - 1  # what every database's INTEGER holds: larger ids cannot exist, say 422 not 500
 Id = Annotated[int, Path(ge=1, le=DB_INT_MAX)]
 QueryId = Annotated[int, Query(ge=1, le=DB_INT_MAX)]
 OptionalId = Annotated[int | None, Query(ge=1, le=DB_INT_MAX)]

@@ -95,13 +95,15 @@ class TelemetryDecoded(Event):
 class PacketsSettled(Event):
     """A verified check-point settled the priority packets it covers (packet ids): their bytes are
     ``verified`` or ``forged`` (another packet with a vouched-for seq); of the verified, the ``trusted``
-    ones' samples may be believed (decoded along a chain of trusted packets: ``server.link.verify``)."""
+    ones' samples may be believed (decoded along a chain of trusted packets: ``server.link.verify``);
+    pending ones it left behind, out of reach of any later check-point, are ``unverifiable``."""
 
     kind: ClassVar[str] = "settled"
     vehicle: str
     verified: list[int]
     forged: list[int]
     trusted: list[int]
+    unverifiable: list[int] = field(default_factory=list)  # out of every later check-point's reach
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -299,6 +299,7 @@ class LinkEngine:
                     "range_m": self.timing.range_m(vehicle),
                     "last_polled": turn.last_polled,
                     "last_commanded": turn.last_commanded,
+                    "polls": turn.polls,
                 }
             )
             expected += slot

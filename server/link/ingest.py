@@ -17,6 +17,7 @@ from __future__ import annotations
 import logging
 import math
 import threading
+from typing import Any
 
 from sqlalchemy import Engine
 
@@ -167,20 +168,7 @@ class Ingest:
             self.stats["rejected"] += 1  # the modem driver's parser bounds these; never trust it blindly
             log.warning("frame with impossible addresses or rate dropped")
             return []
-        frame_id = telemetry.add_frame(
-            s,
-            {
-                "direction": "in",
-                "src": frame.src,
-                "dest": frame.dest,
-                "rate": frame.rate,
-                "data": frame.data,
-                "snr_in": _finite(frame.snr_in),
-                "snr_out": _finite(frame.snr_out),
-                "stats": frame.stats,
-                "at": frame.at,
-            },
-        )
+        frame_id = telemetry.add_frame(s, frame_row(frame))
         self._stored(s, frame, frame_id)
         v = self.vehicles.get(frame.src)
         if v is None:
@@ -292,7 +280,7 @@ class Ingest:
         if cp.unsynced:
             v.link.echo = cp.mac  # the heartbeat answers it at the vehicle's next slot
         events: list[Event] = [VehicleReported(vehicle=v.name, checkpoint=body)]
-        events += self.verifier.vouch(s, batch, v, verdict.covered)
+        events += self.verifier.vouch(s, batch, v, cp.seq, verdict.covered)
         if vehicle.previous_key_hex and verdict.version == vehicle.key_version:
             events.append(self._key_confirmed(s, batch, v, vehicle.key_version))
         return PacketTrust.VERIFIED, events + list(commands.apply_checkpoint(s, vehicle, cp, body))
@@ -341,6 +329,21 @@ class Ingest:
         row["body"].update(decoded.body)  # what decoding found (or why it could not)
         telemetry.set_packet(s, packet_id, body=row["body"], origin=decoded.origin)
         return packet_id, decoded.events
+
+
+def frame_row(frame: IncomingFrame) -> dict[str, Any]:
+    """A received frame's row in the ``frame`` table."""
+    return {
+        "direction": "in",
+        "src": frame.src,
+        "dest": frame.dest,
+        "rate": frame.rate,
+        "data": frame.data,
+        "snr_in": _finite(frame.snr_in),
+        "snr_out": _finite(frame.snr_out),
+        "stats": frame.stats,
+        "at": frame.at,
+    }
 
 
 def _finite(value: float | None) -> float | None:

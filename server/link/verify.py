@@ -23,7 +23,7 @@ from server.telemetry.models import PacketTrust
 from server.vehicles import keys
 from server.vehicles.models import Vehicle
 from tacit import auth
-from tacit.packets import CheckpointPacket
+from tacit.packets import COVER_BITS, CheckpointPacket
 
 log = logging.getLogger("tacit.server.ingest")
 
@@ -98,17 +98,22 @@ class Verifier:
         log.warning("vehicle %s: %s check-point ignored: %s", v.name, trust.value, detail)
         return Verdict(trust, [LinkNotice(event=kind, vehicle=v.name, detail={"error": detail})])
 
-    def vouch(self, s: Tx, batch: Batch, v: VehicleState, covered: list[tuple[int, bytes]]) -> list[Event]:
-        """The ``covered`` packets (seq, hash) are verified; another packet received with one of their seqs
-        is forged."""
+    def vouch(
+        self, s: Tx, batch: Batch, v: VehicleState, seq: int, covered: list[tuple[int, bytes]]
+    ) -> list[Event]:
+        """The ``covered`` packets (seq, hash) of check-point ``seq`` are verified; another packet received
+        with one of their seqs is forged; a pending one no later check-point can reach is unverifiable."""
         good: list[int] = []
         bad: list[int] = []
-        for seq, digest in covered:
-            for h, packet_id in v.link.recent.get(seq, []):
+        for covered_seq, digest in covered:
+            for h, packet_id in v.link.recent.get(covered_seq, []):
                 (good if h == digest else bad).append(packet_id)
-            v.link.recent[seq] = [(h, pid) for h, pid in v.link.recent.get(seq, []) if h == digest]
+            v.link.recent[covered_seq] = [
+                (h, pid) for h, pid in v.link.recent.get(covered_seq, []) if h == digest
+            ]
         batch.flush(s)  # telemetry of packets in this batch is in the table before it is marked
         telemetry.set_trust(s, good, PacketTrust.VERIFIED)
+        lost = telemetry.settle_pending(s, _out_of_reach(v, seq), PacketTrust.UNVERIFIABLE)
         trusted = self._trusted(s, good)
         telemetry.trust_data(s, trusted)
         if len(trusted) < len(good) and not v.link.needs_restart:
@@ -128,7 +133,7 @@ class Verifier:
                 v.name,
                 len(bad),
             )
-        return [PacketsSettled(vehicle=v.name, verified=good, forged=bad, trusted=trusted)]
+        return [PacketsSettled(vehicle=v.name, verified=good, forged=bad, trusted=trusted, unverifiable=lost)]
 
     @staticmethod
     def _trusted(s: Tx, good: list[int]) -> list[int]:
@@ -147,6 +152,15 @@ class Verifier:
             if origin is None or origin in trusted or _was_trusted(s, origin):
                 trusted.append(saved_id(row))
         return trusted
+
+
+def _out_of_reach(v: VehicleState, seq: int) -> list[int]:
+    """The packets (ids) heard at seqs that no check-point after ``seq`` can cover (``COVER_BITS`` behind
+    it, at most half the ring: the rest are ahead), forgotten from the candidates. The vehicle covers only
+    packets whose ACK it heard; one the shore heard but whose ACK was lost stays pending here forever
+    otherwise, and the screens would say "pending" of a packet nothing will ever verify."""
+    behind = [q for q in v.link.recent if COVER_BITS <= (seq - q) % 256 < 128]
+    return [packet_id for q in behind for _, packet_id in v.link.recent.pop(q)]
 
 
 def _was_trusted(s: Tx, packet_id: int) -> bool:

@@ -7,7 +7,7 @@ from fastapi import APIRouter, Depends
 from server.api.deps import Id, LinkDep, VehiclesDep, require_read, require_write
 from server.vehicles import keys
 from server.vehicles.models import Vehicle
-from server.vehicles.schemas import KeyIn, LimitsIn, ShareIn, VehicleCreated, VehicleIn, VehicleOut
+from server.vehicles.schemas import HomeIn, KeyIn, LimitsIn, ShareIn, VehicleCreated, VehicleIn, VehicleOut
 
 router = APIRouter(prefix="/api/v1/vehicles", tags=["vehicles"])
 
@@ -50,6 +50,13 @@ def set_share(vehicle_id: Id, body: ShareIn, vehicles: VehiclesDep, link: LinkDe
     vehicle = vehicles.set_share(vehicle_id, body.share)
     link.share_changed(vehicle_id, body.share)
     return _out(vehicle)
+
+
+@router.put("/{vehicle_id}/home", response_model=VehicleOut, dependencies=[Depends(require_write)])
+def set_home(vehicle_id: Id, body: HomeIn, vehicles: VehiclesDep) -> VehicleOut:
+    """Where the vehicle starts, m north and east of the fleet's one origin (its agent's ``[nav] home``):
+    its mission's waypoints and its return home are relative to it on the screens."""
+    return _out(vehicles.set_home(vehicle_id, body.home))
 
 
 @router.post("/{vehicle_id}/key", response_model=VehicleCreated, dependencies=[Depends(require_write)])

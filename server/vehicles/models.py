@@ -26,7 +26,16 @@ class Vehicle(SQLModel, table=True):
     max_speed: float = Limits.max_speed
     geofence_radius: float = Limits.geofence_radius
     share: float = Field(default=1.0, sa_column_kwargs={"server_default": "1"})  # its weight in the MAC
+    # where it starts, m north and east of the fleet's origin (its agent's [nav] home): its mission's
+    # waypoints and its return home are relative to it, its check-points in the fleet's frame
+    home_north: float = Field(default=0.0, sa_column_kwargs={"server_default": "0"})
+    home_east: float = Field(default=0.0, sa_column_kwargs={"server_default": "0"})
     created_at: float = Field(default_factory=now)
+
+    @property
+    def home(self) -> tuple[float, float]:
+        """(north, east) of its home in the fleet's frame."""
+        return self.home_north, self.home_east
 
     def limits(self) -> Limits:
         """The vehicle's limits as the shore holds them (set through the API)."""

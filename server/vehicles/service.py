@@ -63,6 +63,8 @@ class Vehicles:
                 name=body.name,
                 address=body.address,
                 key_hex=_unshared(s, _key(body.key)).hex(),
+                home_north=body.home[0],
+                home_east=body.home[1],
                 **body.model_dump(include=set(LimitsIn.model_fields)),
             )
             return repo.save(s, vehicle)
@@ -79,6 +81,13 @@ class Vehicles:
         with writing(self.db) as s:
             vehicle = get(s, vehicle_id)
             vehicle.share = share
+            return repo.save(s, vehicle)
+
+    def set_home(self, vehicle_id: int, home: tuple[float, float]) -> Vehicle:
+        """Where the vehicle starts in the fleet's frame (as its agent's ``[nav] home`` says)."""
+        with writing(self.db) as s:
+            vehicle = get(s, vehicle_id)
+            vehicle.home_north, vehicle.home_east = home
             return repo.save(s, vehicle)
 
     def rotate_key(self, vehicle_id: int, key_hex: str | None = None) -> Vehicle:

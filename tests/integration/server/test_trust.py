@@ -23,6 +23,7 @@ from server.telemetry.models import Packet, Telemetry
 from server.vehicles.models import Vehicle
 from tacit import auth
 from tacit.packets import (
+    COVER_BITS,
     CheckpointPacket,
     CommandStatus,
     MissionState,
@@ -360,3 +361,27 @@ def test_a_checkpoint_publishes_which_packets_it_settled(shore) -> None:
     # the stranger's twin failed its tag on arrival: forged then, so the check-point has none left to refuse
     assert settled.forged == [] and list(by_id.values()).count("forged") == 1
     assert settled.as_dict()["kind"] == "settled"
+
+
+def test_a_packet_no_checkpoint_can_reach_any_more_is_unverifiable(shore) -> None:
+    """The vehicle covers only packets whose ACK it heard: one the shore heard but whose ACK was lost is
+    never vouched for. Once a verified check-point is COVER_BITS past it, it is unverifiable, not pending
+    for ever (the screens would promise a verification that will never come)."""
+    db, start = shore
+    ingest, vehicle = start(), Vehicle_()
+    vehicle.measure(10)
+    send(ingest, vehicle.priority(delivered=False))  # heard here, its ACK lost at the vehicle
+    [missed] = rows(db, Packet, type="priority")
+
+    def settle_after(packets: int) -> PacketsSettled:
+        for _ in range(packets):
+            vehicle.measure(10)
+            send(ingest, vehicle.priority())
+        [settled] = [e for e in send(ingest, vehicle.checkpoint()) if isinstance(e, PacketsSettled)]
+        return settled
+
+    first = settle_after(3)  # still within the reach of a later check-point
+    assert missed.id not in first.unverifiable and rows(db, Packet, id=missed.id)[0].auth == "pending"
+    later = settle_after(COVER_BITS)
+    assert later.unverifiable == [missed.id] and rows(db, Packet, id=missed.id)[0].auth == "unverifiable"
+    assert {p.auth for p in rows(db, Packet, type="priority") if p.id != missed.id} == {"verified"}
