@@ -72,10 +72,9 @@ class TeamVehicleIn(BaseModel):
     model_config = STRICT
     vehicle: str = Field(min_length=1, max_length=64, description="the vehicle's name")
     lost_action: Literal["hold", "surface", "return"] = Field(
-        "hold", description="what its agent does when the link is lost (its lost_action setting)"
-    )
-    home: tuple[float, float] | None = Field(
-        None, description="its home [north, east] in the fleet's frame: where 'return' goes"
+        "hold",
+        description="what its agent does when the link is lost (its lost_action setting); 'return' goes "
+        "to the vehicle's registered home",
     )
 
 
@@ -92,7 +91,7 @@ class MemberOut(BaseModel):
     vehicle_id: int
     name: str
     lost_action: str
-    home: list[float] | None
+    home: list[float]
     waypoints: list[list[float]]
     next: int
     command_id: int | None

@@ -72,8 +72,10 @@ def leg(start: Point, end: Point) -> CommandIn:
 
 
 def check_fit(vehicle: Vehicle, waypoints: list[Point]) -> None:
-    """Refuse (422) lanes the vehicle cannot run: a waypoint or a leg outside its limits."""
+    """Refuse (422) lanes the vehicle cannot run: a waypoint or a leg outside its limits (the geofence is
+    around its home: the limits see the waypoints relative to it)."""
     limits = vehicle.limits()
+    waypoints = [(n - vehicle.home_north, e - vehicle.home_east, d) for n, e, d in waypoints]
     refused = limits.check_target(*waypoints[0])
     if refused is not None:
         raise Refused(f"{vehicle.name}'s first lane starts where it may not go: {refused.message}", "area")
@@ -161,7 +163,7 @@ class Teams:
                     "vehicle_id": saved_id(vehicle),
                     "name": vehicle.name,
                     "lost_action": spec.lost_action,
-                    "home": list(spec.home) if spec.home else None,
+                    "home": list(vehicle.home),
                     "waypoints": [list(p) for p in waypoints],
                     "next": 0,
                     "command_id": None,
@@ -407,12 +409,8 @@ class Teams:
     ) -> None:
         lost = []
         for m, (_, path) in zip(members, firsts, strict=True):
-            if m["lost_action"] == "return" and m["home"] is None:
-                raise Refused(f"{m['name']} returns home when the link is lost: give its home", "vehicles")
             points = [path.start, *(tuple(p) for p in m["waypoints"])]
-            lost.append(
-                LostLinkPlan(m["name"], points, m["lost_action"], tuple(m["home"]) if m["home"] else None)
-            )
+            lost.append(LostLinkPlan(m["name"], points, m["lost_action"], (m["home"][0], m["home"][1])))
         conflict = lost_link_conflict(lost, self.settings.separation)
         if conflict is not None:
             raise Refused(conflict, "vehicles")

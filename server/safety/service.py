@@ -5,8 +5,9 @@
   ``Settings.separation`` (centre to centre) to another vehicle's planned path is refused (422, naming
   the other vehicle and how close), unless it comes no closer than the vehicle already is (a vehicle
   too close may always move away). Another vehicle's planned path is its newest command not yet running
-  (queued, sent, acknowledged), else what the shore predicts it steers to (its executing command, its
-  mission's waypoint, home), else its predicted position.
+  (queued, sent, acknowledged; a return home goes to its registered home), else what the shore
+  predicts it steers to (its executing command, its mission's waypoint, home), else its predicted
+  position.
 - **Warnings** (``Separation.warnings``): two vehicles whose predicted positions are closer than the
   separation plus both uncertainties. A silent vehicle's uncertainty grows, so it warns: it never blocks a
   command (refusals use the paths' centres only). Checked again when a check-point moves a vehicle and
@@ -50,10 +51,12 @@ class Steering(Protocol):
     absolute_angle: bool
 
 
-def target_of(command: Steering, start: Point, heading: float) -> Point | None:
-    """Where a command steers a vehicle at ``start`` heading ``heading``; None if it names no target we
-    can place (hold, resume, a mission, a parameter; a return home goes to a home the shore is not told)."""
+def target_of(command: Steering, start: Point, heading: float, home: Flat) -> Point | None:
+    """Where a command steers a vehicle at ``start`` heading ``heading`` whose home is ``home``; None if
+    it names no target we can place (hold, resume, a mission, a parameter)."""
     kind = Command[command.command.upper()]
+    if kind is Command.RETURN_HOME:
+        return (home[0], home[1], 0.0)  # the agent returns to its home at the surface
     if kind is Command.MOVE:
         north, east = move_target(
             start[0], start[1], heading, command.distance, command.angle, command.absolute_angle
@@ -111,7 +114,7 @@ class Separation:
         end: Point = tuple(predicted["target"]) if predicted["target"] else here
         newest = self.desk.page(saved_id(vehicle), 1)
         if newest and newest[0][0].status in NOT_RUNNING:
-            end = target_of(newest[0][0], here, heading) or end
+            end = target_of(newest[0][0], here, heading, vehicle.home) or end
         return Planned(vehicle.name, here, end, predicted["radius_m"], heading)
 
     def check(self, vehicle_id: int, command: Steering, instead: Mapping[int, Planned] | None = None) -> None:
@@ -120,7 +123,7 @@ class Separation:
         first legs of a team mission about to start."""
         vehicle = self.vehicles.get(vehicle_id)
         own = self.planned(vehicle)
-        target = target_of(command, own.start, own.heading) if own else None
+        target = target_of(command, own.start, own.heading, vehicle.home) if own else None
         if own is None or target is None:
             return  # never heard from, or no target: nothing to place (the vehicle checks its own limits)
         for other in self.vehicles.every():
@@ -197,14 +200,14 @@ class LostLinkPlan:
     name: str
     points: Sequence[Point]
     action: str
-    home: Flat | None
+    home: Flat
 
     def region(self) -> list[Flat]:
         """Where the vehicle may be, horizontally, if the link is lost anywhere along its plan: holding or
         surfacing keeps it on its plan; returning takes it in a straight line to its home from any point
         of it (the convex hull covers every such line)."""
         flat = [(p[0], p[1]) for p in self.points]
-        return convex_hull(flat + ([self.home] if self.action == "return" and self.home else []))
+        return convex_hull(flat + ([self.home] if self.action == "return" else []))
 
 
 def lost_link_conflict(plans: Sequence[LostLinkPlan], separation: float) -> str | None:

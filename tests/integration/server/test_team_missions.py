@@ -213,6 +213,11 @@ def test_a_path_too_close_to_another_vehicles_is_refused_and_closeness_warns(cli
         "rov2's path from (0.0 N, 30.0 E, 2.0 m deep) to (0.0 N, 2.0 E, 2.0 m deep) passes 2.0 m from rov1, "
         "which holds at (0.0 N, 0.0 E, 2.0 m deep): closer than the 5 m separation"
     )
+    home = post(client, "/vehicles/2/commands", {"command": "return_home"})  # its home is the origin
+    assert (
+        home.status_code == 422
+        and "to (0.0 N, 0.0 E, 0.0 m deep) passes 2.0 m from rov1" in home.json()["detail"]
+    )
     assert post(client, "/vehicles/2/commands", {**west, "distance": 20.0}).status_code == 202
     towards = {"command": "move", "distance": 15.0, "angle": 90.0, "absolute_angle": True}
     crossing = post(client, "/vehicles/1/commands", towards)  # into rov2's queued path (30 -> 10 E)
@@ -252,29 +257,21 @@ def test_a_path_too_close_to_another_vehicles_is_refused_and_closeness_warns(cli
 def test_lost_link_actions_are_checked_when_a_team_starts(client: TestClient) -> None:
     report(client, "rov1", -5.0, 2.5, depth=0.0)
     report(client, "rov2", -5.0, 17.5, depth=0.0)
-    homeless = post(
-        client,
-        "/teams",
-        team_body("rov1", "rov2")
-        | {"vehicles": [{"vehicle": "rov1", "lost_action": "return"}, {"vehicle": "rov2"}]},
-    ).json()
-    refused = post(client, f"/teams/{homeless['id']}/start")
-    assert (
-        refused.status_code == 422
-        and refused.json()["detail"] == "rov1 returns home when the link is lost: give its home"
-    )
-    across = [
-        {"vehicle": "rov1", "lost_action": "return", "home": [10.0, 40.0]},
-        {"vehicle": "rov2", "lost_action": "surface"},
-    ]
+    moved = client.put("/api/v1/vehicles/1/home", json={"home": [10.0, 40.0]}, headers=OP)
+    assert moved.status_code == 200, moved.text  # rov1's home is east of rov2's lanes
+    across = [{"vehicle": "rov1", "lost_action": "return"}, {"vehicle": "rov2", "lost_action": "surface"}]
     team = post(client, "/teams", team_body("rov1", "rov2") | {"vehicles": across}).json()
+    assert team["members"][0]["home"] == [10.0, 40.0]
     refused = post(client, f"/teams/{team['id']}/start")
     assert refused.status_code == 422
     assert refused.json()["detail"] == (
-        "if the link is lost, rov1 (return) and rov2 (surface) may come 0.0 m apart, closer than the 5 m separation"
+        "if the link is lost, rov1 (return) and rov2 (surface) may come 0.0 m apart, closer than the 5 m "
+        "separation"
     )
     assert client.get(f"/api/v1/teams/{team['id']}", headers=OP).json()["status"] == "created"
     assert client.get("/api/v1/vehicles/1/commands", headers=OP).json() == []  # nothing was queued
+    holding = post(client, "/teams", team_body("rov1", "rov2")).json()  # both hold: their lanes stay apart
+    assert post(client, f"/teams/{holding['id']}/start").status_code == 202
 
 
 def started_team(client: TestClient) -> int:

@@ -94,9 +94,12 @@ def test_the_restructuring_rule_sends_the_nearest_helpers_to_their_side_of_the_a
 def test_lost_link_actions_must_keep_the_vehicles_apart() -> None:
     west = [(0.0, 2.5, 2.0), (20.0, 2.5, 2.0)]
     east = [(0.0, 12.5, 2.0), (20.0, 12.5, 2.0)]
-    holding = [LostLinkPlan("a", west, "hold", None), LostLinkPlan("b", east, "hold", None)]
+    holding = [LostLinkPlan("a", west, "hold", (0.0, 30.0)), LostLinkPlan("b", east, "hold", (0.0, 0.0))]
     assert lost_link_conflict(holding, 5.0) is None
     assert "a (hold) and b (hold) may come 10.0 m apart" in str(lost_link_conflict(holding, 12.0))
-    home_across = [LostLinkPlan("a", west, "return", (0.0, 30.0)), LostLinkPlan("b", east, "surface", None)]
+    home_across = [
+        LostLinkPlan("a", west, "return", (0.0, 30.0)),
+        LostLinkPlan("b", east, "surface", (0.0, 0.0)),
+    ]
     assert "a (return) and b (surface) may come 0.0 m apart" in str(lost_link_conflict(home_across, 5.0))
     assert Lane(1.0, 0.0, 2.0).north == 2.0
