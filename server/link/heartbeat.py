@@ -12,10 +12,8 @@ goes on after a SYNC (``server.link.engine``): polling never stops for it.
 The counter comes from ``Ingest.next_sync``, which saves it before the SYNC leaves: a vehicle accepts
 only a counter above the last it accepted, whatever the shore's clock says.
 
-While a key rotation waits for the vehicle's confirmation (``server.vehicles.keys``), every
-``probe_every``-th SYNC is a probe signed with the new key instead: a vehicle holding it switches to it
-and confirms it with its next check-point; one that does not drops the probe, and the other SYNCs keep
-its link alive. A probe never carries a chain-restart request (the modem ACKs a probe the vehicle drops).
+SYNCs are signed with the key the vehicle is known to hold (``server.vehicles.keys``): during a key
+rotation, the new key only once a check-point said the vehicle holds it.
 """
 
 from __future__ import annotations
@@ -55,7 +53,6 @@ class Heartbeat:
         self.counter = counter  # the vehicle's next SYNC counter, saved (``Ingest.next_sync``)
         self.syncs = 0
         self._last: dict[int, float] = {}
-        self._count: dict[int, int] = {}  # SYNCs sent, by modem address
         self._restarts: dict[int, int] = {}  # chain-restart requests sent since it was raised, by address
 
     def due(self, vehicle: VehicleState) -> bool:
@@ -71,9 +68,7 @@ class Heartbeat:
         restart = vehicle.link.needs_restart
         echo = vehicle.link.echo
         row = await self.store.run(self.vehicles.get, vehicle.id)
-        count = self._count[vehicle.address] = self._count.get(vehicle.address, 0) + 1
-        probe = keys.pending(row) and not restart and echo is None and count % self.settings.probe_every == 0
-        version, key = keys.current(row) if probe else keys.for_commands(row)
+        version, key = keys.for_commands(row)
         seq = await self.store.run(self.counter, vehicle)
         packet = ControlPacket(
             Kind.SYNC,
@@ -94,8 +89,6 @@ class Heartbeat:
         if vehicle.link.echo == echo:  # on the air: one answer per check-point (a newer one waits)
             vehicle.link.echo = None
         self.syncs += 1
-        if probe:
-            await self.store.run(self.vehicles.probed, vehicle.id)
         if restart:
             self._restart_sent(vehicle, result.all_acked)
         return True

@@ -295,6 +295,8 @@ class Ingest:
         events += self.verifier.vouch(s, batch, v, verdict.covered)
         if vehicle.previous_key_hex and verdict.version == vehicle.key_version:
             events.append(self._key_confirmed(s, batch, v, vehicle.key_version))
+        elif keys.pending(vehicle) and cp.holds_next_key != vehicle.next_key_held:
+            events.append(self._next_key_held(s, batch, v, vehicle.key_version, cp.holds_next_key))
         return PacketTrust.VERIFIED, events + list(commands.apply_checkpoint(s, vehicle, cp, body))
 
     @staticmethod
@@ -305,6 +307,22 @@ class Ingest:
         )
         log.warning("vehicle %s: key version %d confirmed; commands are signed with it now", v.name, version)
         return LinkNotice(event="key_confirmed", vehicle=v.name, detail={"key_version": version})
+
+    @staticmethod
+    def _next_key_held(s: Tx, batch: Batch, v: VehicleState, version: int, held: bool) -> Event:
+        """A check-point signed with the confirmed key says whether the vehicle holds the staged key:
+        commands and SYNCs follow it (``server.vehicles.keys``)."""
+        vehicles.hold_next_key(s, v.id, held)
+        detail = {"key_version": version, "held": held}
+        batch.events.append({"vehicle_id": v.id, "kind": "next_key_held", "at": now(), "detail": detail})
+        log.warning(
+            "vehicle %s: %s key version %d; commands and SYNCs are signed with version %d",
+            v.name,
+            "holds" if held else "does not hold",
+            version,
+            version if held else version - 1,
+        )
+        return LinkNotice(event="next_key_held", vehicle=v.name, detail=detail)
 
     @staticmethod
     def _tagged(s: Tx, v: VehicleState, chunk: bytes) -> bool:
