@@ -69,6 +69,7 @@ class Ingest:
             "forged": 0,
             "replayed": 0,
             "unverifiable": 0,
+            "old_protocol": 0,
         }
         self.verifier = Verifier(self.stats, settings.max_skew)
 
@@ -221,6 +222,8 @@ class Ingest:
             packet = packets.decode(chunk)
             if isinstance(packet, packets.ControlPacket):
                 raise PacketError("a control packet from a vehicle")
+        except packets.OldVersion as exc:
+            return self._old_version(batch, v, chunk, at, exc)
         except PacketError as exc:
             self.stats["rejected"] += 1
             batch.events.append(
@@ -268,6 +271,21 @@ class Ingest:
             auth=trust.value,
         )
         return [heard, *events]
+
+    def _old_version(
+        self, batch: Batch, v: VehicleState, chunk: bytes, at: float, exc: packets.OldVersion
+    ) -> list[Event]:
+        """A packet of the previous protocol version: refused and counted; logged (and a ``bad_packet``
+        event stored) once per vehicle, since an old agent sends nothing else until it is updated."""
+        self.stats["rejected"] += 1
+        self.stats["old_protocol"] += 1
+        v.old_protocol += 1
+        if v.old_protocol > 1:
+            return []
+        detail = {"error": str(exc), "hex": chunk.hex()}
+        batch.events.append({"vehicle_id": v.id, "kind": "bad_packet", "at": at, "detail": detail})
+        log.warning("vehicle %s: %s (logged once; GET /api/v1/link counts them)", v.name, exc)
+        return [LinkNotice(event="bad_packet", vehicle=v.name, detail={"error": str(exc)})]
 
     def _drop_strangers(self, s: Tx) -> None:
         """Frames from unknown modem addresses are kept to the newest ``stranger_frames_kept`` (a stranger's modem

@@ -13,8 +13,10 @@ import time
 from pathlib import Path
 
 import pytest
+from fastapi.testclient import TestClient
 from sqlmodel import Session
 
+from server.app import create_app
 from server.core.config import Settings
 from server.core.db import make_engine, migrate
 from server.core.events import Bus
@@ -170,20 +172,32 @@ def test_attack_4_a_shore_clock_an_hour_ahead_then_fixed_is_heard_again_at_its_n
     assert agent.link.receiver.window.floor == int(now) - auth.FLOOR_SLACK  # never moved by a SYNC
 
 
-def test_version_2_frames_are_refused_with_a_clear_reason(shore, tmp_path: Path, caplog) -> None:
-    ingest, _ = shore()
-    old = bytearray(checkpoint(time.time()))
+def version_2(frame: bytes) -> bytes:
+    old = bytearray(frame)
     old[0] = (old[0] & 0x3F) | (2 << 6)
-    ingest.handle(IncomingFrame(ADDRESS, 1, bytes(old)))
-    assert (
-        ingest.stats["rejected"] == 1
-        and "protocol version 2" in caplog.text
-        and "update its agent" in caplog.text
+    return bytes(old)
+
+
+def test_a_version_2_vehicle_is_refused_with_a_clear_reason_logged_once_and_counted_on_the_link(
+    tmp_path: Path, caplog
+) -> None:
+    settings = Settings(
+        database_url=f"sqlite:///{tmp_path}/tacit.db", modem_url="", map_enabled=False, write_tokens=["op"]
     )
+    with TestClient(create_app(settings)) as client:
+        op = {"Authorization": "Bearer op"}
+        body = {"name": "rov1", "address": ADDRESS, "key": KEY.hex()}
+        client.post("/api/v1/vehicles", json=body, headers=op).raise_for_status()
+        ingest = client.app.state.shore.ingest  # type: ignore[attr-defined]
+        ingest.load_vehicles()
+        for k in range(5):  # an old agent keeps talking
+            ingest.handle(IncomingFrame(ADDRESS, 1, version_2(checkpoint(time.time() + k))))
+        link = client.get("/api/v1/link", headers=op).json()
+    assert caplog.text.count("protocol version 2") == 1 and "update its agent" in caplog.text
+    assert link["vehicles"]["rov1"]["old_protocol"] == 5
+    assert link["ingest"]["old_protocol"] == 5 and link["ingest"]["rejected"] == 5
     agent = make_agent(tmp_path)
-    command = bytearray(control(Command.HOLD, 1, time.time()))
-    command[0] = (command[0] & 0x3F) | (2 << 6)
-    agent.link._control(bytes(command))
+    agent.link._control(version_2(control(Command.HOLD, 1, time.time())))
     assert agent.link.counters["rejected"] == 1
 
 
