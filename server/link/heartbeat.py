@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import time
 from collections.abc import Callable
 
@@ -52,19 +53,22 @@ class Heartbeat:
         self.vehicles = vehicles
         self.counter = counter  # the vehicle's next SYNC counter, saved (``Ingest.next_sync``)
         self.syncs = 0
-        self._last: dict[int, float] = {}
+        self._last: dict[int, float] = {}  # when each vehicle's last SYNC left, on the monotonic clock
         self._restarts: dict[int, int] = {}  # chain-restart requests sent since it was raised, by address
 
     def due(self, vehicle: VehicleState) -> bool:
         if vehicle.link.echo is not None:
             return True  # an unsynced vehicle accepts nothing before this answer
         interval = self.settings.sync_retry if vehicle.link.needs_restart else self.settings.sync_interval
-        return time.time() - self._last.get(vehicle.address, 0.0) > interval / self.settings.time_scale
+        return (
+            time.monotonic() - self._last.get(vehicle.address, -math.inf)
+            > interval / self.settings.time_scale
+        )
 
     async def sync(self, driver: mm.ModemDriver, vehicle: VehicleState) -> bool:
         """One SYNC; answers a waiting unsynced check-point, asks for a chain restart if ingest needs one.
         False if our modem refused the cycle (the SYNC is due again)."""
-        self._last[vehicle.address] = time.time()
+        self._last[vehicle.address] = time.monotonic()  # a wall clock stepped back must not stop SYNCs
         restart = vehicle.link.needs_restart
         echo = vehicle.link.echo
         row = await self.store.run(self.vehicles.get, vehicle.id)
@@ -83,7 +87,7 @@ class Heartbeat:
         )
         if not result.transmitted:  # our modem refused the cycle: due again at the next slot
             log.info("vehicle %s: SYNC %d not transmitted (%s); next slot", vehicle.name, seq, result.error)
-            self._last[vehicle.address] = 0.0
+            self._last[vehicle.address] = -math.inf
             await asyncio.sleep(self.timing.busy_wait())
             return False
         if vehicle.link.echo == echo:  # on the air: one answer per check-point (a newer one waits)

@@ -16,6 +16,8 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlmodel import Session
 
+from launch.stack import wait_for
+from launch.stepped_clock import stepped
 from server.app import create_app
 from server.core.config import Settings
 from server.core.db import make_engine, migrate
@@ -36,6 +38,7 @@ from vehicle_agent.agent import Agent, AgentConfig
 KEY = bytes(range(32))
 ADDRESS = 2
 HOUR = 3600
+DAY = 86400
 
 
 def make_agent(tmp_path: Path) -> Agent:
@@ -170,6 +173,37 @@ def test_attack_4_a_shore_clock_an_hour_ahead_then_fixed_is_heard_again_at_its_n
     agent.link._control(control(Command.RESUME, 2, now + 60))
     assert agent.fsm.status.last_command == 2
     assert agent.link.receiver.window.floor == int(now) - auth.FLOOR_SLACK  # never moved by a SYNC
+
+
+def test_attack_4_a_vehicle_clock_stepped_a_whole_day_ahead_is_corrected_by_the_next_sync(
+    tmp_path: Path, monkeypatch
+) -> None:
+    clock = tmp_path / "agent.clock"
+    monkeypatch.setattr(time, "time", stepped(clock))  # the vehicle's wall clock (launch.stepped_clock)
+    agent, now = make_agent(tmp_path), time.time()
+    agent.link.clock = time.time  # its link took time.time at import; a stepped process patches first
+    agent.link._control(control(Command.SYNC, 1, now, echo=challenge(agent)[28:]))
+    clock.write_text(repr(float(DAY)))  # it steps a day ahead
+    wait_for(lambda: time.time() > now + DAY - 60, 1.0, every=0.01, what="the step")
+    agent.link._control(control(Command.SYNC, 2, now - 5))  # signed 5 s before it arrives
+    assert agent.link.receiver.sync.counter == 2 and agent.link.offset == pytest.approx(-DAY, abs=10)
+    agent.link._control(control(Command.HOLD, 1, now))
+    assert agent.fsm.status.last_command == 1
+
+
+def test_attack_4_a_shore_clock_stepped_back_an_hour_keeps_sending_syncs(
+    shore, tmp_path: Path, monkeypatch
+) -> None:
+    """SYNC intervals run on the monotonic clock: a wall clock stepped back must not stop them."""
+    ingest, heartbeat = shore()
+    heartbeat.settings = Settings(time_scale=1000.0)  # a SYNC every 60 ms
+    v = ingest.vehicles[ADDRESS]
+    sync(heartbeat, ingest)
+    assert not heartbeat.due(v)
+    clock = tmp_path / "shore.clock"
+    clock.write_text(repr(-float(HOUR)))
+    monkeypatch.setattr(time, "time", stepped(clock))  # the shore's wall clock steps (launch.stepped_clock)
+    wait_for(lambda: heartbeat.due(v), 2.0, every=0.01, what="the next SYNC due")
 
 
 def version_2(frame: bytes) -> bytes:
