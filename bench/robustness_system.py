@@ -200,7 +200,7 @@ def lost_state() -> Row:
             f"commands executed by the attack: {executed}; resynchronised {resynced:.0f} s after the "
             f"restart, {exchanges} SYNC(s) sent",
             f"{refused} replayed frames refused by the agent",
-            "test_protocol_v3: attack_1",
+            "test_protocol_v3: attack_1_a_lost_state",
         )
     finally:
         recorder.close()
@@ -235,7 +235,7 @@ def forged_restart_with_acking_modem() -> Row:
             f"polls/min {before[0]:.1f} before, {during[0]:.1f} during; vehicle packets/min "
             f"{before[1]:.1f} before, {during[1]:.1f} during; chain restarts on the vehicle: {restarts}",
             f"{heard} forged packets heard by the shore (refused: tag)",
-            "test_fair_queue: forged restart requests",
+            "test_fair_queue: forged_packets_with_an_unknown_base",
         )
     finally:
         rig.close()
@@ -270,7 +270,7 @@ def forged_twins() -> Row:
             f"{sent} twins in {TWINS_S:.0f} s",
             f"genuine check-points refused: {refused} (verified: {delta['verified']})",
             f"{delta['forged']} twins heard by the shore (refused: tag)",
-            "test_trust: forged twins",
+            "test_trust: forged_priority_packet_with_a_genuine_seq",
         )
     finally:
         recorder.close()
@@ -313,7 +313,7 @@ def clock_step(rig: Rig, side: str, step: float) -> Row:
         "1",
         outcome,
         "a command answered and a check-point stamped right accepted after",
-        "test_protocol_v3: attack_4",
+        "test_protocol_v3: attack_4_*",
     )
 
 
@@ -369,7 +369,7 @@ def key_rotation() -> list[Row]:
                 f"SYNCs refused by the vehicle: {refused}; link lost: {lost}; command during it answered: "
                 f"{int(reached)}/1; cancel: HTTP {cancelled}, command after it answered: 1/1",
                 f"{syncs} SYNCs accepted by the vehicle during the rotation",
-                "test_key_rotation",
+                "test_key_rotation: a_waiting_rotation_can_be_cancelled",
             )
         ]
         rows.append(rotation_to_next_key(rig))
@@ -392,7 +392,7 @@ def rotation_to_next_key(rig: Rig) -> Row:
         "1",
         f"confirmed in {took:.0f} s, {link(rig)['counters']['syncs'] - syncs} SYNC(s)",
         "the shore's rotation ended by a check-point signed with the new key",
-        "test_key_rotation",
+        "test_key_rotation: the_new_key_is_used_once_a_checkpoint_says",
     )
 
 
@@ -430,7 +430,7 @@ def queued_commands(clients: int = 50) -> Row:
             f"before, {(polls2 - polls) / minutes:.1f} during; vehicle packets/min {before[1]:.1f} before, "
             f"{(packets2 - packets) / minutes:.1f} during",
             "429s show the cap was reached",
-            "test_fair_queue",
+            "test_fair_queue: polls_keep_their_share, full_queue_answers_429",
         )
     finally:
         rig.close()
@@ -466,7 +466,7 @@ def replayed_checkpoint() -> Row:
             f"{sent} copies",
             f"accepted: {applied - 1}; shown pose went back: {back}",
             f"{copies} copies heard by the shore (duplicate or replay)",
-            "test_hygiene: checkpoint replays",
+            "test_hygiene: checkpoint_replayed_after_the_duplicate_window",
         )
     finally:
         recorder.close()
@@ -489,7 +489,7 @@ def strangers_junk(frames: int = 30, kept: int = 10) -> Row:
             f"{sent} frames",
             f"kept {strangers['kept']} (limit {kept}), dropped {strangers['dropped']}",
             f"{heard} heard by the shore",
-            "test_hygiene: strangers",
+            "test_hygiene: frames_from_unknown_addresses",
         )
     finally:
         rig.close()

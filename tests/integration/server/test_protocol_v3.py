@@ -175,6 +175,22 @@ def test_attack_4_a_shore_clock_an_hour_ahead_then_fixed_is_heard_again_at_its_n
     assert agent.link.receiver.window.floor == int(now) - auth.FLOOR_SLACK  # never moved by a SYNC
 
 
+def test_attack_4_a_shore_clock_an_hour_ahead_then_set_right_hears_the_vehicle_again_at_once(
+    shore, tmp_path: Path, monkeypatch
+) -> None:
+    ingest, _ = shore()
+    clock = tmp_path / "shore.clock"
+    clock.write_text(repr(float(HOUR)))
+    monkeypatch.setattr(time, "time", stepped(clock))  # the shore's wall clock (launch.stepped_clock)
+    ahead = checkpoint(time.time())  # the vehicle followed the shore's SYNCs an hour ahead
+    ingest.handle(IncomingFrame(ADDRESS, 1, ahead))
+    clock.write_text("0.0")  # set right; its next SYNC corrects the vehicle back
+    wait_for(lambda: time.time() < ingest.vehicles[ADDRESS].link.checkpoint_time, 1.0, what="the step")
+    ingest.handle(IncomingFrame(ADDRESS, 1, checkpoint(time.time() - 3)))
+    ingest.handle(IncomingFrame(ADDRESS, 1, ahead))  # recorded while it was ahead, replayed
+    assert ingest.stats["verified"] == 2 and ingest.stats["replayed"] + ingest.stats["duplicates"] == 1
+
+
 def test_attack_4_a_vehicle_clock_stepped_a_whole_day_ahead_is_corrected_by_the_next_sync(
     tmp_path: Path, monkeypatch
 ) -> None:
