@@ -188,7 +188,9 @@ def lost_state() -> Row:
         sent = transmit(rig, SHORE_ADDRESS, VEHICLE_ADDRESS, replayed)
         wait_for(lambda: "accepted (shore time" in agent_log(rig, offset), 120, what="the shore's answer")
         resynced = sim_s(rig, time.monotonic() - restarted)
-        exchanges = link(rig)["counters"]["syncs"] - syncs_before
+        exchanges = wait_for(  # the shore counts a SYNC once its cycle is over, after the vehicle took it
+            lambda: link(rig)["counters"]["syncs"] - syncs_before, 30, what="the SYNC counted"
+        )
         log = agent_log(rig, offset)
         executed = log.count(f"control seq {recorded} accepted")
         refused = log.count("control frame rejected")
@@ -217,13 +219,12 @@ def forged_restart_with_acking_modem() -> Row:
         forged_before = link(rig)["ingest"]["forged"]
         offset = len(agent_log(rig))
         rng = random.Random(4)
-        forged = [
-            PriorityPacket(
-                rng.randrange(256), Priority.IMPORTANT, Stream.KINEMATIC, rng.randbytes(29)
-            ).encode()
-            for _ in range(3)
-        ]
-        sent = transmit(rig, VEHICLE_ADDRESS, SHORE_ADDRESS, forged)
+
+        def forged() -> bytes:
+            seq = rng.randrange(256)
+            return PriorityPacket(seq, Priority.IMPORTANT, Stream.KINEMATIC, rng.randbytes(29)).encode()
+
+        sent = send_until_counted(rig, VEHICLE_ADDRESS, forged, lambda: link(rig)["ingest"]["forged"])
         during = per_minute(rig, WINDOW_S / rig.scale)
         heard = link(rig)["ingest"]["forged"] - forged_before
         restarts = agent_log(rig, offset).count("shore asked to restart the sample chains")
@@ -231,7 +232,7 @@ def forged_restart_with_acking_modem() -> Row:
             raise NotMeasured(f"{sent} forged packets sent, none heard by the shore")
         return Row(
             "forged priority packet + idle second modem ACKing as the vehicle",
-            f"{sent} forged, then {WINDOW_S:.0f} s",
+            f"{sent} forged until one was heard, then {WINDOW_S:.0f} s",
             f"polls/min {before[0]:.1f} before, {during[0]:.1f} during; vehicle packets/min "
             f"{before[1]:.1f} before, {during[1]:.1f} during; chain restarts on the vehicle: {restarts}",
             f"{heard} forged packets heard by the shore (refused: tag)",
@@ -449,11 +450,11 @@ def replayed_checkpoint() -> Row:
         )
         frame, packet = heard[-1]
         stats = link(rig)["ingest"]
-        sent = replay_until_heard(rig, frame)
+        sent = send_until_counted(rig, VEHICLE_ADDRESS, lambda: frame, lambda: refused_copies(rig))
         wait_for(
             lambda: link(rig)["vehicles"]["rov1"]["checkpoint"]["time"] > packet.time, 240, what="a newer one"
         )
-        sent += replay_until_heard(rig, frame)
+        sent += send_until_counted(rig, VEHICLE_ADDRESS, lambda: frame, lambda: refused_copies(rig))
         after = link(rig)["ingest"]
         copies = (after["duplicates"] - stats["duplicates"]) + (after["replayed"] - stats["replayed"])
         items = rig.http.get("/packets", params={"limit": 1000, "type": "checkpoint"}).json()["items"]
@@ -473,18 +474,20 @@ def replayed_checkpoint() -> Row:
         rig.close()
 
 
-def replay_until_heard(rig: Rig, frame: bytes, tries: int = 10) -> int:
-    """Copies of ``frame`` from the vehicle's address, one at a time until the shore counts one as a
-    duplicate or a replay (the channel is busy: a copy can collide); how many were sent."""
-
-    def refused() -> int:
-        stats = link(rig)["ingest"]
-        return int(stats["duplicates"] + stats["replayed"])
-
-    before, sent = refused(), 0
-    while sent < tries and refused() == before:
-        sent += transmit(rig, VEHICLE_ADDRESS, SHORE_ADDRESS, [frame])
+def send_until_counted(
+    rig: Rig, claim: int, make: Callable[[], bytes], counted: Callable[[], int], tries: int = 10
+) -> int:
+    """Frames from ``make``, sent from the attacker's modem as ``claim`` one at a time until the shore's
+    ``counted`` rises (the channel is busy: a frame can collide); how many were sent."""
+    before, sent = counted(), 0
+    while sent < tries and counted() == before:
+        sent += transmit(rig, claim, SHORE_ADDRESS, [make()])
     return sent
+
+
+def refused_copies(rig: Rig) -> int:
+    stats = link(rig)["ingest"]
+    return int(stats["duplicates"] + stats["replayed"])
 
 
 def strangers_junk(frames: int = 30, kept: int = 10) -> Row:
