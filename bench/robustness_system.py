@@ -83,11 +83,11 @@ class Recorder:
             if isinstance(sentence, nmea.RxData):
                 self.frames.append((time.time(), sentence.src, sentence.dest, sentence.data))
 
-    def heard(self, src: int, dest: int, kind: type, since: float = 0.0) -> list[tuple[bytes, Any]]:
-        """The frames ``src`` sent ``dest`` since ``since`` that decode as ``kind``, with their packets."""
+    def heard(self, src: int, dest: int, kind: type) -> list[tuple[bytes, Any]]:
+        """The frames ``src`` sent ``dest`` that decode as ``kind``, with their packets, oldest first."""
         out = []
-        for at, s, d, data in list(self.frames):
-            if at < since or (s, d) != (src, dest) or len(data) != PACKET_SIZE:
+        for _, s, d, data in list(self.frames):
+            if (s, d) != (src, dest) or len(data) != PACKET_SIZE:
                 continue
             try:
                 packet = decode(data)
