@@ -64,11 +64,11 @@ class NotMeasured(RuntimeError):
 
 
 class Recorder:
-    """The recorder modem's reports: every data frame heard on the channel (wall time, src, dest, bytes)."""
+    """The recorder modem's reports: every data frame heard on the channel (src, dest, bytes)."""
 
     def __init__(self, path: Path) -> None:
         self.port = serial.Serial(str(path), timeout=0.2)
-        self.frames: list[tuple[float, int, int, bytes]] = []
+        self.frames: list[tuple[int, int, bytes]] = []
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -81,12 +81,12 @@ class Recorder:
             except nmea.NmeaError:
                 continue
             if isinstance(sentence, nmea.RxData):
-                self.frames.append((time.time(), sentence.src, sentence.dest, sentence.data))
+                self.frames.append((sentence.src, sentence.dest, sentence.data))
 
     def heard(self, src: int, dest: int, kind: type) -> list[tuple[bytes, Any]]:
         """The frames ``src`` sent ``dest`` that decode as ``kind``, with their packets, oldest first."""
         out = []
-        for _, s, d, data in list(self.frames):
+        for s, d, data in list(self.frames):
             if (s, d) != (src, dest) or len(data) != PACKET_SIZE:
                 continue
             try:
