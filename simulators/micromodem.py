@@ -58,8 +58,12 @@ class MicroModemEmulator:
         channel: Channel,
         scheduler: Scheduler,
         position: Callable[[], tuple[float, float, float]],
+        hears_all: bool = False,
     ) -> None:
+        """``hears_all``: report every data frame heard, whoever it is for (a recorder on the channel; it
+        acknowledges only its own)."""
         self.name = name
+        self.hears_all = hears_all
         self.channel = channel
         self.scheduler = scheduler
         self.config = dict(DEFAULT_CONFIG, SRC=str(address))
@@ -329,7 +333,7 @@ class MicroModemEmulator:
 
     def _heard_data(self, rec: Reception) -> None:
         tx = rec.transmission
-        if not self._for_me(tx.dest) or not (rec.heard or self._expecting is not None):
+        if not (self._for_me(tx.dest) or self.hears_all) or not (rec.heard or self._expecting is not None):
             return
         if self._expecting is not None:
             self._expecting.cancel()

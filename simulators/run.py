@@ -65,6 +65,7 @@ class ModemSpec:
     attach: str = ""
     link: str = ""
     tcp_port: int | None = None
+    recorder: bool = False  # a hydrophone's recorder: reports every data frame it hears, whoever it is for
 
 
 @dataclass
@@ -197,7 +198,12 @@ class SimWorld:
             return (rov.north, rov.east, rov.depth) if rov is not None else (north, east, depth)
 
         modem = MicroModemEmulator(
-            spec.name or f"modem{spec.address}", spec.address, self.channel, self.scheduler, position
+            spec.name or f"modem{spec.address}",
+            spec.address,
+            self.channel,
+            self.scheduler,
+            position,
+            hears_all=spec.recorder,
         )
         pty = PtyPort(asyncio.get_running_loop(), modem.handle_line, spec.link or None)
         ports: list[PtyPort | TcpPort] = [pty]

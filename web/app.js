@@ -396,8 +396,9 @@ async function refreshLink() {
 function keyState(v) {
   const r = v.key_rotation;
   if (!r) return `version ${v.key_version}`;
+  const held = r.held ? "the vehicle holds it: commands are signed with it" : "the vehicle has not said it holds it";
   return `rotation to version ${r.pending_version} waiting for the vehicle since ${utc(r.since)} UTC ` +
-    `<span class="sub">(${r.probes} probe SYNCs sent; cancel: DELETE /api/v1/vehicles/${v.id}/key/pending)</span>`;
+    `<span class="sub">(${held}; cancel: DELETE /api/v1/vehicles/${v.id}/key/pending)</span>`;
 }
 
 function setBadge(text, kind) { const b = $("link-badge"); b.textContent = text; b.className = `badge ${kind}`; }

@@ -70,6 +70,7 @@ class Ingest:
             "forged": 0,
             "replayed": 0,
             "unverifiable": 0,
+            "old_protocol": 0,
         }
         self.verifier = Verifier(self.stats, settings.max_skew)
 
@@ -209,6 +210,8 @@ class Ingest:
             packet = packets.decode(chunk)
             if isinstance(packet, packets.ControlPacket):
                 raise PacketError("a control packet from a vehicle")
+        except packets.OldVersion as exc:
+            return self._old_version(batch, v, chunk, at, exc)
         except PacketError as exc:
             self.stats["rejected"] += 1
             batch.events.append(
@@ -257,6 +260,21 @@ class Ingest:
         )
         return [heard, *events]
 
+    def _old_version(
+        self, batch: Batch, v: VehicleState, chunk: bytes, at: float, exc: packets.OldVersion
+    ) -> list[Event]:
+        """A packet of the previous protocol version: refused and counted; logged (and a ``bad_packet``
+        event stored) once per vehicle, since an old agent sends nothing else until it is updated."""
+        self.stats["rejected"] += 1
+        self.stats["old_protocol"] += 1
+        v.old_protocol += 1
+        if v.old_protocol > 1:
+            return []
+        detail = {"error": str(exc), "hex": chunk.hex()}
+        batch.events.append({"vehicle_id": v.id, "kind": "bad_packet", "at": at, "detail": detail})
+        log.warning("vehicle %s: %s (logged once; GET /api/v1/link counts them)", v.name, exc)
+        return [LinkNotice(event="bad_packet", vehicle=v.name, detail={"error": str(exc)})]
+
     def _drop_strangers(self, s: Tx) -> None:
         """Frames from unknown modem addresses are kept to the newest ``stranger_frames_kept`` (a stranger's modem
         must not fill the disk), with their ``unknown_vehicle`` events (one per frame)."""
@@ -283,6 +301,8 @@ class Ingest:
         events += self.verifier.vouch(s, batch, v, cp.seq, verdict.covered)
         if vehicle.previous_key_hex and verdict.version == vehicle.key_version:
             events.append(self._key_confirmed(s, batch, v, vehicle.key_version))
+        elif keys.pending(vehicle) and cp.holds_next_key != vehicle.next_key_held:
+            events.append(self._next_key_held(s, batch, v, vehicle.key_version, cp.holds_next_key))
         return PacketTrust.VERIFIED, events + list(commands.apply_checkpoint(s, vehicle, cp, body))
 
     @staticmethod
@@ -293,6 +313,22 @@ class Ingest:
         )
         log.warning("vehicle %s: key version %d confirmed; commands are signed with it now", v.name, version)
         return LinkNotice(event="key_confirmed", vehicle=v.name, detail={"key_version": version})
+
+    @staticmethod
+    def _next_key_held(s: Tx, batch: Batch, v: VehicleState, version: int, held: bool) -> Event:
+        """A check-point signed with the confirmed key says whether the vehicle holds the staged key:
+        commands and SYNCs follow it (``server.vehicles.keys``)."""
+        vehicles.hold_next_key(s, v.id, held)
+        detail = {"key_version": version, "held": held}
+        batch.events.append({"vehicle_id": v.id, "kind": "next_key_held", "at": now(), "detail": detail})
+        log.warning(
+            "vehicle %s: %s key version %d; commands and SYNCs are signed with version %d",
+            v.name,
+            "holds" if held else "does not hold",
+            version,
+            version if held else version - 1,
+        )
+        return LinkNotice(event="next_key_held", vehicle=v.name, detail=detail)
 
     @staticmethod
     def _tagged(s: Tx, v: VehicleState, chunk: bytes) -> bool:

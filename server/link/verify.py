@@ -40,6 +40,15 @@ class Verdict:
     floor: int = 0  # the replay floor once it is applied
 
 
+def current_floor(floor: int, shore_now: float, max_skew: float) -> int:
+    """The replay floor a check-point is held to now. ``raised_floor`` never lifts it beyond the shore's
+    time plus ``max_skew``, so a floor further ahead was raised while the shore's own clock was ahead (a
+    synced vehicle follows the shore's SYNCs): with that clock set right, it comes back to ``max_skew``
+    behind it, and the vehicle is heard again at once instead of an hour later. A check-point recorded
+    while the clock was ahead and replayed now is still refused by its MAC (the last accepted are kept)."""
+    return floor if floor <= shore_now + max_skew else int(shore_now - max_skew)
+
+
 def raised_floor(cp: CheckpointPacket, floor: int, shore_now: float, max_skew: float) -> int:
     """The replay floor after a verified check-point: an unsynced vehicle's time never raises it (its
     clock is unknown), and a synced one stamped more than ``max_skew`` ahead of the shore raises it only
@@ -68,14 +77,16 @@ class Verifier:
             return self._refused(batch, v, PacketTrust.FORGED, cp, exc)
         if cp.mac in v.link.accepted_macs:
             return self._refused(batch, v, PacketTrust.REPLAYED, cp, ValueError("accepted before"))
-        if cp.time < v.link.checkpoint_time:
+        shore_now = time.time()
+        floor = current_floor(v.link.checkpoint_time, shore_now, self.max_skew)
+        if cp.time < floor:
             v.link.echo = cp.mac if cp.unsynced else v.link.echo
             return self._refused(
                 batch, v, PacketTrust.REPLAYED, cp, ValueError("older than the replay floor")
             )
         v.verified += 1
         self.stats["verified"] += 1
-        floor = raised_floor(cp, v.link.checkpoint_time, time.time(), self.max_skew)
+        floor = raised_floor(cp, floor, shore_now, self.max_skew)
         return Verdict(
             PacketTrust.VERIFIED, version=version, covered=list(zip(seqs, chosen, strict=True)), floor=floor
         )

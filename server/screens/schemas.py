@@ -108,6 +108,10 @@ class VehicleLinkStatus(BaseModel):
     packets_per_hour: float
     bytes_saved: int
     checkpoint: dict[str, Any] | None
+    old_protocol: int = Field(
+        description="packets refused for speaking the previous protocol version (its agent needs "
+        "updating; logged once)"
+    )
 
 
 class LinkStatus(BaseModel):

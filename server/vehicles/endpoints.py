@@ -68,6 +68,6 @@ def rotate_key(vehicle_id: Id, body: KeyIn, vehicles: VehiclesDep) -> VehicleCre
 @router.delete("/{vehicle_id}/key/pending", response_model=VehicleOut, dependencies=[Depends(require_write)])
 def cancel_key_rotation(vehicle_id: Id, vehicles: VehiclesDep) -> VehicleOut:
     """Cancel a key rotation the vehicle has not confirmed: the previous key (and its version) is current
-    again. 409 if none waits. Only while the vehicle has not switched: one that took the new key from a
-    probe confirms it with its next check-point, and the rotation is over."""
+    again. 409 if none waits. Only while the vehicle has not switched: one that said it holds the new key
+    is sent commands and SYNCs signed with it, and confirms it with its next check-point."""
     return _out(vehicles.cancel_rotation(vehicle_id))

@@ -77,10 +77,13 @@ class KeyRotation(BaseModel):
     """A key rotation waiting for the vehicle's confirmation (``server.vehicles.keys``)."""
 
     pending_version: int = Field(
-        description="the new key's version; commands use the one before until confirmed"
+        description="the new key's version; commands use the one before until the vehicle holds it"
     )
     since: float = Field(description="when it was staged (UNIX s)")
-    probes: int = Field(description="SYNCs signed with the new key sent so far")
+    held: bool = Field(
+        description="the vehicle's last check-point said it holds the new key: commands and SYNCs are "
+        "signed with it, and its next check-point signed with it ends the rotation"
+    )
 
 
 class VehicleOut(LimitsIn):

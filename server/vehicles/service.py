@@ -109,7 +109,7 @@ class Vehicles:
             vehicle.previous_key_hex = vehicle.key_hex  # staged: see server.vehicles.keys
             vehicle.key_hex = key.hex()
             vehicle.key_version += 1
-            vehicle.rotation_since, vehicle.rotation_probes = now(), 0
+            vehicle.rotation_since, vehicle.next_key_held = now(), False
             return repo.save(s, vehicle)
 
     def cancel_rotation(self, vehicle_id: int) -> Vehicle:
@@ -121,11 +121,5 @@ class Vehicles:
                 raise Conflict(f"vehicle {vehicle.name} has no key rotation waiting", "key")
             vehicle.key_hex, vehicle.previous_key_hex = vehicle.previous_key_hex or "", None
             vehicle.key_version -= 1
-            vehicle.rotation_since, vehicle.rotation_probes = None, 0
+            vehicle.rotation_since, vehicle.next_key_held = None, False
             return repo.save(s, vehicle)
-
-    def probed(self, vehicle_id: int) -> None:
-        """A probe SYNC signed with the staged key went out (counted for the API)."""
-        with writing(self.db) as s:
-            repo.count_probe(s, vehicle_id)
-            s.commit()

@@ -196,3 +196,17 @@ def test_config_query_all_and_reboot() -> None:
     pair.host(1, nmea.Sleep(1, 1, 0))
     pair.sched.run()
     assert [s.ident for _, s in pair.of(1, nmea.Revision)] == ["INIT", "AUV"]
+
+
+def test_a_recorder_reports_every_data_frame_and_acknowledges_none() -> None:
+    pair = Pair(100.0, noise_level_db=80.0)
+    recorder = MicroModemEmulator(
+        "recorder", 7, pair.channel, pair.sched, lambda: (50.0, 10.0, 1.0), hears_all=True
+    )
+    heard: list[nmea.Sentence] = []
+    recorder.output = lambda line: heard.append(nmea.parse(line))
+    pair.send_frame(1, 2, True, bytes(range(32)))
+    pair.sched.run()
+    (rxd,) = [s for s in heard if isinstance(s, nmea.RxData)]
+    assert rxd.data == bytes(range(32)) and (rxd.src, rxd.dest) == (1, 2)
+    assert [ack.src for _, ack in pair.of(1, nmea.Ack)] == [2]  # the vehicle's ACK alone: no collision
