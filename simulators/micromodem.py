@@ -15,7 +15,7 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from simulators.channel import Channel, Kind, Reception, Transmission
+from simulators.channel import NO_LOSS, Channel, Kind, Reception, Transmission
 from simulators.clock import Cancellable, Scheduler
 from tacit import nmea, rates
 from tacit.rates import RATES
@@ -58,7 +58,10 @@ class MicroModemEmulator:
         channel: Channel,
         scheduler: Scheduler,
         position: Callable[[], tuple[float, float, float]],
+        loss: Callable[[], float] = lambda: NO_LOSS,
     ) -> None:
+        """``loss``: the probability that a frame to or from this modem is lost, on top of the channel's
+        (read at each arrival)."""
         self.name = name
         self.channel = channel
         self.scheduler = scheduler
@@ -72,7 +75,7 @@ class MicroModemEmulator:
         self._ack_until = 0.0  # an acknowledgement is due or on the air until then
         self._ping: _Ping | None = None
         self.counters = {"host_lines": 0, "errors": 0, "tx": 0, "rx_frames": 0, "bad_frames": 0}
-        channel.add_node(name, position, self._receive)
+        channel.add_node(name, position, self._receive, loss)
 
     @property
     def address(self) -> int:
