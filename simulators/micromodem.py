@@ -15,7 +15,7 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from simulators.channel import Channel, Kind, Reception, Transmission
+from simulators.channel import NO_LOSS, Channel, Kind, Reception, Transmission
 from simulators.clock import Cancellable, Scheduler
 from tacit import nmea, rates
 from tacit.rates import RATES
@@ -59,9 +59,11 @@ class MicroModemEmulator:
         scheduler: Scheduler,
         position: Callable[[], tuple[float, float, float]],
         hears_all: bool = False,
+        loss: Callable[[], float] = lambda: NO_LOSS,
     ) -> None:
         """``hears_all``: report every data frame heard, whoever it is for (a recorder on the channel; it
-        acknowledges only its own)."""
+        acknowledges only its own). ``loss``: the probability that a frame to or from this modem is lost, on
+        top of the channel's (read at each arrival)."""
         self.name = name
         self.hears_all = hears_all
         self.channel = channel
@@ -76,7 +78,7 @@ class MicroModemEmulator:
         self._ack_until = 0.0  # an acknowledgement is due or on the air until then
         self._ping: _Ping | None = None
         self.counters = {"host_lines": 0, "errors": 0, "tx": 0, "rx_frames": 0, "bad_frames": 0}
-        channel.add_node(name, position, self._receive)
+        channel.add_node(name, position, self._receive, loss)
 
     @property
     def address(self) -> int:

@@ -291,7 +291,7 @@ class Ingest:
         """Verify, then apply: the vehicle's state, its key's confirmation, its commands' statuses."""
         vehicle = vehicles.get(s, v.id)
         assert vehicle is not None, "a vehicle with link state is stored"
-        verdict = self.verifier.checkpoint(batch, v, vehicle, cp)
+        verdict = self.verifier.checkpoint(batch, v, vehicle, cp, lambda: vehicles.every(s))
         if verdict.trust is not PacketTrust.VERIFIED:
             return verdict.trust, verdict.events
         v.link.accept(body, verdict.floor, cp.mac)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from server.core.db import Tx, now, saved_id
@@ -49,6 +50,22 @@ def current_floor(floor: int, shore_now: float, max_skew: float) -> int:
     return floor if floor <= shore_now + max_skew else int(shore_now - max_skew)
 
 
+class KeyMixUp(auth.BadMac):
+    """A check-point signed with another registered vehicle's key: a configuration mistake (two agents'
+    keys swapped, a key copied to the wrong vehicle), refused all the same."""
+
+
+def signs(
+    vehicle: Vehicle, cp: CheckpointPacket, address: int, candidates: Sequence[Sequence[bytes]]
+) -> bool:
+    """Whether one of ``vehicle``'s keys signed ``cp`` (sent from ``address``)."""
+    try:
+        auth.verify_checkpoint(cp, keys.accepted(vehicle), address, candidates)
+    except (auth.BadMac, auth.Unverifiable):
+        return False
+    return True
+
+
 def raised_floor(cp: CheckpointPacket, floor: int, shore_now: float, max_skew: float) -> int:
     """The replay floor after a verified check-point: an unsynced vehicle's time never raises it (its
     clock is unknown), and a synced one stamped more than ``max_skew`` ahead of the shore raises it only
@@ -63,10 +80,19 @@ class Verifier:
         self.stats = stats
         self.max_skew = max_skew  # Settings.max_skew
 
-    def checkpoint(self, batch: Batch, v: VehicleState, vehicle: Vehicle, cp: CheckpointPacket) -> Verdict:
+    def checkpoint(
+        self,
+        batch: Batch,
+        v: VehicleState,
+        vehicle: Vehicle,
+        cp: CheckpointPacket,
+        others: Callable[[], Sequence[Vehicle]],
+    ) -> Verdict:
         """Verify a check-point (nothing is applied here, but the challenge of an unsynced one stamped
         below the floor, which is answered all the same: a vehicle whose lost state held a large clock
-        offset would otherwise never be heard again, and a SYNC echoing an old MAC answers nothing)."""
+        offset would otherwise never be heard again, and a SYNC echoing an old MAC answers nothing).
+        ``others``: the registered vehicles, read only when the MAC fails, to tell a key configured on
+        the wrong vehicle (two agents' keys swapped) from a forgery."""
         seqs = cp.covered_seqs()
         candidates = [[h for h, _ in v.link.recent.get(seq, [])] for seq in seqs]
         try:
@@ -74,7 +100,17 @@ class Verifier:
         except auth.Unverifiable as exc:
             return self._refused(batch, v, PacketTrust.UNVERIFIABLE, cp, exc)
         except auth.BadMac as exc:
-            return self._refused(batch, v, PacketTrust.FORGED, cp, exc)
+            owner = next(
+                (o.name for o in others() if o.id != vehicle.id and signs(o, cp, v.address, candidates)), None
+            )
+            why = (
+                exc
+                if owner is None
+                else KeyMixUp(
+                    f"signed with {owner}'s key, not {v.name}'s: is {v.name}'s agent configured with {owner}'s key?"
+                )
+            )
+            return self._refused(batch, v, PacketTrust.FORGED, cp, why)
         if cp.mac in v.link.accepted_macs:
             return self._refused(batch, v, PacketTrust.REPLAYED, cp, ValueError("accepted before"))
         shore_now = time.time()

@@ -3,7 +3,8 @@
 Two vehicles driven toward one point: the center refuses the command whose path would bring the second
 into the first (naming it and how close), accepts one that stops a safe distance short, and warns once
 the two vehicles' predicted positions, with their uncertainty, come within the separation. Three vehicles
-on a team survey: one finds the warm plume, and the shore sends the nearest other vehicle to it."""
+on a team survey, each on its own lanes (its reported track within their band): one finds the warm plume,
+and the shore sends the nearest other vehicle to it."""
 
 from __future__ import annotations
 
@@ -24,6 +25,8 @@ from server.core.events import Event, SeparationWarning
 OP = {"Authorization": "Bearer operator"}
 KEYS = ["d4" * 32, "e5" * 32, "f6" * 32]
 POINT = (15.0, 15.0)  # both vehicles are sent here: rov1 from (0, 0), rov2 from (0, 30)
+SPACING = 10.0  # m between the team survey's lanes
+TRACK_SLACK = 1.5  # m: a reported position's error beyond its lanes' band (homes are on the bands' edges)
 # warm water at 2 m between rov1's first two lanes, 25 m or more from the others' lanes
 PLUME = {"front_step": 0.0, "patches": [], "plume_north": 18.0, "plume_east": 10.0, "plume_sigma": 6.0}
 
@@ -96,6 +99,13 @@ def move_to(start: tuple[float, float], end: tuple[float, float], depth: float =
     }
 
 
+def band(waypoints: list[list[float]], spacing: float) -> tuple[float, float]:
+    """The east-west band of a vehicle's lanes (``waypoints``: north, east, depth): half a lane spacing
+    either side of its outer lanes, and ``TRACK_SLACK`` more for the reported positions' noise."""
+    easts = [w[1] for w in waypoints]
+    return min(easts) - spacing / 2 - TRACK_SLACK, max(easts) + spacing / 2 + TRACK_SLACK
+
+
 def test_two_vehicles_toward_one_point_refused_then_warned(tmp_path: Path) -> None:
     with fleet(tmp_path, 2, separation=5.0) as f:
         first = f.post(f"/vehicles/{f.ids[0]}/commands", move_to((0.0, 0.0), POINT))
@@ -126,15 +136,23 @@ def test_two_vehicles_toward_one_point_refused_then_warned(tmp_path: Path) -> No
 
 
 def test_a_team_survey_restructured_by_the_plume_one_vehicle_finds(tmp_path: Path) -> None:
+    # separation 4 m: each home sits 5 m from the neighbour's nearest lane, and a vehicle reported a
+    # decimetre toward it would make the lost-link check at start refuse the team (it includes positions)
     with fleet(
-        tmp_path, 3, PLUME, restructure_auto=True, restructure_vehicles=1, restructure_radius=30.0
+        tmp_path,
+        3,
+        PLUME,
+        restructure_auto=True,
+        restructure_vehicles=1,
+        restructure_radius=30.0,
+        separation=4.0,
     ) as f:
         area = {"south": 0.0, "north": 60.0, "west": 0.0, "east": 90.0}  # three 60 m lanes each
         body = {
             "name": "plume hunt",
             "vehicles": [{"vehicle": f"rov{k}"} for k in (1, 2, 3)],
             "area": area,
-            "spacing": 10.0,
+            "spacing": SPACING,
             "depth": 2.0,
         }
         team = f.post("/teams", body).json()
@@ -162,3 +180,17 @@ def test_a_team_survey_restructured_by_the_plume_one_vehicle_finds(tmp_path: Pat
         assert (
             rov1["state"] in ("running", "done") and len(rov1["waypoints"]) == 6
         )  # the finder keeps its lanes
+
+        # each vehicle ran its own lanes: its reported track (every check-point) stays in its lanes' band,
+        # rov2's until the shore sent it to the plume; the others went up their first lane
+        for member in team["members"]:  # as planned, before the restructuring
+            west, east = band(member["waypoints"], SPACING)
+            points = f.get(f"/packets?type=checkpoint&vehicle_id={member['vehicle_id']}&limit=1000")["items"]
+            track = [
+                (p["body"]["north"], p["body"]["east"])
+                for p in points
+                if member["name"] != "rov2" or p["at"] < proposal["created_at"]
+            ]
+            assert all(west <= e <= east for _, e in track), (member["name"], west, east, track)
+            if member["name"] != "rov2":
+                assert max(n for n, _ in track) > area["north"] / 2, (member["name"], track)
