@@ -6,11 +6,15 @@ already coded in the same sample and on the previous sample's residuals, fitted 
 both ends hold the same coefficients), used by a channel only while it has lately cut its squared error
 by 10 %. Each channel predicts with a held value instead (hold: send-on-delta's predictor, the last
 reconstruction moved no further than it must) while that would lately have missed (|value - prediction|
-> eps) less than half as often as its own: a slow profiling sensor's drift and a quantised sensor's
+> eps) less than half as often as its own, or no more often while both have missed about once or never
+(a stream starts on hold, and a first surprise both missed does not leave it on a lagging Kalman filter
+for another; a channel's first value neither predicted is not counted): a slow profiling sensor's drift and a quantised sensor's
 dither are followed by hold, noise by the Kalman filter, and both ends choose alike from reconstructions,
 so the choice costs no bits. Both ends feed the reconstruction, not the raw value, back into the
 predictor; a single value sent raw (a glitch, ``tacit.codec.grammar.RawValue``) is not given to the
-predictor, a second one in a row is (a real jump).
+predictor, a second one in a row is (a real jump). A channel's first value is coded on steps
+``FIRST_FINE`` of the usual (``Dual.fine``), so what later values are predicted from is within eps / 16 of
+the truth, not up to eps.
 """
 
 from __future__ import annotations
