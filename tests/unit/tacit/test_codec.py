@@ -566,3 +566,13 @@ def test_wire_bytes_of_format_3_are_pinned_and_decode_back() -> None:
         truth[stream].append((t, np.array(row)))
     assert packets == GOLDEN_PACKETS
     assert lost.count(True) == 2  # the packet after the lost one declares its ticks, on both streams
+
+
+def test_a_first_value_on_its_finer_grid_is_urgent_only_by_whole_steps() -> None:
+    s = spec(1, 0.5)  # step 1; the first value's q counts sixteenths of it
+    enc = StreamEncoder(s, max_latency=10.0, urgent_threshold=20)
+    enc.push(T0, [5.0])  # 5 steps from the filter's start (80 sixteenths): not urgent
+    enc.push(T0 + PERIOD, [40.0])  # 35 steps off: urgent
+    assert [x.urgent for x in enc.pending] == [False, True]
+    decoded = StreamDecoder(s).decode(enc.take().packet.payload, T0 + 1.0)
+    assert abs(decoded.values[0, 0] - 5.0) <= 0.5 / 16
