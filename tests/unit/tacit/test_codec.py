@@ -135,7 +135,7 @@ def test_bound_holds_on_random_walks_and_noise(method: str) -> None:
     st.floats(0.01, 100),
     st.sampled_from(METHODS),
 )
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=60)
 def test_gaps_jitter_nans_and_duplicate_times_lose_nothing(rows: list, eps: float, method: str) -> None:
     """Random intervals (0: a duplicate time; up to 6 ticks: gaps; any fraction: jitter), NaN cells."""
     times = T0 + np.cumsum([gap for gap, _ in rows])
@@ -337,7 +337,7 @@ def test_payload_is_thirty_bytes_and_garbage_is_a_codec_error() -> None:
 
 
 @given(st.binary(min_size=0, max_size=40), st.booleans())
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=300)
 def test_random_payload_bytes_raise_nothing_but_codec_error(payload: bytes, right_format: bool) -> None:
     if right_format and payload:
         payload = bytes([(FORMAT << 6) | (payload[0] & 0x3F)]) + payload[1:]
@@ -349,7 +349,7 @@ def test_random_payload_bytes_raise_nothing_but_codec_error(payload: bytes, righ
 
 
 @given(st.lists(st.integers(0, 14), max_size=300))
-@settings(max_examples=50, deadline=None)
+@settings(max_examples=50)
 def test_arithmetic_coder_round_trip(symbols: list[int]) -> None:
     prior = [1] * 15
     enc, model = Encoder(), AdaptiveModel(list(prior))
@@ -368,7 +368,7 @@ def test_arithmetic_coder_round_trip(symbols: list[int]) -> None:
     st.sampled_from(METHODS),
     st.floats(0.5, 5),
 )
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=60)
 def test_any_loss_pattern_leaves_the_shore_exact_or_marked(
     seed: int, lose: set[int], method: str, latency: float
 ) -> None:
@@ -437,7 +437,7 @@ cell = st.one_of(
     st.sampled_from(METHODS),
     st.sets(st.integers(0, 30), max_size=4),
 )
-@settings(max_examples=50, deadline=None)
+@settings(max_examples=50)
 def test_huge_values_jumps_nan_and_inf_never_stall_the_stream(
     rows: list, eps: float, method: str, lose: set[int]
 ) -> None:
