@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
-from sqlalchemy import func, update
+from sqlalchemy import func, insert, update
 from sqlmodel import Session, col, select
 
 from server.backhaul.models import RelayedFrame
@@ -15,9 +16,17 @@ def get(s: Session, message_id: str) -> RelayedFrame | None:
     return s.get(RelayedFrame, message_id)
 
 
-def add(s: Session, row: RelayedFrame) -> None:
-    s.add(row)
-    s.flush()
+def stored_ids(s: Session, message_ids: Sequence[str]) -> set[str]:
+    """Of the message ids, those stored already."""
+    if not message_ids:
+        return set()
+    return set(s.exec(select(RelayedFrame.id).where(col(RelayedFrame.id).in_(message_ids))).all())
+
+
+def add_rows(s: Session, rows: list[dict[str, Any]]) -> None:
+    """Relayed frames' records, in one statement."""
+    if rows:
+        s.execute(insert(RelayedFrame), rows)
 
 
 def twin(s: Session, src: int, digest: str, at: float, window: float) -> RelayedFrame | None:
@@ -33,10 +42,10 @@ def twin(s: Session, src: int, digest: str, at: float, window: float) -> Relayed
     return s.exec(query).first()
 
 
-def keep(s: Session, frame_id: int, message_id: str, stats: dict[str, Any]) -> None:
-    """The copy ``message_id`` is the frame's best: its receive statistics become the frame row's."""
+def keep(s: Session, frame_id: int, stats: dict[str, Any]) -> None:
+    """A new copy of the frame is its best (recorded kept): the stored copies are not, and its receive
+    statistics become the frame row's."""
     s.execute(update(RelayedFrame).where(col(RelayedFrame.frame_id) == frame_id).values(kept=False))
-    s.execute(update(RelayedFrame).where(col(RelayedFrame.id) == message_id).values(kept=True))
     s.execute(update(Frame).where(col(Frame.id) == frame_id).values(**stats))
 
 

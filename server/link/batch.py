@@ -1,22 +1,87 @@
-"""Rows gathered while handling a batch of frames, inserted together just before its commit."""
+"""What a batch of frames writes, gathered while it is handled and written just before its commit: one
+statement per table, whatever the number of frames.
+
+A frame or packet row gets its id when it is gathered (ids reserved in the batch's transaction,
+``telemetry.reserve_ids``), so that packets, samples, events and the link state can name it before any
+row is inserted. Trust given to packets while the batch runs (a check-point vouching for them) is
+applied to the rows of this batch before they are inserted, and to older packets with one update per
+trust at the end; reads of a packet's trust (``packet_states``) see both.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Self
 
 from server.core.db import Tx
 from server.link import repository as link
 from server.telemetry import repository as telemetry
+from server.telemetry.models import Frame, Packet, PacketTrust
 
 
 @dataclass
 class Batch:
+    frame_ids: list[int] = field(default_factory=list)  # reserved, not yet handed out
+    packet_ids: list[int] = field(default_factory=list)
+    frames: list[dict[str, Any]] = field(default_factory=list)
+    packets: dict[int, dict[str, Any]] = field(default_factory=dict)  # by id, in arrival order
     samples: list[dict[str, Any]] = field(default_factory=list)  # telemetry rows
     events: list[dict[str, Any]] = field(default_factory=list)  # link event rows
+    trust: dict[int, PacketTrust] = field(default_factory=dict)  # older packets' new trust
+    trusted: set[int] = field(default_factory=set)  # older packets whose data became trusted
+
+    @classmethod
+    def open(cls, s: Tx, frames: int, packets: int) -> Self:
+        """A batch of at most ``frames`` frames holding at most ``packets`` packets."""
+        return cls(telemetry.reserve_ids(s, Frame, frames), telemetry.reserve_ids(s, Packet, packets))
+
+    def add_frame(self, row: dict[str, Any]) -> int:
+        frame_id = self.frame_ids.pop(0)
+        self.frames.append({**row, "id": frame_id})
+        return frame_id
+
+    def add_packet(self, row: dict[str, Any]) -> int:
+        """The packet's id; ``row`` stays the batch's until the flush (decoding completes its body)."""
+        packet_id = self.packet_ids.pop(0)
+        row.update(id=packet_id, origin=row.get("origin"), trusted=False)
+        row.setdefault("auth", PacketTrust.PENDING.value)
+        self.packets[packet_id] = row
+        return packet_id
+
+    def set_trust(self, packet_ids: Iterable[int], trust: PacketTrust) -> None:
+        for packet_id in packet_ids:
+            if packet_id in self.packets:
+                self.packets[packet_id]["auth"] = trust.value
+            else:
+                self.trust[packet_id] = trust
+
+    def trust_data(self, packet_ids: Iterable[int]) -> None:
+        """The packets' data (their rows and their samples) may be believed."""
+        for packet_id in packet_ids:
+            if packet_id in self.packets:
+                self.packets[packet_id]["trusted"] = True
+            else:
+                self.trusted.add(packet_id)
+
+    def packet_states(self, s: Tx, packet_ids: Sequence[int]) -> dict[int, dict[str, Any]]:
+        """Each packet's ``body``, ``origin``, ``auth`` and ``trusted`` as this batch leaves them."""
+        states = {i: self.packets[i] for i in packet_ids if i in self.packets}
+        older = telemetry.packet_states(s, [i for i in packet_ids if i not in states])
+        for packet_id, state in older.items():
+            state["auth"] = self.trust.get(packet_id, state["auth"])
+            state["trusted"] = state["trusted"] or packet_id in self.trusted
+        return {**states, **older}
 
     def flush(self, s: Tx) -> None:
+        """Everything gathered, inserted and updated: a statement per table and per trust."""
+        verified = {i for i, row in self.packets.items() if row["trusted"]}
+        for sample in self.samples:
+            sample["verified"] = sample["verified"] or sample["packet_id"] in verified
+        telemetry.add_frame_rows(s, self.frames)
+        telemetry.add_packet_rows(s, list(self.packets.values()))
         telemetry.add_samples(s, self.samples)
         link.add_events(s, self.events)
-        self.samples.clear()
-        self.events.clear()
+        for trust in set(self.trust.values()):
+            telemetry.set_trust(s, [i for i, t in self.trust.items() if t is trust], trust)
+        telemetry.trust_data(s, sorted(self.trusted))

@@ -152,7 +152,7 @@ class Ingest:
     def _commit(self, frames: list[IncomingFrame]) -> list[Event]:
         events: list[Event] = []
         with writing(self.db) as s:
-            batch = Batch()
+            batch = self._open(s, frames)
             for frame in frames:
                 events += self._frame(s, batch, frame)
             batch.flush(s)
@@ -163,14 +163,18 @@ class Ingest:
             s.commit()
         return events
 
+    def _open(self, s: Tx, frames: list[IncomingFrame]) -> Batch:
+        """The batch's rows, ids reserved for as many frames and packets as ``frames`` can hold."""
+        return Batch.open(s, len(frames), sum(len(from_frame(f.data)) for f in frames))
+
     def _frame(self, s: Tx, batch: Batch, frame: IncomingFrame) -> list[Event]:
         self.stats["frames"] += 1
         if not (0 <= frame.src <= 255 and 0 <= frame.dest <= 255 and 0 <= frame.rate <= 255):
             self.stats["rejected"] += 1  # the modem driver's parser bounds these; never trust it blindly
             log.warning("frame with impossible addresses or rate dropped")
             return []
-        frame_id = telemetry.add_frame(s, frame_row(frame))
-        self._stored(s, frame, frame_id)
+        frame_id = batch.add_frame(frame_row(frame))
+        self._stored(s, batch, frame, frame_id)
         v = self.vehicles.get(frame.src)
         if v is None:
             self.stats["unknown_vehicle"] += 1
@@ -194,9 +198,9 @@ class Ingest:
         heard = {"address": v.address, "snr_in": frame.snr_in, "snr_out": frame.snr_out}
         return [*events, LinkNotice(event="heard", vehicle=v.name, detail=heard)]
 
-    def _stored(self, s: Tx, frame: IncomingFrame, frame_id: int) -> None:
-        """The frame's row exists, in the batch's transaction (a hook: the center records there which
-        backhaul message it came from, ``server.backhaul.relay``)."""
+    def _stored(self, s: Tx, batch: Batch, frame: IncomingFrame, frame_id: int) -> None:
+        """The frame's row is in the batch (a hook: the center records there which backhaul message it
+        came from, ``server.backhaul.relay``)."""
 
     def _packet(
         self, s: Tx, batch: Batch, v: VehicleState, frame_id: int, chunk: bytes, at: float
@@ -239,7 +243,7 @@ class Ingest:
         }
         if isinstance(packet, CheckpointPacket):
             trust, events = self._checkpoint(s, batch, v, packet, body)
-            packet_id = telemetry.add_packet(s, {**row, "auth": trust.value})
+            packet_id = batch.add_packet({**row, "auth": trust.value})
         elif not self._tagged(s, v, chunk):
             trust, (packet_id, events) = PacketTrust.FORGED, self._forged(s, batch, v, packet, row)
         else:
@@ -341,7 +345,7 @@ class Ingest:
     ) -> tuple[int, list[Event]]:
         """A priority packet whose tag fails: stored as forged, never decoded (its state never enters the
         chain) and never a candidate for a check-point's MAC; its id and the events."""
-        packet_id = telemetry.add_packet(s, {**row, "auth": PacketTrust.FORGED.value})
+        packet_id = batch.add_packet({**row, "auth": PacketTrust.FORGED.value})
         v.forged += 1
         self.stats["forged"] += 1
         detail = {"error": f"priority packet seq {pp.seq}: its tag does not match"}
@@ -355,7 +359,7 @@ class Ingest:
         self, s: Tx, batch: Batch, v: VehicleState, pp: PriorityPacket, chunk: bytes, row: dict
     ) -> tuple[int, list[Event]]:
         """Store and decode a priority packet: its id and the events."""
-        packet_id = telemetry.add_packet(s, row)
+        packet_id = batch.add_packet(row)
         recent = v.link.recent.setdefault(pp.seq, [])
         recent[:] = [*recent[-3:], (auth.packet_hash(chunk), packet_id)]
         while len(v.link.recent) > RECENT_SEQS:  # drop the seq furthest behind this one
@@ -363,7 +367,7 @@ class Ingest:
         restart_every = self.settings.restart_min_interval / self.settings.time_scale
         decoded = decode(batch, v, pp, row["at"], packet_id, restart_every)
         row["body"].update(decoded.body)  # what decoding found (or why it could not)
-        telemetry.set_packet(s, packet_id, body=row["body"], origin=decoded.origin)
+        row["origin"] = decoded.origin
         return packet_id, decoded.events
 
 

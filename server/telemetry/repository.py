@@ -5,10 +5,11 @@ from __future__ import annotations
 from collections.abc import Iterator, Sequence
 from typing import Any
 
-from sqlalchemy import ColumnElement, delete, func, insert, update
-from sqlmodel import Session, col, select
+from sqlalchemy import ColumnElement, delete, func, insert, text, update
+from sqlmodel import Session, SQLModel, col, select
 from sqlmodel.sql.expression import SelectOfScalar
 
+from server.core.db import saved_id
 from server.telemetry.models import Frame, Packet, PacketTrust, Telemetry
 
 EXPORT_ROWS = 5000  # rows per database fetch of an export
@@ -16,6 +17,44 @@ EXPORT_ROWS = 5000  # rows per database fetch of an export
 
 def add_frame(s: Session, row: dict[str, Any]) -> int:
     return int(s.execute(insert(Frame).returning(col(Frame.id)), [row]).scalar_one())
+
+
+def reserve_ids(s: Session, table: type[SQLModel], n: int) -> list[int]:
+    """``n`` ids for rows of ``table`` this transaction inserts later with their ids. PostgreSQL: from the
+    id's sequence (never handed out twice; the unused ones are gaps, as a rollback leaves). SQLite: after
+    the largest id, which no one else can add to before this transaction ends (``writing`` begins
+    IMMEDIATE: it holds the database's write lock)."""
+    if n <= 0:
+        return []
+    name = str(table.__tablename__)
+    if s.get_bind().dialect.name == "postgresql":
+        query = text("SELECT nextval(pg_get_serial_sequence(:name, 'id')) FROM generate_series(1, :n)")
+        return [int(i) for i in s.execute(query, {"name": name, "n": n}).scalars()]
+    top = s.execute(text(f"SELECT coalesce(max(id), 0) FROM {name}")).scalar_one()
+    return list(range(int(top) + 1, int(top) + n + 1))
+
+
+def add_frame_rows(s: Session, rows: list[dict[str, Any]]) -> None:
+    """Frames with their ids (``reserve_ids``), in one statement."""
+    if rows:
+        s.execute(insert(Frame), rows)
+
+
+def add_packet_rows(s: Session, rows: list[dict[str, Any]]) -> None:
+    """Packets with their ids (``reserve_ids``), in one statement."""
+    if rows:
+        s.execute(insert(Packet), rows)
+
+
+def packet_states(s: Session, packet_ids: Sequence[int]) -> dict[int, dict[str, Any]]:
+    """Each stored packet's ``body``, ``origin``, ``auth`` and ``trusted``, by id."""
+    if not packet_ids:
+        return {}
+    query = select(Packet).where(col(Packet.id).in_(packet_ids))
+    return {
+        saved_id(p): {"body": p.body, "origin": p.origin, "auth": PacketTrust(p.auth), "trusted": p.trusted}
+        for p in s.exec(query).all()
+    }
 
 
 def _strangers(known: Sequence[int]) -> SelectOfScalar[Any]:
@@ -45,10 +84,6 @@ def add_packet(s: Session, row: dict[str, Any]) -> int:
     return int(s.execute(insert(Packet).returning(col(Packet.id)), [row]).scalar_one())
 
 
-def set_packet(s: Session, packet_id: int, **values: Any) -> None:
-    s.execute(update(Packet).where(col(Packet.id) == packet_id).values(**values))
-
-
 def add_samples(s: Session, rows: list[dict[str, Any]]) -> None:
     if rows:
         s.execute(insert(Telemetry), rows)
@@ -59,33 +94,11 @@ def set_trust(s: Session, packet_ids: Sequence[int], trust: PacketTrust) -> None
         s.execute(update(Packet).where(col(Packet.id).in_(packet_ids)).values(auth=trust.value))
 
 
-def settle_pending(s: Session, packet_ids: Sequence[int], trust: PacketTrust) -> list[int]:
-    """Of the packets, those still pending get ``trust``: their ids."""
-    if not packet_ids:
-        return []
-    pending = col(Packet.id).in_(packet_ids) & (col(Packet.auth) == PacketTrust.PENDING.value)
-    ids = [int(i) for i in s.exec(select(Packet.id).where(pending)).all() if i is not None]
-    set_trust(s, ids, trust)
-    return ids
-
-
 def trust_data(s: Session, packet_ids: Sequence[int]) -> None:
     """The packets' data may be believed: they and their samples are marked so."""
     if packet_ids:
         s.execute(update(Packet).where(col(Packet.id).in_(packet_ids)).values(trusted=True))
         s.execute(update(Telemetry).where(col(Telemetry.packet_id).in_(packet_ids)).values(verified=True))
-
-
-def packets(s: Session, packet_ids: Sequence[int]) -> dict[int, Packet]:
-    return {
-        p.id: p
-        for p in s.exec(select(Packet).where(col(Packet.id).in_(packet_ids))).all()
-        if p.id is not None
-    }
-
-
-def packet(s: Session, packet_id: int) -> Packet | None:
-    return s.get(Packet, packet_id)
 
 
 def checkpoints(s: Session, vehicle_id: int, n: int = 1, until: float | None = None) -> list[Packet]:
