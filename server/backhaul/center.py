@@ -260,4 +260,5 @@ def run(args: argparse.Namespace) -> int:
     )
     center = Center(ingest, settings.nats_url, durable=args.durable, auth=auth)
     asyncio.run(operate(center, center.run(), ingest.db, settings))
+    ingest.save_states()  # a restart then has no frames to replay
     return 0

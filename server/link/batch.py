@@ -6,6 +6,9 @@ A frame or packet row gets its id when it is gathered (ids reserved in the batch
 row is inserted. Trust given to packets while the batch runs (a check-point vouching for them) is
 applied to the rows of this batch before they are inserted, and to older packets with one update per
 trust at the end; reads of a packet's trust (``packet_states``) see both.
+
+``Replay`` is the same interface over frames stored already: it hands out their stored ids and writes
+nothing, so that the pipeline rebuilds a vehicle's memory from them (``Ingest.replay``).
 """
 
 from __future__ import annotations
@@ -20,8 +23,13 @@ from server.telemetry import repository as telemetry
 from server.telemetry.models import Frame, Packet, PacketTrust
 
 
+class ReplayMismatch(Exception):
+    """A replayed frame yields a packet the store does not hold: the replay stops there."""
+
+
 @dataclass
 class Batch:
+    live = True  # frames as they come (a ``Replay`` is not)
     frame_ids: list[int] = field(default_factory=list)  # reserved, not yet handed out
     packet_ids: list[int] = field(default_factory=list)
     frames: list[dict[str, Any]] = field(default_factory=list)
@@ -85,3 +93,30 @@ class Batch:
         for trust in set(self.trust.values()):
             telemetry.set_trust(s, [i for i, t in self.trust.items() if t is trust], trust)
         telemetry.trust_data(s, sorted(self.trusted))
+
+
+@dataclass
+class Replay(Batch):
+    """Stored frames handled again to rebuild memory: their stored ids, nothing written."""
+
+    live = False
+    stored: dict[tuple[int, int, str], int] = field(default_factory=dict)  # (frame, seq, type) -> packet id
+    current: int = 0  # the stored frame being handled
+
+    def add_frame(self, row: dict[str, Any]) -> int:
+        return self.current
+
+    def add_packet(self, row: dict[str, Any]) -> int:
+        key = (row["frame_id"], row["seq"], row["type"])
+        if key not in self.stored:
+            raise ReplayMismatch(f"frame {key[0]}: no stored {key[2]} packet seq {key[1]}")
+        return self.stored[key]
+
+    def set_trust(self, packet_ids: Iterable[int], trust: PacketTrust) -> None:
+        """Stored already."""
+
+    def trust_data(self, packet_ids: Iterable[int]) -> None:
+        """Stored already."""
+
+    def flush(self, s: Tx) -> None:
+        """Stored already."""

@@ -8,8 +8,14 @@ command status). Frames that arrive together are stored in one transaction (grou
 events published after it; if the transaction fails, every vehicle's link state is put back
 (``VehicleState.undo``). Nothing here raises on bad input from the water.
 
-Restarts: each vehicle's link record and decoder states are saved with every batch, in the same
-transaction as the packets they describe (``server.link.state``), and loaded at start.
+Restarts: each vehicle's link record and decoder states (``server.link.state``) are saved in a batch's
+transaction, naming the last stored frame they include (``LinkRecord.frame``); at start they are loaded
+and the vehicle's frames stored after that one are handed through the pipeline again (``replay``:
+stored ids, nothing written) to rebuild what the saved state does not hold. So the state need not be
+saved with every batch (serialising the decoder's chains was a fifth of the center's time): it is
+saved every ``state_save_interval`` s, with a vehicle's first batch (the frame its replay starts
+after), before a SYNC leaves (its counter only grows) and at shutdown (``save_states``). A crash loses
+no state, only replay time: at most ``state_save_interval`` s of frames.
 """
 
 from __future__ import annotations
@@ -17,21 +23,22 @@ from __future__ import annotations
 import logging
 import math
 import threading
+import time
 from typing import Any
 
 from sqlalchemy import Engine
 
 from server.commands import service as commands
 from server.core.config import Settings
-from server.core.db import Tx, now, reading, writing
+from server.core.db import Tx, now, reading, saved_id, writing
 from server.core.events import Bus, Event, LinkNotice, PacketHeard, VehicleReported
 from server.link import repository as link_repo
-from server.link.batch import Batch
+from server.link.batch import Batch, Replay
 from server.link.decoding import decode
 from server.link.state import RECENT_SEQS, IncomingFrame, VehicleState
 from server.link.verify import Verifier
 from server.telemetry import repository as telemetry
-from server.telemetry.models import PacketTrust
+from server.telemetry.models import Frame, PacketTrust
 from server.vehicles import keys
 from server.vehicles import repository as vehicles
 from server.vehicles.models import Vehicle
@@ -73,6 +80,9 @@ class Ingest:
             "old_protocol": 0,
         }
         self.verifier = Verifier(self.stats, settings.max_skew)
+        self._unsaved: set[int] = set()  # addresses whose state changed since it was last saved
+        self._fresh: set[int] = set()  # addresses with no saved state naming its last frame
+        self._saved_at = time.monotonic()
 
     # --- the vehicles' link states ------------------------------------------------------------------
 
@@ -101,11 +111,56 @@ class Ingest:
         saved = link_repo.saved_state(s, state.id)
         if saved is not None:
             state.restore(saved)
+        if state.link.frame is None:  # never saved, or saved with every batch (before frames were named)
+            state.link.frame = telemetry.last_frame_id(s)
+            self._fresh.add(state.address)
+        else:
+            self._replay(s, state)
         last = telemetry.checkpoints(s, state.id)
         if last:
             state.last_heard = last[0].at
             state.link.checkpoint = state.link.checkpoint or last[0].body
         return state
+
+    def _replay(self, s: Tx, state: VehicleState) -> None:
+        """The vehicle's frames stored after its saved state, through the pipeline again: its memory as it
+        was after the last of them. A frame failing here is skipped, as it was when it came (it was
+        stored undecoded, memory left as it was); counters keep counting from this start."""
+        frames = telemetry.frames_from(s, state.address, state.link.frame or 0)
+        replay = Replay(stored=telemetry.packets_of_frames(s, [saved_id(f) for f in frames]))
+        stats = dict(self.stats)
+        for row in frames:
+            replay.current = saved_id(row)
+            point = state.undo_point()
+            try:
+                self._apply(s, replay, state, stored_frame(row), replay.current)
+            except Exception as exc:
+                state.undo(point)
+                log.warning("vehicle %s: stored frame %d not replayed: %s", state.name, replay.current, exc)
+        self.stats.update(stats)
+        state.frames = state.packets = state.duplicates = state.bytes_saved = state.forged = (
+            state.verified
+        ) = 0
+        log.info("vehicle %s: %d frames after its saved state replayed", state.name, len(frames))
+
+    def save_states(self) -> None:
+        """Every vehicle's state not saved since it changed (at shutdown: a restart then replays nothing)."""
+        with self._lock, writing(self.db) as s:
+            due = self._unsaved | self._fresh
+            self._save(s, due)
+            s.commit()
+            self._saved(due, set(), True)
+
+    def _save(self, s: Tx, addresses: set[int]) -> None:
+        for address in addresses & set(self.vehicles):
+            v = self.vehicles[address]
+            link_repo.save_state(s, v.id, v.saved())
+
+    def _saved(self, due: set[int], touched: set[int], full: bool) -> None:
+        """After a commit: ``touched`` changed, ``due`` saved (all that changed when ``full``)."""
+        self._unsaved = (self._unsaved | touched) - due
+        self._fresh -= due
+        self._saved_at = time.monotonic() if full else self._saved_at
 
     def next_sync(self, v: VehicleState) -> int:
         """The vehicle's next SYNC counter, saved before the SYNC leaves (a vehicle refuses a counter it
@@ -158,9 +213,12 @@ class Ingest:
             batch.flush(s)
             if self.strangers["kept"] > self.settings.stranger_frames_kept:
                 self._drop_strangers(s)
-            for v in {f.src: self.vehicles[f.src] for f in frames if f.src in self.vehicles}.values():
-                link_repo.save_state(s, v.id, v.saved())  # in the same transaction as its packets
+            touched = {f.src for f in frames if f.src in self.vehicles}
+            full = time.monotonic() - self._saved_at >= self.settings.state_save_interval
+            due = self._unsaved | touched if full else touched & self._fresh  # fresh: where replays start
+            self._save(s, due)  # in the same transaction as the packets it includes
             s.commit()
+        self._saved(due, touched, full)
         return events
 
     def _open(self, s: Tx, frames: list[IncomingFrame]) -> Batch:
@@ -189,7 +247,14 @@ class Ingest:
             )
             log.warning("frame from unknown modem address %d stored, not decoded", frame.src)
             return [LinkNotice(event="unknown_vehicle", detail={"address": frame.src})]
+        return self._apply(s, batch, v, frame, frame_id)
+
+    def _apply(
+        self, s: Tx, batch: Batch, v: VehicleState, frame: IncomingFrame, frame_id: int
+    ) -> list[Event]:
+        """A stored frame from a known vehicle: its packets, in order."""
         v.frames += 1
+        v.link.frame = frame_id
         v.last_heard = frame.at
         v.snr_in, v.snr_out = _finite(frame.snr_in), _finite(frame.snr_out)
         events: list[Event] = []
@@ -303,6 +368,8 @@ class Ingest:
             v.link.echo = cp.mac  # the heartbeat answers it at the vehicle's next slot
         events: list[Event] = [VehicleReported(vehicle=v.name, checkpoint=body)]
         events += self.verifier.vouch(s, batch, v, cp.seq, verdict.covered)
+        if not batch.live:  # a replay: the key and the commands were stored when it came
+            return PacketTrust.VERIFIED, events
         if vehicle.previous_key_hex and verdict.version == vehicle.key_version:
             events.append(self._key_confirmed(s, batch, v, vehicle.key_version))
         elif keys.pending(vehicle) and cp.holds_next_key != vehicle.next_key_held:
@@ -384,6 +451,11 @@ def frame_row(frame: IncomingFrame) -> dict[str, Any]:
         "stats": frame.stats,
         "at": frame.at,
     }
+
+
+def stored_frame(row: Frame) -> IncomingFrame:
+    """A stored received frame as it came."""
+    return IncomingFrame(row.src, row.dest, row.data, row.rate, row.snr_in, row.snr_out, row.stats, row.at)
 
 
 def _finite(value: float | None) -> float | None:

@@ -40,6 +40,7 @@ class LinkRecord:
     echo: bytes | None = None  # the MAC of an unsynced check-point the next SYNC answers
     producers: dict[int, int] = field(default_factory=dict)  # chain state id -> the packet row that left it
     recent: dict[int, list[tuple[bytes, int]]] = field(default_factory=dict)  # seq -> [(hash, packet id)]
+    frame: int | None = None  # the last stored frame this record includes (None: saved before it was kept)
 
     def to_json(self, seen: int | None = None) -> dict[str, Any]:
         """JSON of the record (the last ``seen`` entries of the duplicate window; all when None)."""
@@ -54,6 +55,7 @@ class LinkRecord:
             "echo": self.echo.hex() if self.echo else None,
             "producers": {str(k): v for k, v in self.producers.items()},
             "recent": {str(seq): [[h.hex(), pid] for h, pid in items] for seq, items in self.recent.items()},
+            "frame": self.frame,
         }
 
     def accept(self, checkpoint: dict[str, Any], floor: int, mac: bytes) -> None:
@@ -77,6 +79,7 @@ class LinkRecord:
             producers={int(k): int(v) for k, v in data.get("producers", {}).items()},
             recent={int(seq): [(bytes.fromhex(h), int(pid)) for h, pid in items]
                     for seq, items in data.get("recent", {}).items()},
+            frame=None if data.get("frame") is None else int(data["frame"]),
         )  # fmt: skip
 
 

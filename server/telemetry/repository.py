@@ -57,6 +57,26 @@ def packet_states(s: Session, packet_ids: Sequence[int]) -> dict[int, dict[str, 
     }
 
 
+def frames_from(s: Session, src: int, after: int) -> list[Frame]:
+    """The frames received from modem address ``src`` after frame id ``after``, oldest first."""
+    query = select(Frame).where(Frame.direction == "in", Frame.src == src, col(Frame.id) > after)
+    return list(s.exec(query.order_by(col(Frame.id))).all())
+
+
+def packets_of_frames(s: Session, frame_ids: Sequence[int]) -> dict[tuple[int, int, str], int]:
+    """The packets stored from the frames: (frame id, seq, type) -> packet id."""
+    if not frame_ids:
+        return {}
+    query = select(Packet.frame_id, Packet.seq, Packet.type, Packet.id).where(
+        col(Packet.frame_id).in_(frame_ids)
+    )
+    return {(int(f), int(seq), str(kind)): int(i) for f, seq, kind, i in s.exec(query).all() if i is not None}
+
+
+def last_frame_id(s: Session) -> int:
+    return int(s.exec(select(func.max(Frame.id))).one() or 0)
+
+
 def _strangers(known: Sequence[int]) -> SelectOfScalar[Any]:
     """The ids of frames received from modem addresses not in ``known``."""
     return select(Frame.id).where(Frame.direction == "in", col(Frame.src).not_in(known))
