@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 from sqlalchemy import Engine
@@ -27,7 +27,6 @@ from server.link.ingest import Ingest, frame_row
 from server.link.state import IncomingFrame
 from server.telemetry import repository as telemetry
 from tacit.codec import StreamSpec
-from tacit.link import from_frame
 from tacit.packets import Stream
 
 DIVERSITY_WINDOW = 5.0  # s between two gateways' copies of one frame (their clocks, NTP/GPS-disciplined)
@@ -78,8 +77,14 @@ class RelayIngest(Ingest):
             return repository.heard_by(s, frame_id)
 
     def _open(self, s: Tx, frames: list[IncomingFrame]) -> Batch:
-        batch = RelayBatch.open(s, len(frames), sum(len(from_frame(f.data)) for f in frames))
-        batch.taken = repository.stored_ids(s, [f.id for f in frames if isinstance(f, RelayedIncoming)])
+        """The pipeline's batch, with the message ids stored already and the kept copies of its frames'
+        bytes (two queries, whatever its length)."""
+        relayed = [f for f in frames if isinstance(f, RelayedIncoming)]
+        batch = RelayBatch.of(super()._open(s, frames))
+        batch.taken = repository.stored_ids(s, [f.id for f in relayed])
+        batch.relayed = repository.kept_copies(
+            s, [(f.src, hashlib.sha256(f.data).hexdigest()) for f in relayed]
+        )
         return batch
 
     def _frame(self, s: Tx, batch: Batch, frame: IncomingFrame) -> list[Event]:
@@ -141,24 +146,31 @@ class RelayBatch(Batch):
     records it adds, inserted after its frames."""
 
     taken: set[str] = field(default_factory=set)
-    relayed: list[dict[str, Any]] = field(default_factory=list)
+    relayed: list[dict[str, Any]] = field(default_factory=list)  # stored kept copies, then those added
+    added: int = 0  # how many of ``relayed`` are this batch's (the last ones)
+
+    @classmethod
+    def of(cls, batch: Batch) -> RelayBatch:
+        return cls(**{f.name: getattr(batch, f.name) for f in fields(Batch)})
 
     def record(self, row: dict[str, Any]) -> None:
         self.taken.add(row["id"])
         self.relayed.append(row)
+        self.added += 1
+
+    @property
+    def mine(self) -> list[dict[str, Any]]:
+        return self.relayed[len(self.relayed) - self.added :]
 
     def twin(self, s: Tx, src: int, digest: str, at: float, window: float) -> tuple[int, float | None] | None:
         """The kept copy of the same frame heard within ``window`` s of ``at``: its frame id and SNR."""
-        mine = [
+        copies = [
             r for r in self.relayed
             if r["kept"] and r["frame_id"] is not None and r["src"] == src and r["digest"] == digest
             and abs(r["at"] - at) <= window
         ]  # fmt: skip
-        if mine:
-            best = max(mine, key=lambda r: r["at"])
-            return best["frame_id"], best["snr_in"]
-        stored = repository.twin(s, src, digest, at, window)
-        return None if stored is None or stored.frame_id is None else (stored.frame_id, stored.snr_in)
+        best = max(copies, key=lambda r: r["at"], default=None)
+        return None if best is None else (best["frame_id"], best["snr_in"])
 
     def keep(self, s: Tx, frame_id: int, stats: dict[str, Any]) -> None:
         """The copy recorded next is the frame's best: its receive statistics become the frame row's."""
@@ -171,11 +183,11 @@ class RelayBatch(Batch):
         repository.keep(s, frame_id, stats)
 
     def heard_by(self, s: Tx, frame_id: int) -> int:
-        return repository.heard_by(s, frame_id) + sum(r["frame_id"] == frame_id for r in self.relayed)
+        return repository.heard_by(s, frame_id) + sum(r["frame_id"] == frame_id for r in self.mine)
 
     def flush(self, s: Tx) -> None:
         super().flush(s)
-        repository.add_rows(s, self.relayed)
+        repository.add_rows(s, self.mine)
 
 
 def _snr(value: float | None) -> float:

@@ -29,17 +29,27 @@ def add_rows(s: Session, rows: list[dict[str, Any]]) -> None:
         s.execute(insert(RelayedFrame), rows)
 
 
-def twin(s: Session, src: int, digest: str, at: float, window: float) -> RelayedFrame | None:
-    """The kept copy of the same frame (same source, same bytes) heard within ``window`` s of ``at``."""
-    query = (
-        select(RelayedFrame)
-        .where(RelayedFrame.src == src, RelayedFrame.digest == digest, col(RelayedFrame.kept).is_(True),
-               col(RelayedFrame.frame_id).is_not(None), col(RelayedFrame.at) >= at - window,
-               col(RelayedFrame.at) <= at + window)
-        .order_by(col(RelayedFrame.at).desc())
-        .limit(1)
+def kept_copies(s: Session, frames: Sequence[tuple[int, str]]) -> list[dict[str, Any]]:
+    """The kept copies of frames (source, SHA-256 of their bytes) that became frame rows: their ``src``,
+    ``digest``, ``at``, ``frame_id``, ``snr_in`` and ``kept``."""
+    if not frames:
+        return []
+    query = select(RelayedFrame).where(
+        col(RelayedFrame.src).in_({src for src, _ in frames}),
+        col(RelayedFrame.digest).in_({digest for _, digest in frames}), col(RelayedFrame.kept).is_(True),
+        col(RelayedFrame.frame_id).is_not(None),
     )  # fmt: skip
-    return s.exec(query).first()
+    return [
+        {
+            "src": r.src,
+            "digest": r.digest,
+            "at": r.at,
+            "frame_id": r.frame_id,
+            "snr_in": r.snr_in,
+            "kept": True,
+        }
+        for r in s.exec(query).all()
+    ]
 
 
 def keep(s: Session, frame_id: int, stats: dict[str, Any]) -> None:

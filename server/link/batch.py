@@ -21,6 +21,8 @@ from server.core.db import Tx
 from server.link import repository as link
 from server.telemetry import repository as telemetry
 from server.telemetry.models import Frame, Packet, PacketTrust
+from server.vehicles import repository as vehicles
+from server.vehicles.models import Vehicle
 
 
 class ReplayMismatch(Exception):
@@ -38,11 +40,17 @@ class Batch:
     events: list[dict[str, Any]] = field(default_factory=list)  # link event rows
     trust: dict[int, PacketTrust] = field(default_factory=dict)  # older packets' new trust
     trusted: set[int] = field(default_factory=set)  # older packets whose data became trusted
+    vehicles: dict[int, Vehicle] = field(default_factory=dict)  # the batch's vehicles, read once
 
     @classmethod
     def open(cls, s: Tx, frames: int, packets: int) -> Self:
         """A batch of at most ``frames`` frames holding at most ``packets`` packets."""
         return cls(telemetry.reserve_ids(s, Frame, frames), telemetry.reserve_ids(s, Packet, packets))
+
+    def vehicle(self, s: Tx, vehicle_id: int) -> Vehicle:
+        vehicle = self.vehicles.get(vehicle_id) or vehicles.get(s, vehicle_id)
+        assert vehicle is not None, "a vehicle with link state is stored"
+        return vehicle
 
     def add_frame(self, row: dict[str, Any]) -> int:
         frame_id = self.frame_ids.pop(0)

@@ -152,9 +152,8 @@ class Ingest:
             self._saved(due, set(), True)
 
     def _save(self, s: Tx, addresses: set[int]) -> None:
-        for address in addresses & set(self.vehicles):
-            v = self.vehicles[address]
-            link_repo.save_state(s, v.id, v.saved())
+        saving = [self.vehicles[a] for a in addresses & set(self.vehicles)]
+        link_repo.save_states(s, {v.id: v.saved() for v in saving})
 
     def _saved(self, due: set[int], touched: set[int], full: bool) -> None:
         """After a commit: ``touched`` changed, ``due`` saved (all that changed when ``full``)."""
@@ -222,8 +221,11 @@ class Ingest:
         return events
 
     def _open(self, s: Tx, frames: list[IncomingFrame]) -> Batch:
-        """The batch's rows, ids reserved for as many frames and packets as ``frames`` can hold."""
-        return Batch.open(s, len(frames), sum(len(from_frame(f.data)) for f in frames))
+        """The batch's rows, ids reserved for as many frames and packets as ``frames`` can hold; its
+        vehicles read in one query."""
+        batch = Batch.open(s, len(frames), sum(len(from_frame(f.data)) for f in frames))
+        batch.vehicles = vehicles.many(s, [v.id for f in frames if (v := self.vehicles.get(f.src))])
+        return batch
 
     def _frame(self, s: Tx, batch: Batch, frame: IncomingFrame) -> list[Event]:
         self.stats["frames"] += 1
@@ -309,7 +311,7 @@ class Ingest:
         if isinstance(packet, CheckpointPacket):
             trust, events = self._checkpoint(s, batch, v, packet, body)
             packet_id = batch.add_packet({**row, "auth": trust.value})
-        elif not self._tagged(s, v, chunk):
+        elif not self._tagged(s, batch, v, chunk):
             trust, (packet_id, events) = PacketTrust.FORGED, self._forged(s, batch, v, packet, row)
         else:
             trust, (packet_id, events) = PacketTrust.PENDING, self._priority(s, batch, v, packet, chunk, row)
@@ -358,8 +360,7 @@ class Ingest:
         self, s: Tx, batch: Batch, v: VehicleState, cp: CheckpointPacket, body: dict
     ) -> tuple[PacketTrust, list[Event]]:
         """Verify, then apply: the vehicle's state, its key's confirmation, its commands' statuses."""
-        vehicle = vehicles.get(s, v.id)
-        assert vehicle is not None, "a vehicle with link state is stored"
+        vehicle = batch.vehicle(s, v.id)
         verdict = self.verifier.checkpoint(batch, v, vehicle, cp, lambda: vehicles.every(s))
         if verdict.trust is not PacketTrust.VERIFIED:
             return verdict.trust, verdict.events
@@ -402,9 +403,8 @@ class Ingest:
         return LinkNotice(event="next_key_held", vehicle=v.name, detail=detail)
 
     @staticmethod
-    def _tagged(s: Tx, v: VehicleState, chunk: bytes) -> bool:
-        vehicle = vehicles.get(s, v.id)
-        assert vehicle is not None, "a vehicle with link state is stored"
+    def _tagged(s: Tx, batch: Batch, v: VehicleState, chunk: bytes) -> bool:
+        vehicle = batch.vehicle(s, v.id)
         return auth.tag_matches(chunk, keys.accepted(vehicle), v.address)
 
     def _forged(

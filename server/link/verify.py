@@ -157,9 +157,12 @@ class Verifier:
             v.link.recent[covered_seq] = [
                 (h, pid) for h, pid in v.link.recent.get(covered_seq, []) if h == digest
             ]
+        reach = _out_of_reach(v, seq)
+        states = batch.packet_states(s, [*good, *reach])  # one query for both
         batch.set_trust(good, PacketTrust.VERIFIED)
-        lost = _settle(s, batch, _out_of_reach(v, seq))
-        trusted = self._trusted(s, batch, good)
+        lost = [i for i in reach if i not in good and states.get(i, {}).get("auth") == PacketTrust.PENDING]
+        batch.set_trust(lost, PacketTrust.UNVERIFIABLE)  # pending, and no check-point can reach them now
+        trusted = self._trusted(s, batch, {i: states[i] for i in good if i in states})
         batch.trust_data(trusted)
         if len(trusted) < len(good) and not v.link.needs_restart:
             v.link.needs_restart = True  # its chain ran through a packet nobody vouched for: start clean
@@ -181,13 +184,12 @@ class Verifier:
         return [PacketsSettled(vehicle=v.name, verified=good, forged=bad, trusted=trusted, unverifiable=lost)]
 
     @staticmethod
-    def _trusted(s: Tx, batch: Batch, good: list[int]) -> list[int]:
+    def _trusted(s: Tx, batch: Batch, rows: dict[int, dict]) -> list[int]:
         """Of packets whose bytes a check-point just vouched for, those whose data can be trusted too: a
         packet's data are trusted only if the packet its state came from (its origin) was trusted as
         well. A forged packet slipped into the chain leaves what was decoded after it untrusted. A genuine
         packet that could not be decoded (its state was a forged one's, read as garbage) is not trusted
         either: the shore's chain is broken there, and the vehicle must restart it."""
-        rows = batch.packet_states(s, good)
         origins = {row["origin"] for row in rows.values()} - set(rows) - {None}
         earlier = batch.packet_states(s, sorted(i for i in origins if i is not None))
         trusted: list[int] = []
@@ -208,14 +210,6 @@ def _out_of_reach(v: VehicleState, seq: int) -> list[int]:
     otherwise, and the screens would say "pending" of a packet nothing will ever verify."""
     behind = [q for q in v.link.recent if COVER_BITS <= (seq - q) % 256 < 128]
     return [packet_id for q in behind for _, packet_id in v.link.recent.pop(q)]
-
-
-def _settle(s: Tx, batch: Batch, packet_ids: list[int]) -> list[int]:
-    """Of the packets, those still pending become unverifiable: their ids."""
-    states = batch.packet_states(s, packet_ids)
-    lost = [i for i in packet_ids if i in states and states[i]["auth"] == PacketTrust.PENDING]
-    batch.set_trust(lost, PacketTrust.UNVERIFIABLE)
-    return lost
 
 
 def _was_trusted(state: dict | None) -> bool:
