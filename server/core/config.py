@@ -63,7 +63,7 @@ class Settings(BaseSettings):
     command_share: int = Field(3, ge=1)  # command slots in a row before the vehicle's next slot polls
     stranger_frames_kept: int = Field(1000, ge=0)  # frames from unknown modem addresses: the newest kept
     state_save_interval: float = Field(
-        5.0, ge=0
+        30.0, ge=0
     )  # s between saves of a vehicle's link and decoder state (0: with every batch); server.link.ingest
     restart_min_interval: float = Field(
         60.0, gt=0

@@ -41,6 +41,7 @@ class Batch:
     trust: dict[int, PacketTrust] = field(default_factory=dict)  # older packets' new trust
     trusted: set[int] = field(default_factory=set)  # older packets whose data became trusted
     vehicles: dict[int, Vehicle] = field(default_factory=dict)  # the batch's vehicles, read once
+    stored: dict[int, dict[str, Any]] = field(default_factory=dict)  # older packets' states as read
 
     @classmethod
     def open(cls, s: Tx, frames: int, packets: int) -> Self:
@@ -83,11 +84,20 @@ class Batch:
     def packet_states(self, s: Tx, packet_ids: Sequence[int]) -> dict[int, dict[str, Any]]:
         """Each packet's ``body``, ``origin``, ``auth`` and ``trusted`` as this batch leaves them."""
         states = {i: self.packets[i] for i in packet_ids if i in self.packets}
-        older = telemetry.packet_states(s, [i for i in packet_ids if i not in states])
-        for packet_id, state in older.items():
-            state["auth"] = self.trust.get(packet_id, state["auth"])
-            state["trusted"] = state["trusted"] or packet_id in self.trusted
-        return {**states, **older}
+        self.read(s, [i for i in packet_ids if i not in states])
+        for packet_id in (i for i in packet_ids if i in self.stored and i not in states):
+            state = self.stored[packet_id]
+            states[packet_id] = {
+                **state,
+                "auth": self.trust.get(packet_id, state["auth"]),
+                "trusted": state["trusted"] or packet_id in self.trusted,
+            }
+        return states
+
+    def read(self, s: Tx, packet_ids: Iterable[int]) -> None:
+        """Older packets' states read in one query (those the batch's check-points may vouch for)."""
+        missing = [i for i in packet_ids if i not in self.stored and i not in self.packets]
+        self.stored.update(telemetry.packet_states(s, missing))
 
     def flush(self, s: Tx) -> None:
         """Everything gathered, inserted and updated: a statement per table and per trust."""
@@ -108,7 +118,7 @@ class Replay(Batch):
     """Stored frames handled again to rebuild memory: their stored ids, nothing written."""
 
     live = False
-    stored: dict[tuple[int, int, str], int] = field(default_factory=dict)  # (frame, seq, type) -> packet id
+    kept: dict[tuple[int, int, str], int] = field(default_factory=dict)  # (frame, seq, type) -> packet id
     current: int = 0  # the stored frame being handled
 
     def add_frame(self, row: dict[str, Any]) -> int:
@@ -116,9 +126,9 @@ class Replay(Batch):
 
     def add_packet(self, row: dict[str, Any]) -> int:
         key = (row["frame_id"], row["seq"], row["type"])
-        if key not in self.stored:
+        if key not in self.kept:
             raise ReplayMismatch(f"frame {key[0]}: no stored {key[2]} packet seq {key[1]}")
-        return self.stored[key]
+        return self.kept[key]
 
     def set_trust(self, packet_ids: Iterable[int], trust: PacketTrust) -> None:
         """Stored already."""

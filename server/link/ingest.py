@@ -127,7 +127,7 @@ class Ingest:
         was after the last of them. A frame failing here is skipped, as it was when it came (it was
         stored undecoded, memory left as it was); counters keep counting from this start."""
         frames = telemetry.frames_from(s, state.address, state.link.frame or 0)
-        replay = Replay(stored=telemetry.packets_of_frames(s, [saved_id(f) for f in frames]))
+        replay = Replay(kept=telemetry.packets_of_frames(s, [saved_id(f) for f in frames]))
         stats = dict(self.stats)
         for row in frames:
             replay.current = saved_id(row)
@@ -222,9 +222,11 @@ class Ingest:
 
     def _open(self, s: Tx, frames: list[IncomingFrame]) -> Batch:
         """The batch's rows, ids reserved for as many frames and packets as ``frames`` can hold; its
-        vehicles read in one query."""
+        vehicles, and the states of the packets their check-points may vouch for, read in one query each."""
         batch = Batch.open(s, len(frames), sum(len(from_frame(f.data)) for f in frames))
-        batch.vehicles = vehicles.many(s, [v.id for f in frames if (v := self.vehicles.get(f.src))])
+        mine = {v.address: v for f in frames if (v := self.vehicles.get(f.src))}.values()
+        batch.vehicles = vehicles.many(s, [v.id for v in mine])
+        batch.read(s, sorted({i for v in mine for i in v.link.candidates()}))
         return batch
 
     def _frame(self, s: Tx, batch: Batch, frame: IncomingFrame) -> list[Event]:

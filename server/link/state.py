@@ -65,6 +65,10 @@ class LinkRecord:
         self.checkpoint, self.checkpoint_time = checkpoint, floor
         self.accepted_macs = [*self.accepted_macs[-(ACCEPTED_MACS - 1) :], mac]
 
+    def candidates(self) -> set[int]:
+        """The packets (ids) a check-point may vouch for next, and those their states came from."""
+        return {pid for items in self.recent.values() for _, pid in items} | set(self.producers.values())
+
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> LinkRecord:
         """The record ``to_json`` wrote; raises KeyError, TypeError or ValueError on a damaged one."""
