@@ -27,6 +27,7 @@ import time
 from typing import Any
 
 from sqlalchemy import Engine
+from sqlalchemy.exc import SQLAlchemyError
 
 from server.commands import service as commands
 from server.core.config import Settings
@@ -144,12 +145,16 @@ class Ingest:
         log.info("vehicle %s: %d frames after its saved state replayed", state.name, len(frames))
 
     def save_states(self) -> None:
-        """Every vehicle's state not saved since it changed (at shutdown: a restart then replays nothing)."""
-        with self._lock, writing(self.db) as s:
-            due = self._unsaved | self._fresh
-            self._save(s, due)
-            s.commit()
-            self._saved(due, set(), True)
+        """Every vehicle's state not saved since it changed (at shutdown: a restart then replays nothing).
+        A database that fails here is logged, not raised: the next start replays instead."""
+        try:
+            with self._lock, writing(self.db) as s:
+                due = self._unsaved | self._fresh
+                self._save(s, due)
+                s.commit()
+                self._saved(due, set(), True)
+        except SQLAlchemyError as exc:
+            log.warning("link states not saved (%s): the next start replays their frames", exc)
 
     def _save(self, s: Tx, addresses: set[int]) -> None:
         saving = [self.vehicles[a] for a in addresses & set(self.vehicles)]

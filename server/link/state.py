@@ -1,6 +1,7 @@
 """What the shore knows of each vehicle's link, as one typed record (``LinkRecord``) with one to/from
-JSON: saved with every batch of frames (``linkstate``, in the same transaction as the packets it
-describes) and taken as the undo point of a batch whose transaction does not commit.
+JSON: saved every ``state_save_interval`` s in a batch's transaction (``linkstate``), naming the last
+stored frame it includes (``frame``: a restart replays the frames after it, ``server.link.ingest``), and
+taken as the undo point of a batch whose transaction does not commit.
 
 ``VehicleState`` joins the record to what is only kept in memory: the stream decoder (its own cheap
 ``mark``/``undo``; its states are saved beside the record, base64), receive statistics and counters.
