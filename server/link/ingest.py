@@ -145,11 +145,14 @@ class Ingest:
         log.info("vehicle %s: %d frames after its saved state replayed", state.name, len(frames))
 
     def save_states(self) -> None:
-        """Every vehicle's state not saved since it changed (at shutdown: a restart then replays nothing).
-        A database that fails here is logged, not raised: the next start replays instead."""
+        """Every vehicle's state this process changed and did not save (at shutdown: a restart then
+        replays nothing). Only those: a process that only serves the API must not write its stale states
+        over a center's. A database that fails here is logged, not raised: the next start replays."""
+        if not self._unsaved:
+            return
         try:
             with self._lock, writing(self.db) as s:
-                due = self._unsaved | self._fresh
+                due = set(self._unsaved)
                 self._save(s, due)
                 s.commit()
                 self._saved(due, set(), True)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from sqlmodel import Session, select
+from sqlmodel import Session, delete, select
 
 from server.commands.models import CommandRecord as Command
 from server.core.config import Settings
@@ -19,7 +19,7 @@ from server.core.events import Bus as EventBus
 from server.core.events import PacketHeard, PacketsSettled, TelemetryDecoded
 from server.link import repository as link_repo
 from server.link.ingest import Ingest
-from server.link.models import LinkEvent
+from server.link.models import LinkEvent, SavedLinkState
 from server.link.state import IncomingFrame
 from server.telemetry.models import Packet, Telemetry
 from server.vehicles.models import Vehicle
@@ -320,9 +320,10 @@ def test_a_restarted_shore_decodes_again(shore) -> None:
 
 
 def saved_frame(db) -> int | None:
-    """The last frame the vehicle's saved state includes."""
+    """The last frame the vehicle's saved state includes (None: no state saved)."""
     with Session(db) as s:
-        return link_repo.saved_state(s, 1)["frame"]  # type: ignore[index]
+        state = link_repo.saved_state(s, 1)
+    return None if state is None else state["frame"]
 
 
 def test_a_crash_between_state_saves_replays_the_frames_stored_after_the_saved_state(shore) -> None:
@@ -363,6 +364,24 @@ def test_the_state_is_saved_on_a_timer_and_at_shutdown(shore) -> None:
     assert saved_frame(db) == 2
     ingest.save_states()  # at shutdown: a restart replays nothing
     assert saved_frame(db) == 3
+    start(Settings(state_save_interval=3600)).save_states()  # one that heard nothing overwrites nothing
+    with Session(db) as s:
+        s.exec(delete(SavedLinkState))
+        s.commit()
+    start().save_states()
+    assert saved_frame(db) is None
+
+
+def test_a_shutdown_save_with_the_database_away_is_logged_not_raised(shore, caplog) -> None:
+    db, start = shore
+    ingest, vehicle = start(Settings(state_save_interval=3600)), Vehicle_()
+    for _ in range(2):
+        vehicle.measure(10)
+        send(ingest, vehicle.priority())
+    with db.begin() as conn:
+        conn.exec_driver_sql("DROP TABLE linkstate")
+    ingest.save_states()
+    assert "the next start replays" in caplog.text
 
 
 def test_packets_the_shore_never_stored_are_recovered_by_one_restart_request(shore) -> None:
