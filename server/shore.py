@@ -18,6 +18,7 @@ from server.link.engine import LinkEngine
 from server.link.ingest import Ingest
 from server.missions.service import Missions
 from server.operators.service import Operators
+from server.routing.service import Routing
 from server.screens.service import Screens
 from server.telemetry.service import TelemetryReader
 from server.vehicles.service import Vehicles
@@ -38,11 +39,13 @@ class Shore:
     screens: Screens
     operators: Operators
     sign_ins: Throttle  # the API's wrong tokens, by client address
+    routing: Routing  # the center's gateways and each vehicle's (empty on a single shore)
 
     @classmethod
-    def build(cls, settings: Settings, db: Engine) -> Shore:
+    def build(cls, settings: Settings, db: Engine, ingest_type: type[Ingest] = Ingest) -> Shore:
+        """``ingest_type``: the center's ``RelayIngest`` (frames from the gateways), else the link's."""
         bus = Bus()
-        ingest = Ingest(db, bus, default_streams(), settings)
+        ingest = ingest_type(db, bus, default_streams(), settings)
         vehicles = Vehicles(db)
         commands = CommandDesk(db, bus, ingest.pose, settings.max_queued_commands)
         link = LinkEngine(settings, db, bus, ingest, commands, vehicles)
@@ -61,4 +64,5 @@ class Shore:
             Screens(settings, db, link),
             operators,
             Throttle(settings, operators.actor),
+            Routing(db, settings),
         )

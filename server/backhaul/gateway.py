@@ -3,8 +3,10 @@ committed to the local outbox first (``server.backhaul.outbox``), then published
 backhaul in order; commands the center signed come down, are kept in the outbox file, and their attempt
 outcomes go up as events. It holds no vehicle key (docs/protocol.md).
 
-This slice: the gateway listens and relays (and sends the commands it is given); polling the vehicles
-(the MAC), the SYNC budget and the assignment of vehicles to gateways are the next slice
+Gateways sharing the band transmit only in their own slots of the TDMA frame the center hands them
+(``server.backhaul.slots``; without a plan, a gateway alone on its band transmits at will). A command
+that reaches the gateway after its ``start_by`` is not sent: the center has sent it through another
+gateway by then. Polling the vehicles (the MAC) and the SYNC budget are the next slice
 (docs/backhaul.md).
 
 Imports the standard library, the core (``tacit.modem``) and nats-py only: ``tacit[gateway]`` has no web
@@ -24,11 +26,12 @@ from nats.aio.client import Client
 from nats.aio.msg import Msg
 from nats.errors import Error as NatsError
 from nats.js import JetStreamContext
-from nats.js.api import AckPolicy, ConsumerConfig
+from nats.js.api import AckPolicy, ConsumerConfig, DeliverPolicy
 
 from server.backhaul import broker, subjects
 from server.backhaul.outbox import Outbox, Publisher
-from server.backhaul.subjects import CommandMessage, EventMessage, PayloadError
+from server.backhaul.slots import ATTEMPT_AIRTIME, SlotPlan
+from server.backhaul.subjects import CommandMessage, EventMessage, PayloadError, ScheduleMessage
 from tacit import modem as mm
 
 log = logging.getLogger("tacit.backhaul.gateway")
@@ -52,6 +55,8 @@ class Gateway:
         self.nc: Client | None = None
         self.publisher: Publisher | None = None
         self.backhaul = False  # connected to the broker
+        self.plan: SlotPlan | None = None  # the center's TDMA frame; None: transmit at will
+        self.transmissions: list[tuple[float, float]] = []  # (start, end) of each attempt, UNIX s
         self._tasks: list[asyncio.Task[None]] = []
         if driver is not None:
             driver.add_listener(self.on_modem)
@@ -91,6 +96,13 @@ class Gateway:
             durable=f"gateway-{self.name}",
             stream=subjects.COMMANDS_STREAM,
             config=ConsumerConfig(ack_policy=AckPolicy.EXPLICIT, ack_wait=30.0),
+        )
+        await js.subscribe(
+            subjects.schedule(self.name),
+            stream=subjects.SCHEDULE_STREAM,
+            cb=self._schedule,
+            ordered_consumer=True,
+            deliver_policy=DeliverPolicy.LAST_PER_SUBJECT,
         )
         self._tasks = [
             asyncio.create_task(self.publisher.run()),
@@ -137,35 +149,70 @@ class Gateway:
         await msg.ack()
         if not fresh:
             return
+        if command.start_by and time.time() > command.start_by:  # the center went through another
+            self._final(command, "expired")
+            return
         self.outbox.add_event("attempt", {"command": command.id, "outcome": "stored", "attempt": 0})
         if self.driver is not None:
             self._tasks.append(asyncio.create_task(self._send(command)))
 
     async def _send(self, command: CommandMessage) -> None:
-        """The attempts: each outcome goes up as an event (through the outbox: none is lost)."""
+        """The attempts, each in this gateway's slot: each outcome goes up as an event (through the
+        outbox: none is lost), then the final one."""
         assert self.driver is not None
         outcome = "failed"
         for attempt in range(1, command.attempts + 1):
+            await self._slot(ATTEMPT_AIRTIME + command.ack_timeout)
             if command.expires_at and time.time() > command.expires_at:
                 outcome = "expired"
                 break
-            try:
-                result = await self.driver.send(
-                    command.address, [command.data], ack=True, ack_timeout=command.ack_timeout
-                )
-            except mm.ModemError as exc:
-                self.outbox.add_event(
-                    "attempt",
-                    {"command": command.id, "outcome": "failed", "attempt": attempt, "error": str(exc)},
-                )
-                continue
-            outcome = "acked" if result.all_acked else "sent" if result.transmitted else "failed"
-            self.outbox.add_event("attempt", {"command": command.id, "outcome": outcome, "attempt": attempt})
+            outcome = await self._attempt(command, attempt)
             if outcome == "acked":
                 break
+        self._final(
+            command, "acked" if outcome == "acked" else "expired" if outcome == "expired" else "failed"
+        )
+
+    async def _attempt(self, command: CommandMessage, attempt: int) -> str:
+        """One data cycle with ACK: ``acked``, ``sent`` (no ACK) or ``failed`` (not transmitted)."""
+        assert self.driver is not None
+        started = time.time()
+        try:
+            result = await self.driver.send(
+                command.address, [command.data], ack=True, ack_timeout=command.ack_timeout
+            )
+        except mm.ModemError as exc:
+            self.outbox.add_event(
+                "attempt", {"command": command.id, "outcome": "failed", "attempt": attempt, "error": str(exc)}
+            )
+            return "failed"
+        self.transmissions.append((started, time.time()))
+        outcome = "acked" if result.all_acked else "sent" if result.transmitted else "failed"
+        self.outbox.add_event("attempt", {"command": command.id, "outcome": outcome, "attempt": attempt})
+        return outcome
+
+    def _final(self, command: CommandMessage, outcome: str) -> None:
         self.outbox.set_command(command.id, outcome)
-        if outcome == "expired":
-            self.outbox.add_event("attempt", {"command": command.id, "outcome": "expired"})
+        self.outbox.add_event("attempt", {"command": command.id, "outcome": outcome, "final": True})
+
+    async def _slot(self, duration: float) -> None:
+        """Wait for this gateway's next slot that holds ``duration`` s (at once without a plan)."""
+        if self.plan is None or self.name not in self.plan.order:
+            return
+        duration = min(duration, self.plan.usable)
+        await asyncio.sleep(max(0.0, self.plan.next_start(self.name, time.time(), duration) - time.time()))
+
+    async def _schedule(self, msg: Msg) -> None:
+        """The center's TDMA frame for the gateways on this band."""
+        try:
+            schedule = ScheduleMessage.decode(msg.data)
+            self.plan = SlotPlan(schedule.epoch, schedule.slot, schedule.guard, schedule.order)
+        except (PayloadError, ValueError) as exc:
+            log.error("schedule refused: %s", exc)
+            return
+        log.info(
+            "schedule: slot %.1f s, guard %.1f s, order %s", schedule.slot, schedule.guard, schedule.order
+        )
 
     # --- heartbeat -------------------------------------------------------------------------------
 

@@ -20,6 +20,9 @@ TABLES = {
     "telemetry",
     "linkevent",
     "linkstate",
+    "gateway",
+    "assignment",
+    "dispatch",
 }
 
 

@@ -1,0 +1,198 @@
+"""The center's command path: each command queued at the center (the REST API, the map, missions) goes
+down to the gateway of its vehicle, signed at dispatch, and the gateway's reports move its lifecycle.
+
+One **dispatch** per gateway tried, its id the command message's (``cmd-<command id>-<n>``): the row is
+committed before the publish, and a publish that failed or was cut by a center restart is made again
+with the same id, which the broker (within its window) and the gateway's store (always) keep once. A
+dispatch whose gateway has not reported it stored by ``start_by`` (the gateway is down, or its backhaul
+is), or has not reported its final outcome by ``deadline``, or that ended without an ACK, is followed by
+a dispatch through the next gateway that heard the vehicle (``Routing.candidates``); when none is left
+the command has failed. A gateway that gets a command after its ``start_by`` does not send it, so the
+vehicle does not get it from both (and if a receipt is merely late, the vehicle's sequence window still
+executes the command once).
+
+The dispatcher also hands the gateways their TDMA slots (``server.backhaul.slots``) whenever the set of
+live gateways changes.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import time
+from collections.abc import Awaitable, Callable
+
+from server.backhaul import subjects
+from server.backhaul.slots import ATTEMPT_AIRTIME
+from server.backhaul.subjects import CommandMessage, EventMessage, ScheduleMessage
+from server.commands.models import CommandRecord, CommandState
+from server.commands.service import CommandDesk
+from server.core.config import Settings
+from server.core.db import saved_id
+from server.routing.models import Dispatch, DispatchState
+from server.routing.service import Routing
+from server.vehicles.models import Vehicle
+
+log = logging.getLogger("tacit.backhaul.dispatch")
+
+Publish = Callable[[str, bytes, str], Awaitable[None]]  # subject, payload, message id
+FINAL = {"acked": DispatchState.ACKED, "failed": DispatchState.FAILED, "expired": DispatchState.EXPIRED}
+STEP = {"stored": DispatchState.STORED, "sent": DispatchState.SENT, "acked": DispatchState.SENT}
+
+
+class Dispatcher:
+    def __init__(
+        self, desk: CommandDesk, routing: Routing, settings: Settings, publish: Publish, tick: float = 0.5
+    ) -> None:
+        self.desk = desk
+        self.routing = routing
+        self.settings = settings
+        self.publish = publish
+        self.tick = tick
+        self.order: tuple[str, ...] = ()  # the gateways of the last schedule handed out
+        self._published: set[str] = set()  # dispatches published by this process
+        self._wake = asyncio.Event()
+        self._loop: asyncio.AbstractEventLoop | None = None
+
+    def wake(self) -> None:
+        """A command was queued: dispatch now rather than at the next tick (from any thread)."""
+        loop = self._loop
+        if loop is not None:
+            loop.call_soon_threadsafe(self._wake.set)
+
+    async def run(self) -> None:
+        self._loop = asyncio.get_running_loop()
+        while True:
+            try:
+                await self.step()
+            except Exception:  # the database or the broker away: the next tick tries again
+                log.exception("dispatch: step failed")
+            self._wake.clear()
+            try:
+                await asyncio.wait_for(self._wake.wait(), self.tick)
+            except TimeoutError:
+                pass
+
+    async def step(self, now: float | None = None) -> None:
+        """Re-assign vehicles, hand out slots if the gateways changed, dispatch what waits."""
+        now = time.time() if now is None else now
+        await asyncio.to_thread(self.routing.update, now)
+        await self._schedule(now)
+        for route in await asyncio.to_thread(self.routing.routes, now):
+            await self._vehicle(route.vehicle, now)
+
+    # --- commands down ---------------------------------------------------------------------------
+
+    async def _vehicle(self, vehicle: Vehicle, now: float) -> None:
+        deadline = now - self.settings.confirm_timeout
+        command = await asyncio.to_thread(self.desk.next_to_send, saved_id(vehicle), deadline)
+        if command is None:
+            return
+        tries = await asyncio.to_thread(self.routing.dispatches, saved_id(command))
+        acked = [i for i, d in enumerate(tries) if d.state == DispatchState.ACKED]
+        round_ = tries[acked[-1] + 1 :] if acked else tries  # an unconfirmed command sent again: anew
+        latest = round_[-1] if round_ else None
+        if latest is not None and not latest.state.final:
+            if not await self._overdue(latest, now):
+                if latest.state == DispatchState.PUBLISHED and latest.id not in self._published:
+                    await self._publish(latest, command, vehicle)  # a restart cut it: the same id
+                return
+        tried = {d.gateway for d in round_}
+        options = [
+            g for g in await asyncio.to_thread(self.routing.candidates, vehicle, now) if g not in tried
+        ]
+        if options:
+            await self._dispatch(command, vehicle, options[0], len(tries) + 1, now)
+        elif round_:
+            detail = f"no gateway reached it (tried {', '.join(sorted(tried))})"
+            await asyncio.to_thread(self.desk.record, command, CommandState.FAILED, detail, "unreachable")
+
+    async def _overdue(self, dispatch: Dispatch, now: float) -> bool:
+        """A dispatch whose receipt or outcome is late: its gateway is taken for down."""
+        late = (
+            dispatch.state == DispatchState.PUBLISHED and now > dispatch.start_by
+        ) or now > dispatch.deadline
+        if late:
+            log.warning("dispatch %s: %s did not answer in time; next gateway", dispatch.id, dispatch.gateway)
+            await asyncio.to_thread(self.routing.set_dispatch, dispatch.id, DispatchState.UNANSWERED)
+        return late
+
+    async def _dispatch(
+        self, command: CommandRecord, vehicle: Vehicle, gateway: str, n: int, now: float
+    ) -> None:
+        frames = max(1, len(self.order))
+        row = Dispatch(
+            id=f"cmd-{saved_id(command)}-{n}",
+            command_id=saved_id(command),
+            gateway=gateway,
+            start_by=now + self.settings.dispatch_receipt,
+            deadline=now + self.settings.dispatch_receipt
+            + self.settings.command_attempts * frames * self.settings.tdma_slot + self.settings.tdma_slot,
+        )  # fmt: skip
+        await asyncio.to_thread(self.routing.add_dispatch, row)
+        log.info("vehicle %s: command seq %d through %s (%s)", vehicle.name, command.seq, gateway, row.id)
+        await self._publish(row, command, vehicle)
+
+    async def _publish(self, row: Dispatch, command: CommandRecord, vehicle: Vehicle) -> None:
+        frame = await asyncio.to_thread(self.desk.frame, command)  # signed now: a fresh stamp
+        message = CommandMessage(
+            row.id,
+            row.gateway,
+            vehicle.address,
+            frame,
+            attempts=self.settings.command_attempts,
+            ack_timeout=self.ack_timeout(),
+            expires_at=time.time() + subjects.COMMAND_MAX_AGE,
+            start_by=row.start_by,
+        )
+        await self.publish(subjects.commands(row.gateway), message.encode(), row.id)
+        self._published.add(row.id)
+
+    def ack_timeout(self) -> float:
+        """The ACK wait that fits a slot with the attempt's airtime and both guards."""
+        return max(1.0, self.settings.tdma_slot - 2 * self.settings.tdma_guard - ATTEMPT_AIRTIME)
+
+    # --- what the gateways report ----------------------------------------------------------------
+
+    async def on_event(self, event: EventMessage) -> None:
+        await asyncio.to_thread(self.routing.seen, event.gateway, min(event.at, time.time()))
+        if event.kind == "attempt":
+            await asyncio.to_thread(self._attempt, event)
+
+    def _attempt(self, event: EventMessage) -> None:
+        """A gateway's attempt report, into the dispatch and the command's lifecycle."""
+        detail = event.detail
+        outcome = str(detail.get("outcome", ""))
+        final = bool(detail.get("final"))
+        state = FINAL.get(outcome) if final else STEP.get(outcome)
+        attempt = int(detail.get("attempt") or 0) if outcome in ("sent", "acked") and not final else 0
+        report = self.routing.report(str(detail.get("command", "")), state, attempt)
+        if report is None:
+            log.warning("gateway %s reported an unknown command %s", event.gateway, detail.get("command"))
+            return
+        command, _ = self.desk.get(report.dispatch.command_id)
+        if report.fresh_attempt:
+            self.desk.record(
+                command, CommandState.SENT, f"attempt {command.attempts + 1} via {event.gateway}",
+                at=event.at, attempts=command.attempts + 1,
+            )  # fmt: skip
+        if final and outcome == "acked":
+            self.desk.record(command, CommandState.ACKNOWLEDGED, f"via {event.gateway}", at=event.at)
+
+    # --- slots -----------------------------------------------------------------------------------
+
+    async def _schedule(self, now: float) -> None:
+        """Hand the live gateways a new TDMA frame when they change; it starts two slots from now, so
+        every gateway has it before it applies."""
+        order = tuple(sorted(await asyncio.to_thread(self.routing.alive, now)))
+        if order == self.order or not order:
+            return
+        slot = self.settings.tdma_slot
+        epoch = math.ceil(now / slot) * slot + slot
+        for gateway in order:
+            message = ScheduleMessage(f"schedule-{epoch:.0f}-{gateway}", gateway, epoch, slot,
+                                      self.settings.tdma_guard, order)  # fmt: skip
+            await self.publish(subjects.schedule(gateway), message.encode(), message.id)
+        log.info("schedule: %d gateways, %.1f s slots from %.0f", len(order), slot, epoch)
+        self.order = order
