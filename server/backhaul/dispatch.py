@@ -93,7 +93,7 @@ class Dispatcher:
         acked = [i for i, d in enumerate(tries) if d.state == DispatchState.ACKED]
         round_ = tries[acked[-1] + 1 :] if acked else tries  # an unconfirmed command sent again: anew
         latest = round_[-1] if round_ else None
-        if latest is not None and not latest.state.final:
+        if latest is not None and not latest.final:
             if not await self._overdue(latest, now):
                 if latest.state == DispatchState.PUBLISHED and latest.id not in self._published:
                     await self._publish(latest, command, vehicle)  # a restart cut it: the same id

@@ -69,5 +69,9 @@ class Dispatch(SQLModel, table=True):
     start_by: float  # the gateway sends it only if it has it by then (its receipt is due by then)
     deadline: float  # its final outcome is due by then, else the gateway is taken for down
     attempts: int = 0  # the highest attempt number the gateway reported (a redelivered event counts once)
+
+    @property
+    def final(self) -> bool:
+        return DispatchState(self.state).final  # the column reads back as a plain string
     created_at: float = Field(default_factory=now)
     updated_at: float = Field(default_factory=now)

@@ -192,7 +192,7 @@ class Routing:
             if row is None:
                 return None
             fresh = attempt > row.attempts
-            moved = state is not None and not row.state.final and _RANK[state] > _RANK[row.state]
+            moved = state is not None and not row.final and _RANK[state] > _RANK[row.state]
             if fresh:
                 row.attempts = attempt
             if moved and state is not None:

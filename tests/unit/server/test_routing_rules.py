@@ -1,0 +1,67 @@
+"""The assignment rule (``server.routing.choice``) and the gateways' TDMA frame (``server.backhaul.slots``)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from server.backhaul.slots import SlotPlan, guard_for
+from server.routing.choice import Current, Quality, choose
+
+ALIVE = {"ship", "buoy"}
+
+
+def heard(**snr: float) -> dict[str, Quality]:
+    return {gateway: Quality(10, value, 1.0) for gateway, value in snr.items()}
+
+
+def test_a_gateway_that_misses_frames_scores_lower() -> None:
+    assert Quality(5, 20.0, 0.5).score == pytest.approx(20.0 - 10 * math.log10(2))
+    assert Quality(0, 20.0, 0.0).score == -math.inf
+
+
+def test_the_first_gateway_to_hear_a_vehicle_takes_it() -> None:
+    decision = choose(None, heard(ship=10.0, buoy=14.0), ALIVE, 0.0, 3.0, 60.0)
+    assert decision.gateway == "buoy" and decision.moved
+
+
+def test_a_better_gateway_takes_the_vehicle_only_by_the_margin_and_after_the_dwell() -> None:
+    on_ship = Current("ship", since=100.0)
+    within = choose(on_ship, heard(ship=10.0, buoy=12.9), ALIVE, 1000.0, 3.0, 60.0)
+    assert within.gateway == "ship" and not within.moved and "margin" in within.reason
+    early = choose(on_ship, heard(ship=10.0, buoy=20.0), ALIVE, 159.0, 3.0, 60.0)
+    assert early.gateway == "ship" and "dwell" in early.reason
+    late = choose(on_ship, heard(ship=10.0, buoy=20.0), ALIVE, 160.0, 3.0, 60.0)
+    assert late.gateway == "buoy" and late.moved
+
+
+def test_a_silent_or_deaf_gateway_loses_its_vehicle_at_once() -> None:
+    on_ship = Current("ship", since=100.0)
+    silent = choose(on_ship, heard(ship=30.0, buoy=5.0), {"buoy"}, 101.0, 3.0, 60.0)
+    assert silent.gateway == "buoy" and silent.moved and "silent" in silent.reason
+    deaf = choose(on_ship, heard(buoy=5.0), ALIVE, 101.0, 3.0, 60.0)
+    assert deaf.gateway == "buoy" and deaf.moved
+
+
+def test_a_pin_holds_whatever_the_scores() -> None:
+    pinned = Current("ship", since=0.0, pinned=True)
+    decision = choose(pinned, heard(ship=1.0, buoy=40.0), {"buoy"}, 1e6, 3.0, 60.0)
+    assert decision.gateway == "ship" and not decision.moved
+
+
+def test_slots_go_round_the_gateways_within_their_guards() -> None:
+    plan = SlotPlan(epoch=1000.0, slot=10.0, guard=1.0, order=("buoy", "ship"))
+    assert plan.owner(1000.0) == "buoy" and plan.owner(1015.0) == "ship" and plan.owner(1020.0) == "buoy"
+    assert plan.next_start("ship", 1000.0, 5.0) == 1011.0  # its slot, after the guard
+    assert plan.next_start("ship", 1013.0, 5.0) == 1013.0  # inside its slot, with room left
+    assert plan.next_start("ship", 1014.5, 5.0) == 1031.0  # too late for this one: the next
+    with pytest.raises(ValueError):
+        plan.next_start("ship", 1000.0, 8.5)  # longer than the slot less its guards
+    with pytest.raises(ValueError):
+        plan.next_start("pier", 1000.0, 1.0)
+
+
+def test_the_guard_covers_half_the_travel_time_and_the_clock_error() -> None:
+    assert guard_for(3000.0, 0.1) == pytest.approx(1.1)
+    assert guard_for(3000.0, 1e-6, sound_speed=1500.0) == pytest.approx(1.0, abs=1e-5)
