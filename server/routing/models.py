@@ -73,5 +73,6 @@ class Dispatch(SQLModel, table=True):
     @property
     def final(self) -> bool:
         return DispatchState(self.state).final  # the column reads back as a plain string
+
     created_at: float = Field(default_factory=now)
     updated_at: float = Field(default_factory=now)
