@@ -10,7 +10,7 @@ gateway by then. Polling the vehicles (the MAC) and the SYNC budget are the next
 (docs/backhaul.md).
 
 Imports the standard library, the core (``tacit.modem``) and nats-py only: ``tacit[gateway]`` has no web
-stack (tests/test_backhaul.py checks that fastapi, sqlmodel and sqlalchemy are not loaded).
+stack (tests/integration/server/test_backhaul.py checks that fastapi, sqlmodel and sqlalchemy are not loaded).
 """
 
 from __future__ import annotations
