@@ -30,7 +30,7 @@ from nats.js.api import AckPolicy, ConsumerConfig, DeliverPolicy
 
 from server.backhaul import broker, subjects
 from server.backhaul.outbox import Outbox, Publisher
-from server.backhaul.slots import ATTEMPT_AIRTIME, SlotPlan
+from server.backhaul.slots import ATTEMPT_AIRTIME, Schedule, SlotPlan
 from server.backhaul.subjects import CommandMessage, EventMessage, PayloadError, ScheduleMessage
 from tacit import modem as mm
 
@@ -55,7 +55,7 @@ class Gateway:
         self.nc: Client | None = None
         self.publisher: Publisher | None = None
         self.backhaul = False  # connected to the broker
-        self.plan: SlotPlan | None = None  # the center's TDMA frame; None: transmit at will
+        self.schedule = Schedule()  # the center's TDMA frames; none: transmit at will
         self.transmissions: list[tuple[float, float]] = []  # (start, end) of each attempt, UNIX s
         self._tasks: list[asyncio.Task[None]] = []
         if driver is not None:
@@ -197,16 +197,16 @@ class Gateway:
 
     async def _slot(self, duration: float) -> None:
         """Wait for this gateway's next slot that holds ``duration`` s (at once without a plan)."""
-        if self.plan is None or self.name not in self.plan.order:
-            return
-        duration = min(duration, self.plan.usable)
-        await asyncio.sleep(max(0.0, self.plan.next_start(self.name, time.time(), duration) - time.time()))
+        start = self.schedule.start(self.name, time.time(), duration)
+        await asyncio.sleep(max(0.0, start - time.time()))
 
     async def _schedule(self, msg: Msg) -> None:
         """The center's TDMA frame for the gateways on this band."""
         try:
             schedule = ScheduleMessage.decode(msg.data)
-            self.plan = SlotPlan(schedule.epoch, schedule.slot, schedule.guard, schedule.order)
+            self.schedule.receive(
+                SlotPlan(schedule.epoch, schedule.slot, schedule.guard, schedule.order), time.time()
+            )
         except (PayloadError, ValueError) as exc:
             log.error("schedule refused: %s", exc)
             return

@@ -68,3 +68,39 @@ class SlotPlan:
             if now <= begins + self.slot - self.guard - duration:
                 return max(now, begins + self.guard)
         raise AssertionError("unreachable: every frame holds one slot of each gateway")
+
+
+class Schedule:
+    """A gateway's plans: the one in force, and the one the center handed out for a later epoch (every
+    gateway changes plan at that same instant of its clock, none while another still follows the old)."""
+
+    def __init__(self) -> None:
+        self.current: SlotPlan | None = None
+        self.coming: SlotPlan | None = None
+
+    def receive(self, plan: SlotPlan, now: float) -> None:
+        self._promote(now)
+        if self.current is None or plan.epoch <= now:
+            self.current, self.coming = plan, None
+        else:
+            self.coming = plan
+
+    def _promote(self, now: float) -> None:
+        if self.coming is not None and now >= self.coming.epoch:
+            self.current, self.coming = self.coming, None
+
+    def start(self, gateway: str, now: float, duration: float) -> float:
+        """When ``gateway`` may start a transmission of ``duration`` s (clipped to a slot): in its slot of
+        the plan in force, or of the coming one if it would straddle the change; ``now`` when no plan
+        in force holds the gateway (alone on its band)."""
+        self._promote(now)
+        plan = self.current
+        if plan is None or gateway not in plan.order:
+            return now
+        start = plan.next_start(gateway, now, min(duration, plan.usable))
+        coming = self.coming
+        if coming is not None and start + min(duration, plan.usable) > coming.epoch:
+            if gateway not in coming.order:
+                return max(start, coming.epoch)
+            return coming.next_start(gateway, max(now, coming.epoch), min(duration, coming.usable))
+        return start

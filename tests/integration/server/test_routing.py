@@ -410,9 +410,10 @@ def test_two_gateways_on_one_band_never_collide(broker: Broker, tmp_path: Path, 
                 assert world.channel.stats["collisions"] == 0
                 assert world.channel.stats["transmissions"] >= 8  # 4 commands and their ACKs
                 for gateway in gateways:  # every attempt inside the gateway's own slot and its guards
-                    assert gateway.plan is not None and gateway.transmissions
+                    plan = gateway.schedule.current
+                    assert plan is not None and gateway.transmissions
                     for start, end in gateway.transmissions:
-                        assert gateway.plan.owner(start) == gateway.name == gateway.plan.owner(end)
+                        assert plan.owner(start) == gateway.name == plan.owner(end)
 
                 async def at_once() -> None:  # the control: both gateways' modems at the same moment
                     await asyncio.gather(

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from server.backhaul.slots import SlotPlan, guard_for
+from server.backhaul.slots import Schedule, SlotPlan, guard_for
 from server.routing.choice import Current, Quality, choose
 
 ALIVE = {"ship", "buoy"}
@@ -65,3 +65,15 @@ def test_slots_go_round_the_gateways_within_their_guards() -> None:
 def test_the_guard_covers_half_the_travel_time_and_the_clock_error() -> None:
     assert guard_for(3000.0, 0.1) == pytest.approx(1.1)
     assert guard_for(3000.0, 1e-6, sound_speed=1500.0) == pytest.approx(1.0, abs=1e-5)
+
+
+def test_a_new_plan_applies_at_its_epoch_and_no_transmission_straddles_it() -> None:
+    schedule = Schedule()
+    assert schedule.start("ship", 5.0, 3.0) == 5.0  # no plan: at will
+    schedule.receive(SlotPlan(epoch=0.0, slot=10.0, guard=1.0, order=("ship", "buoy")), now=5.0)
+    schedule.receive(SlotPlan(epoch=40.0, slot=10.0, guard=1.0, order=("buoy", "pier", "ship")), now=6.0)
+    assert schedule.start("ship", 6.0, 3.0) == 6.0  # the plan in force until 40
+    assert schedule.start("ship", 21.0, 3.0) == 21.0
+    assert schedule.start("ship", 27.0, 3.0) == 61.0  # its next slot (40) is the new plan's buoy's
+    assert schedule.start("ship", 45.0, 3.0) == 61.0
+    assert schedule.current is not None and schedule.current.epoch == 40.0 and schedule.coming is None
