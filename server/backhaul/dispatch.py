@@ -50,7 +50,7 @@ class Dispatcher:
         self.settings = settings
         self.publish = publish
         self.tick = tick
-        self.order: tuple[str, ...] = ()  # the gateways of the last schedule handed out
+        self.handed: tuple[tuple[str, ...], tuple[int, ...]] = ((), ())  # the last schedule's gateways, polls
         self._published: set[str] = set()  # dispatches published by this process
         self._wake = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -78,8 +78,9 @@ class Dispatcher:
         """Re-assign vehicles, hand out slots if the gateways changed, dispatch what waits."""
         now = time.time() if now is None else now
         await asyncio.to_thread(self.routing.update, now)
-        await self._schedule(now)
-        for route in await asyncio.to_thread(self.routing.routes, now):
+        routes = await asyncio.to_thread(self.routing.routes, now)
+        await self._schedule(now, tuple(sorted(r.vehicle.address for r in routes)))
+        for route in routes:
             await self._vehicle(route.vehicle, now)
 
     # --- commands down ---------------------------------------------------------------------------
@@ -121,7 +122,7 @@ class Dispatcher:
     async def _dispatch(
         self, command: CommandRecord, vehicle: Vehicle, gateway: str, n: int, now: float
     ) -> None:
-        frames = max(1, len(self.order))
+        frames = max(1, len(self.handed[0]))
         row = Dispatch(
             id=f"cmd-{saved_id(command)}-{n}",
             command_id=saved_id(command),
@@ -150,8 +151,10 @@ class Dispatcher:
         self._published.add(row.id)
 
     def ack_timeout(self) -> float:
-        """The ACK wait that fits a slot with the attempt's airtime and both guards."""
-        return max(1.0, self.settings.tdma_slot - 2 * self.settings.tdma_guard - ATTEMPT_AIRTIME)
+        """The ACK wait that fits a slot with the attempt's airtime (faster in a faster simulation) and
+        both guards."""
+        airtime = ATTEMPT_AIRTIME / self.settings.time_scale
+        return max(1.0, self.settings.tdma_slot - 2 * self.settings.tdma_guard - airtime)
 
     # --- what the gateways report ----------------------------------------------------------------
 
@@ -182,17 +185,18 @@ class Dispatcher:
 
     # --- slots -----------------------------------------------------------------------------------
 
-    async def _schedule(self, now: float) -> None:
-        """Hand the live gateways a new TDMA frame when they change; it starts two slots from now, so
-        every gateway has it before it applies."""
+    async def _schedule(self, now: float, polls: tuple[int, ...]) -> None:
+        """Hand the live gateways a new TDMA frame when they (or the vehicles they poll) change; it
+        starts two slots from now, so every gateway has it before it applies. Every gateway polls every
+        vehicle in its slots: each one's answers score the gateways that hear it."""
         order = tuple(sorted(await asyncio.to_thread(self.routing.alive, now)))
-        if order == self.order or not order:
+        if (order, polls) == self.handed or not order:
             return
         slot = self.settings.tdma_slot
         epoch = math.ceil(now / slot) * slot + slot
         for gateway in order:
             message = ScheduleMessage(f"schedule-{epoch:.0f}-{gateway}", gateway, epoch, slot,
-                                      self.settings.tdma_guard, order)  # fmt: skip
+                                      self.settings.tdma_guard, order, polls)  # fmt: skip
             await self.publish(subjects.schedule(gateway), message.encode(), message.id)
-        log.info("schedule: %d gateways, %.1f s slots from %.0f", len(order), slot, epoch)
-        self.order = order
+        log.info("schedule: %d gateways, %.1f s slots from %.0f, polling %s", len(order), slot, epoch, polls)
+        self.handed = (order, polls)

@@ -3,11 +3,12 @@ committed to the local outbox first (``server.backhaul.outbox``), then published
 backhaul in order; commands the center signed come down, are kept in the outbox file, and their attempt
 outcomes go up as events. It holds no vehicle key (docs/protocol.md).
 
-Gateways sharing the band transmit only in their own slots of the TDMA frame the center hands them
-(``server.backhaul.slots``; without a plan, a gateway alone on its band transmits at will). A command
-that reaches the gateway after its ``start_by`` is not sent: the center has sent it through another
-gateway by then. Polling the vehicles (the MAC) and the SYNC budget are the next slice
-(docs/backhaul.md).
+The MAC: one exchange per slot of the TDMA frame the center hands the gateways sharing the band
+(``server.backhaul.slots``): a command's next attempt if one waits, else a poll of the next vehicle of
+the center's poll list (its answer, heard by this gateway's modem, goes up as frames; the center scores
+the gateways by them). Without a plan a gateway alone on its band sends its commands at will and polls
+nobody. A command that reaches the gateway after its ``start_by`` is not sent: the center has sent it
+through another gateway by then. The SYNC budget is the next slice (docs/backhaul.md).
 
 Imports the standard library, the core (``tacit.modem``) and nats-py only: ``tacit[gateway]`` has no web
 stack (tests/integration/server/test_backhaul.py checks that fastapi, sqlmodel and sqlalchemy are not loaded).
@@ -20,6 +21,7 @@ import asyncio
 import contextlib
 import logging
 import time
+from collections import deque
 from pathlib import Path
 
 from nats.aio.client import Client
@@ -56,6 +58,10 @@ class Gateway:
         self.publisher: Publisher | None = None
         self.backhaul = False  # connected to the broker
         self.schedule = Schedule()  # the center's TDMA frames; none: transmit at will
+        self.polls: tuple[int, ...] = ()  # the vehicles' addresses the center asks this gateway to poll
+        self.queue: deque[tuple[CommandMessage, int]] = deque()  # commands to send, attempts made
+        self._polled = 0
+        self._work = asyncio.Event()
         self.transmissions: list[tuple[float, float]] = []  # (start, end) of each attempt, UNIX s
         self._tasks: list[asyncio.Task[None]] = []
         if driver is not None:
@@ -109,6 +115,9 @@ class Gateway:
             asyncio.create_task(self._commands(commands)),
             asyncio.create_task(self._beat()),
         ]
+        if self.driver is not None:
+            self.queue.extend((c, 0) for c in self.outbox.commands("stored"))  # a restart resumes them
+            self._tasks.append(asyncio.create_task(self._mac()))
 
     async def stop(self) -> None:
         for task in self._tasks:
@@ -154,24 +163,51 @@ class Gateway:
             return
         self.outbox.add_event("attempt", {"command": command.id, "outcome": "stored", "attempt": 0})
         if self.driver is not None:
-            self._tasks.append(asyncio.create_task(self._send(command)))
+            self.queue.append((command, 0))
+            self._work.set()
 
-    async def _send(self, command: CommandMessage) -> None:
-        """The attempts, each in this gateway's slot: each outcome goes up as an event (through the
-        outbox: none is lost), then the final one."""
+    # --- the MAC: one exchange per slot ------------------------------------------------------------
+
+    async def _mac(self) -> None:
+        while True:
+            plan = self.schedule.current
+            usable = plan.usable if plan is not None and self.name in plan.order else 0.0
+            polling = bool(self.polls) and usable > 0  # polls only in slots: never at will
+            if not self.queue and not polling:
+                self._work.clear()
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(self._work.wait(), 1.0)
+                continue
+            start = self.schedule.start(self.name, time.time(), usable or ATTEMPT_AIRTIME)
+            await asyncio.sleep(max(0.0, start - time.time()))
+            if self.queue:
+                await self._next_attempt()
+            elif polling:
+                await self._poll()
+            await asyncio.sleep(max(0.0, start + usable - time.time()))  # the slot's answers still come
+
+    async def _next_attempt(self) -> None:
+        """The first waiting command's next attempt; it leaves the queue when acked, out of attempts or
+        expired (each outcome goes up as an event, through the outbox: none is lost)."""
+        command, made = self.queue.popleft()
+        if command.expires_at and time.time() > command.expires_at:
+            self._final(command, "expired")
+            return
+        outcome = await self._attempt(command, made + 1)
+        if outcome == "acked" or made + 1 >= command.attempts:
+            self._final(command, "acked" if outcome == "acked" else "failed")
+        else:
+            self.queue.appendleft((command, made + 1))
+
+    async def _poll(self) -> None:
+        """Ask the next vehicle of the poll list for its data (with ACK: its link counts on them)."""
         assert self.driver is not None
-        outcome = "failed"
-        for attempt in range(1, command.attempts + 1):
-            await self._slot(ATTEMPT_AIRTIME + command.ack_timeout)
-            if command.expires_at and time.time() > command.expires_at:
-                outcome = "expired"
-                break
-            outcome = await self._attempt(command, attempt)
-            if outcome == "acked":
-                break
-        self._final(
-            command, "acked" if outcome == "acked" else "expired" if outcome == "expired" else "failed"
-        )
+        address = self.polls[self._polled % len(self.polls)]
+        self._polled += 1
+        try:
+            await self.driver.poll(address, rate=0, ack=True)
+        except mm.ModemError as exc:
+            log.warning("poll of %d failed: %s", address, exc)
 
     async def _attempt(self, command: CommandMessage, attempt: int) -> str:
         """One data cycle with ACK: ``acked``, ``sent`` (no ACK) or ``failed`` (not transmitted)."""
@@ -195,11 +231,6 @@ class Gateway:
         self.outbox.set_command(command.id, outcome)
         self.outbox.add_event("attempt", {"command": command.id, "outcome": outcome, "final": True})
 
-    async def _slot(self, duration: float) -> None:
-        """Wait for this gateway's next slot that holds ``duration`` s (at once without a plan)."""
-        start = self.schedule.start(self.name, time.time(), duration)
-        await asyncio.sleep(max(0.0, start - time.time()))
-
     async def _schedule(self, msg: Msg) -> None:
         """The center's TDMA frame for the gateways on this band."""
         try:
@@ -207,11 +238,14 @@ class Gateway:
             self.schedule.receive(
                 SlotPlan(schedule.epoch, schedule.slot, schedule.guard, schedule.order), time.time()
             )
+            self.polls = schedule.poll
+            self._work.set()
         except (PayloadError, ValueError) as exc:
             log.error("schedule refused: %s", exc)
             return
         log.info(
-            "schedule: slot %.1f s, guard %.1f s, order %s", schedule.slot, schedule.guard, schedule.order
+            "schedule: slot %.1f s, guard %.1f s, order %s, polling %s",
+            *(schedule.slot, schedule.guard, schedule.order, schedule.poll),
         )
 
     # --- heartbeat -------------------------------------------------------------------------------

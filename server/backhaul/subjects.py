@@ -157,7 +157,7 @@ class ScheduleMessage:
     """The TDMA frame of the gateways sharing one band (``server.backhaul.slots.SlotPlan``): slot ``k``
     begins at ``epoch + k * slot`` (UNIX s) and belongs to ``order[k % len(order)]``; a gateway starts a
     transmission ``guard`` s after its slot begins at the earliest and has it answered ``guard`` s before
-    the slot ends."""
+    the slot ends. ``poll``: the vehicles' modem addresses the gateway polls in its slots, in turn."""
 
     id: str
     gateway: str
@@ -165,9 +165,10 @@ class ScheduleMessage:
     slot: float
     guard: float
     order: tuple[str, ...]
+    poll: tuple[int, ...] = ()
 
     def encode(self) -> bytes:
-        return _dump({**asdict(self), "order": list(self.order)})
+        return _dump({**asdict(self), "order": list(self.order), "poll": list(self.poll)})
 
     @classmethod
     def decode(cls, data: bytes) -> ScheduleMessage:
@@ -180,6 +181,7 @@ class ScheduleMessage:
                 slot=float(body["slot"]),
                 guard=float(body["guard"]),
                 order=tuple(str(name) for name in body["order"]),
+                poll=tuple(int(address) for address in body.get("poll", ())),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise PayloadError(f"a schedule without {exc}") from exc

@@ -53,12 +53,13 @@ class Vehicle:
 
 class StandInModem:
     """A shore modem that reaches ``vehicle`` when its gateway is in ``vehicle.reaches`` (ACKed), and
-    transmits into the void otherwise (no ACK)."""
+    transmits into the void otherwise (no ACK); its polls go unanswered (the test says what is heard)."""
 
     def __init__(self, gateway: str, vehicle: Vehicle) -> None:
         self.gateway = gateway
         self.vehicle = vehicle
         self.state = mm.LinkState.READY
+        self.polls: list[int] = []  # the addresses it polled (its vehicle answers nothing here)
 
     def add_listener(self, listener: Callable[[Any], None]) -> None:
         pass
@@ -68,6 +69,9 @@ class StandInModem:
 
     async def stop(self) -> None:
         pass
+
+    async def poll(self, remote: int, rate: int = 0, ack: bool = False) -> None:
+        self.polls.append(remote)
 
     async def send(
         self,
