@@ -44,8 +44,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("tacit.backhaul.center")
 
-DURABLE = "tacit-center"
-EVENTS_DURABLE = "tacit-center-events"
+DURABLE = "tacit-center"  # its events' durable is "<durable>-events"
 
 
 class Center:
@@ -79,7 +78,7 @@ class Center:
         self.sub = await self._subscribe(self.js)
         self.events = await self.js.pull_subscribe(
             subjects.events(">"),
-            durable=EVENTS_DURABLE,
+            durable=f"{self.durable}-events",
             stream=subjects.EVENTS_STREAM,
             config=ConsumerConfig(ack_policy=AckPolicy.EXPLICIT, ack_wait=self.ack_wait),
         )
@@ -226,7 +225,14 @@ async def serve(shore: Shore, url: str, durable: str = DURABLE) -> None:
 
     assert isinstance(shore.ingest, RelayIngest), "a center's shore is built with RelayIngest"
     center = Center(shore.ingest, url, durable=durable)
-    dispatcher = Dispatcher(shore.commands, shore.routing, shore.settings, center.publish)
+    dispatcher = Dispatcher(
+        shore.commands,
+        shore.routing,
+        shore.settings,
+        center.publish,
+        shore.link.heartbeat,
+        shore.ingest.states,
+    )
     center.on_event = dispatcher.on_event
     shore.commands.wake = dispatcher.wake
     await center.run(dispatcher.run())

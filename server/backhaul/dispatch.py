@@ -11,13 +11,21 @@ the command has failed. A gateway that gets a command after its ``start_by`` doe
 vehicle does not get it from both (and if a receipt is merely late, the vehicle's sequence window still
 executes the command once).
 
+SYNCs go the same way: the center holds the keys, so it signs each vehicle's SYNC when the heartbeat
+says it is due (``server.link.heartbeat``: an unsynced check-point waits for its answer, a chain restart
+is needed, or ``sync_interval`` has passed) and sends it to the vehicle's gateway as a one-attempt
+command message ``sync-<address>-<counter>``; a vehicle accepts no command before a SYNC has answered
+its check-points. Only while the backhaul is up: a budget of pre-signed SYNCs for a gateway cut off
+longer than a vehicle's link-lost timeout is not built yet (docs/backhaul.md).
+
 The dispatcher also hands the gateways their TDMA slots (``server.backhaul.slots``) whenever the set of
-live gateways changes.
+live gateways or of vehicles to poll changes.
 """
 
 from __future__ import annotations
 
 import asyncio
+import hashlib
 import logging
 import math
 import time
@@ -30,8 +38,10 @@ from server.commands.models import CommandRecord, CommandState
 from server.commands.service import CommandDesk
 from server.core.config import Settings
 from server.core.db import saved_id
+from server.link.heartbeat import Heartbeat
+from server.link.state import VehicleState
 from server.routing.models import Dispatch, DispatchState
-from server.routing.service import Routing
+from server.routing.service import Route, Routing
 from server.vehicles.models import Vehicle
 
 log = logging.getLogger("tacit.backhaul.dispatch")
@@ -43,12 +53,21 @@ STEP = {"stored": DispatchState.STORED, "sent": DispatchState.SENT, "acked": Dis
 
 class Dispatcher:
     def __init__(
-        self, desk: CommandDesk, routing: Routing, settings: Settings, publish: Publish, tick: float = 0.5
+        self,
+        desk: CommandDesk,
+        routing: Routing,
+        settings: Settings,
+        publish: Publish,
+        heartbeat: Heartbeat | None = None,
+        states: Callable[[], list[VehicleState]] = list,
+        tick: float = 0.5,
     ) -> None:
         self.desk = desk
         self.routing = routing
         self.settings = settings
         self.publish = publish
+        self.heartbeat = heartbeat  # the link's: when a vehicle's SYNC is due, and signing it
+        self.states = states  # the vehicles' link states (ingest's), by which SYNCs are due
         self.tick = tick
         self.handed: tuple[tuple[str, ...], tuple[int, ...]] = ((), ())  # the last schedule's gateways, polls
         self._published: set[str] = set()  # dispatches published by this process
@@ -80,8 +99,29 @@ class Dispatcher:
         await asyncio.to_thread(self.routing.update, now)
         routes = await asyncio.to_thread(self.routing.routes, now)
         await self._schedule(now, tuple(sorted(r.vehicle.address for r in routes)))
+        await self._syncs(routes)
         for route in routes:
             await self._vehicle(route.vehicle, now)
+
+    # --- SYNCs down ------------------------------------------------------------------------------
+
+    async def _syncs(self, routes: list[Route]) -> None:
+        """A SYNC to each vehicle whose heartbeat is due, through its gateway (before its commands)."""
+        if self.heartbeat is None:
+            return
+        gateways = {r.vehicle.address: r.gateway for r in routes if r.gateway is not None}
+        for state in self.states():
+            gateway = gateways.get(state.address)
+            if gateway is None or not self.heartbeat.due(state):
+                continue
+            sync = await self.heartbeat.signed(state)
+            message = CommandMessage(
+                f"sync-{state.address}-{sync.seq}", gateway, state.address, sync.frame, attempts=1,
+                ack_timeout=self.ack_timeout(), expires_at=time.time() + self.settings.sync_interval,
+                start_by=time.time() + self.settings.dispatch_receipt,
+            )  # fmt: skip
+            await self.publish(subjects.commands(gateway), message.encode(), message.id)
+            await self.heartbeat.sent(state, sync, acked=False)
 
     # --- commands down ---------------------------------------------------------------------------
 
@@ -170,6 +210,8 @@ class Dispatcher:
         final = bool(detail.get("final"))
         state = FINAL.get(outcome) if final else STEP.get(outcome)
         attempt = int(detail.get("attempt") or 0) if outcome in ("sent", "acked") and not final else 0
+        if str(detail.get("command", "")).startswith("sync-"):
+            return  # a SYNC's outcome: the next check-point says whether it arrived
         report = self.routing.report(str(detail.get("command", "")), state, attempt)
         if report is None:
             log.warning("gateway %s reported an unknown command %s", event.gateway, detail.get("command"))
@@ -194,8 +236,11 @@ class Dispatcher:
             return
         slot = self.settings.tdma_slot
         epoch = math.ceil(now / slot) * slot + slot
-        for gateway in order:
-            message = ScheduleMessage(f"schedule-{epoch:.0f}-{gateway}", gateway, epoch, slot,
+        plan = hashlib.sha256(
+            repr((epoch, slot, self.settings.tdma_guard, order, polls)).encode()
+        ).hexdigest()
+        for gateway in order:  # the id names the plan: another plan from the same epoch is not a duplicate
+            message = ScheduleMessage(f"schedule-{plan[:16]}-{gateway}", gateway, epoch, slot,
                                       self.settings.tdma_guard, order, polls)  # fmt: skip
             await self.publish(subjects.schedule(gateway), message.encode(), message.id)
         log.info("schedule: %d gateways, %.1f s slots from %.0f, polling %s", len(order), slot, epoch, polls)

@@ -24,6 +24,7 @@ import asyncio
 import logging
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 
 from server.core.config import Settings
 from server.link.state import VehicleState
@@ -37,6 +38,17 @@ from tacit.packets import CHECKPOINT_MAC_SIZE, SYNC_RESTART_CHAINS, ControlPacke
 from tacit.packets import Command as Kind
 
 log = logging.getLogger("tacit.server.link")
+
+
+@dataclass(frozen=True)
+class Sync:
+    """A signed SYNC frame and what it carries."""
+
+    frame: bytes
+    seq: int
+    echo: bytes | None  # the unsynced check-point's MAC it answers
+    restart: bool  # asks the vehicle to restart its sample chains
+    probe: bool  # signed with the key of a rotation waiting for the vehicle's confirmation
 
 
 class Heartbeat:
@@ -67,6 +79,23 @@ class Heartbeat:
     async def sync(self, driver: mm.ModemDriver, vehicle: VehicleState) -> bool:
         """One SYNC; answers a waiting unsynced check-point, asks for a chain restart if ingest needs one.
         False if our modem refused the cycle (the SYNC is due again)."""
+        sync = await self.signed(vehicle)
+        result = await driver.send(
+            vehicle.address, [sync.frame], rate=0, ack=True, ack_timeout=self.timing.ack_timeout(vehicle)
+        )
+        if not result.transmitted:  # our modem refused the cycle: due again at the next slot
+            log.info(
+                "vehicle %s: SYNC %d not transmitted (%s); next slot", vehicle.name, sync.seq, result.error
+            )
+            self._last[vehicle.address] = 0.0
+            await asyncio.sleep(self.timing.busy_wait())
+            return False
+        await self.sent(vehicle, sync, result.all_acked)
+        return True
+
+    async def signed(self, vehicle: VehicleState) -> Sync:
+        """The vehicle's next SYNC, signed now (its counter saved first); the heartbeat counts it as due
+        no more until ``sync_interval`` has passed."""
         self._last[vehicle.address] = time.time()
         restart = vehicle.link.needs_restart
         echo = vehicle.link.echo
@@ -82,23 +111,17 @@ class Heartbeat:
             echo=echo or bytes(CHECKPOINT_MAC_SIZE),
             param_id=SYNC_RESTART_CHAINS if restart else 0,
         )
-        frame = auth.sign(packet, key, vehicle.address, epoch=version)
-        result = await driver.send(
-            vehicle.address, [frame], rate=0, ack=True, ack_timeout=self.timing.ack_timeout(vehicle)
-        )
-        if not result.transmitted:  # our modem refused the cycle: due again at the next slot
-            log.info("vehicle %s: SYNC %d not transmitted (%s); next slot", vehicle.name, seq, result.error)
-            self._last[vehicle.address] = 0.0
-            await asyncio.sleep(self.timing.busy_wait())
-            return False
-        if vehicle.link.echo == echo:  # on the air: one answer per check-point (a newer one waits)
+        return Sync(auth.sign(packet, key, vehicle.address, epoch=version), seq, echo, restart, probe)
+
+    async def sent(self, vehicle: VehicleState, sync: Sync, acked: bool) -> None:
+        """``sync`` went on the air (``acked``: the vehicle's modem acknowledged it)."""
+        if vehicle.link.echo == sync.echo:  # on the air: one answer per check-point (a newer one waits)
             vehicle.link.echo = None
         self.syncs += 1
-        if probe:
+        if sync.probe:
             await self.store.run(self.vehicles.probed, vehicle.id)
-        if restart:
-            self._restart_sent(vehicle, result.all_acked)
-        return True
+        if sync.restart:
+            self._restart_sent(vehicle, acked)
 
     def _restart_sent(self, vehicle: VehicleState, acked: bool) -> None:
         sent = self._restarts[vehicle.address] = self._restarts.get(vehicle.address, 0) + 1

@@ -30,7 +30,7 @@ from server.routing.service import Routing
 from server.vehicles.models import Vehicle as VehicleRow
 from tacit import auth
 from tacit import modem as mm
-from tacit.packets import CheckpointPacket, MissionState
+from tacit.packets import CheckpointPacket, Command, MissionState
 from tacit.streams import default_streams
 from tests.conftest import postgres_database
 from tests.support.nats import NATS_SERVER, Broker
@@ -49,6 +49,7 @@ class Vehicle:
     key: bytes = b""
     reaches: set[str] = field(default_factory=set)
     received: list[tuple[str, int]] = field(default_factory=list)  # (gateway, command seq)
+    syncs: list[tuple[str, int]] = field(default_factory=list)  # (gateway, SYNC counter)
 
 
 class StandInModem:
@@ -84,7 +85,9 @@ class StandInModem:
         if dest != ADDRESS or self.gateway not in self.vehicle.reaches:
             return mm.TransmitResult(dest, len(frames), transmitted=True, error="no acknowledgement")
         for frame in frames:
-            self.vehicle.received.append((self.gateway, auth.verify(frame, self.vehicle.key, dest).seq))
+            packet = auth.verify(frame, self.vehicle.key, dest)
+            heard = self.vehicle.syncs if packet.command is Command.SYNC else self.vehicle.received
+            heard.append((self.gateway, packet.seq))
         return mm.TransmitResult(
             dest, len(frames), transmitted=True, acked=frozenset(range(1, len(frames) + 1))
         )
@@ -215,6 +218,7 @@ def test_a_command_reaches_the_vehicle_once_through_its_gateway_and_through_the_
     first = center.command(vehicle_id)
     until(lambda: center.status(first) == "acknowledged", what="the first command's ACK")
     assert center.vehicle.received == [("ship", 1)]  # once, through its gateway
+    assert center.vehicle.syncs[0] == ("ship", 1)  # the center's SYNC went first, through it too
 
     center.stop("ship")  # killed: its heartbeat is still fresh, so the center tries it first
     second = center.command(vehicle_id)

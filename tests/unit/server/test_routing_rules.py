@@ -77,3 +77,39 @@ def test_a_new_plan_applies_at_its_epoch_and_no_transmission_straddles_it() -> N
     assert schedule.start("ship", 27.0, 3.0) == 61.0  # its next slot (40) is the new plan's buoy's
     assert schedule.start("ship", 45.0, 3.0) == 61.0
     assert schedule.current is not None and schedule.current.epoch == 40.0 and schedule.coming is None
+
+
+def test_a_second_plan_from_the_same_epoch_is_not_taken_for_a_duplicate() -> None:
+    """The broker drops a message whose id it has seen: each plan's messages have ids of their own (a
+    gateway joining a second after the first had its plan still reaches the first)."""
+    import asyncio
+
+    from server.backhaul.dispatch import Dispatcher
+    from server.backhaul.subjects import ScheduleMessage
+    from server.core.config import Settings
+
+    class Alive:
+        gateways: set[str] = {"ship"}
+
+        def alive(self, now: float) -> set[str]:
+            return self.gateways
+
+    sent: list[tuple[str, ScheduleMessage]] = []
+
+    async def publish(subject: str, payload: bytes, message_id: str) -> None:
+        message = ScheduleMessage.decode(payload)
+        assert message.id == message_id
+        sent.append((subject, message))
+
+    routing = Alive()
+    dispatcher = Dispatcher(None, routing, Settings(tdma_slot=10.0), publish)  # type: ignore[arg-type]
+    asyncio.run(dispatcher._schedule(1000.2, (2,)))
+    routing.gateways = {"ship", "buoy"}
+    asyncio.run(dispatcher._schedule(1000.7, (2,)))  # the same epoch
+    asyncio.run(dispatcher._schedule(1000.9, (2,)))  # nothing changed: nothing sent
+    assert [(s, m.order, m.epoch) for s, m in sent] == [
+        ("tacit.v1.schedule.ship", ("ship",), 1020.0),
+        ("tacit.v1.schedule.buoy", ("buoy", "ship"), 1020.0),
+        ("tacit.v1.schedule.ship", ("buoy", "ship"), 1020.0),
+    ]
+    assert len({m.id for _, m in sent}) == 3
