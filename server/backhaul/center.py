@@ -98,8 +98,10 @@ class Center:
 
     @staticmethod
     async def _forever(step: Callable[[], Awaitable[int]]) -> None:
-        while True:
+        task = asyncio.current_task()
+        while task is None or not task.cancelling():  # a fetch may swallow the cancellation: not this
             await step()
+        raise asyncio.CancelledError
 
     async def publish(self, subject: str, payload: bytes, message_id: str) -> None:
         """Publish to a stream with ``message_id`` as its ``Nats-Msg-Id`` (the dispatcher's way down)."""
@@ -136,7 +138,8 @@ class Center:
         assert self.sub is not None, "connect() first"
         try:
             msgs = await self.sub.fetch(self.batch, timeout=timeout)
-        except (TimeoutError, NatsError):
+        except (TimeoutError, NatsError) as exc:
+            await _pause(exc)
             return 0
         frames, good = [], []
         for msg in msgs:
@@ -182,7 +185,8 @@ class Center:
         assert self.events is not None, "connect() first"
         try:
             msgs = await self.events.fetch(self.batch, timeout=timeout)
-        except (TimeoutError, NatsError):
+        except (TimeoutError, NatsError) as exc:
+            await _pause(exc)
             return 0
         for msg in msgs:
             await self._event(msg)
@@ -216,6 +220,14 @@ class Center:
             subjects.commands(command.gateway), command.encode(), headers={subjects.MSG_ID: command.id}
         )
         return not ack.duplicate
+
+
+async def _pause(exc: Exception) -> None:
+    """After a fetch that failed at once (the connection closed, the consumer gone): a pause, so that a
+    loop of fetches never spins without yielding to the event loop. A timeout has waited already."""
+    if not isinstance(exc, TimeoutError):
+        log.debug("backhaul: fetch failed: %s", exc)
+        await asyncio.sleep(0.5)
 
 
 async def serve(shore: Shore, url: str, durable: str = DURABLE) -> None:

@@ -126,7 +126,7 @@ class Dispatcher:
     # --- commands down ---------------------------------------------------------------------------
 
     async def _vehicle(self, vehicle: Vehicle, now: float) -> None:
-        deadline = now - self.settings.confirm_timeout
+        deadline = now - self.settings.confirm_timeout / self.settings.time_scale  # as the link's timing
         command = await asyncio.to_thread(self.desk.next_to_send, saved_id(vehicle), deadline)
         if command is None:
             return

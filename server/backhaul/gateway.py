@@ -4,9 +4,9 @@ backhaul in order; commands the center signed come down, are kept in the outbox 
 outcomes go up as events. It holds no vehicle key (docs/protocol.md).
 
 The MAC: one exchange per slot of the TDMA frame the center hands the gateways sharing the band
-(``server.backhaul.slots``): a command's next attempt if one waits, else a poll of the next vehicle of
-the center's poll list (its answer, heard by this gateway's modem, goes up as frames; the center scores
-the gateways by them). Without a plan a gateway alone on its band sends its commands at will and polls
+(``server.backhaul.slots``): a command's next attempt (SYNCs are commands here) or a poll of the next
+vehicle of the center's poll list (its answer, heard by this gateway's modem, goes up as frames; the
+center scores the gateways by them), taking turns when both wait. Without a plan a gateway alone on its band sends its commands at will and polls
 nobody. A command that reaches the gateway after its ``start_by`` is not sent: the center has sent it
 through another gateway by then. The SYNC budget is the next slice (docs/backhaul.md).
 
@@ -61,6 +61,7 @@ class Gateway:
         self.polls: tuple[int, ...] = ()  # the vehicles' addresses the center asks this gateway to poll
         self.queue: deque[tuple[CommandMessage, int]] = deque()  # commands to send, attempts made
         self._polled = 0
+        self._commanded = False  # the last slot carried a command
         self._work = asyncio.Event()
         self.transmissions: list[tuple[float, float]] = []  # (start, end) of each attempt, UNIX s
         self._tasks: list[asyncio.Task[None]] = []
@@ -141,7 +142,10 @@ class Gateway:
         while True:
             try:
                 msgs = await sub.fetch(16, timeout=1.0)
-            except (TimeoutError, NatsError):
+            except TimeoutError:
+                continue
+            except NatsError:  # failed at once (closed, consumer gone): never spin without yielding
+                await asyncio.sleep(0.5)
                 continue
             for msg in msgs:
                 await self._command(msg)
@@ -180,10 +184,12 @@ class Gateway:
                 continue
             start = self.schedule.start(self.name, time.time(), usable or ATTEMPT_AIRTIME)
             await asyncio.sleep(max(0.0, start - time.time()))
-            if self.queue:
+            if self.queue and not (polling and self._commanded):
                 await self._next_attempt()
-            elif polling:
+                self._commanded = True
+            else:  # polls and commands take turns: a vehicle's answers keep coming while commands wait
                 await self._poll()
+                self._commanded = False
             await asyncio.sleep(max(0.0, start + usable - time.time()))  # the slot's answers still come
 
     async def _next_attempt(self) -> None:
