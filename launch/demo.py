@@ -250,11 +250,7 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
     finally:
         await shutdown(stack, server, serving)
         if args.gateways:
-            channel = stack.sim_report().get("channel", {})
-            _say(
-                f"channel: {channel.get('transmissions', '?')} transmissions, "
-                f"{channel.get('collisions', '?')} collisions, {channel.get('lost', '?')} frames lost"
-            )
+            _channel(stack.sim_report())
 
 
 def _plans(args: argparse.Namespace) -> str:
@@ -265,6 +261,17 @@ def _plans(args: argparse.Namespace) -> str:
             "the square around their homes. Each vehicle's gateway is printed as the center assigns it."
         )
     return "Each vehicle is starting the square mission around its home."
+
+
+def _channel(report: dict[str, Any]) -> None:
+    """The simulated channel's figures at exit; where collisions were, if any."""
+    channel = report.get("channel", {})
+    _say(
+        f"channel: {channel.get('transmissions', '?')} transmissions, "
+        f"{channel.get('collisions', '?')} collisions, {channel.get('lost', '?')} frames lost"
+    )
+    for entry in report.get("collided", [])[-5:]:
+        _say(f"  collided at {entry['to']}: {entry['kind']} from {entry['from']} (t={entry['time']:.1f} s)")
 
 
 def _say(line: str) -> None:

@@ -5,7 +5,8 @@ One **dispatch** per gateway tried, its id the command message's (``cmd-<command
 committed before the publish, and a publish that failed or was cut by a center restart is made again
 with the same id, which the broker (within its window) and the gateway's store (always) keep once. A
 dispatch whose gateway has not reported it stored by ``start_by`` (the gateway is down, or its backhaul
-is), or has not reported its final outcome by ``deadline``, or that ended without an ACK, is followed by
+is), whose gateway fell silent (no heartbeat for ``gateway_timeout``), that outlived its frame's age
+(``deadline``), or that ended without an ACK, is followed by
 a dispatch through the next gateway that heard the vehicle (``Routing.candidates``); when none is left
 the command has failed. A gateway that gets a command after its ``start_by`` does not send it, so the
 vehicle does not get it from both (and if a receipt is merely late, the vehicle's sequence window still
@@ -150,10 +151,15 @@ class Dispatcher:
             await asyncio.to_thread(self.desk.record, command, CommandState.FAILED, detail, "unreachable")
 
     async def _overdue(self, dispatch: Dispatch, now: float) -> bool:
-        """A dispatch whose receipt or outcome is late: its gateway is taken for down."""
+        """A dispatch whose receipt is late, whose gateway fell silent (no heartbeat), or that outlived
+        its frame's age (the gateway would have said ``expired``): its gateway is taken for down. A
+        gateway that stored it and beats is waited for: its attempts share its slots with its polls
+        and its other vehicles' commands, so no fixed time bounds them."""
         late = (
-            dispatch.state == DispatchState.PUBLISHED and now > dispatch.start_by
-        ) or now > dispatch.deadline
+            (dispatch.state == DispatchState.PUBLISHED and now > dispatch.start_by)
+            or now > dispatch.deadline
+            or dispatch.gateway not in await asyncio.to_thread(self.routing.alive, now)
+        )
         if late:
             log.warning("dispatch %s: %s did not answer in time; next gateway", dispatch.id, dispatch.gateway)
             await asyncio.to_thread(self.routing.set_dispatch, dispatch.id, DispatchState.UNANSWERED)
@@ -162,15 +168,13 @@ class Dispatcher:
     async def _dispatch(
         self, command: CommandRecord, vehicle: Vehicle, gateway: str, n: int, now: float
     ) -> None:
-        frames = max(1, len(self.handed[0]))
         row = Dispatch(
             id=f"cmd-{saved_id(command)}-{n}",
             command_id=saved_id(command),
             gateway=gateway,
             start_by=now + self.settings.dispatch_receipt,
-            deadline=now + self.settings.dispatch_receipt
-            + self.settings.command_attempts * frames * self.settings.tdma_slot + self.settings.tdma_slot,
-        )  # fmt: skip
+            deadline=now + self.settings.dispatch_receipt + subjects.COMMAND_MAX_AGE,
+        )
         await asyncio.to_thread(self.routing.add_dispatch, row)
         log.info("vehicle %s: command seq %d through %s (%s)", vehicle.name, command.seq, gateway, row.id)
         await self._publish(row, command, vehicle)

@@ -67,7 +67,7 @@ class Dispatch(SQLModel, table=True):
     gateway: str = Field(max_length=64)
     state: DispatchState = Field(default=DispatchState.PUBLISHED, sa_type=AutoString(16))
     start_by: float  # the gateway sends it only if it has it by then (its receipt is due by then)
-    deadline: float  # its final outcome is due by then, else the gateway is taken for down
+    deadline: float  # its final outcome is due by then (its frame's age), else the gateway is taken for down
     attempts: int = 0  # the highest attempt number the gateway reported (a redelivered event counts once)
 
     @property
