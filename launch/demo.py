@@ -198,7 +198,8 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
             member.index,
             checkpoint_interval=20,
             missions=[{"file": f"missions/{plan}"}],
-            **({"link_lost_timeout": 86400.0} if args.gateways else {}),  # gateways send no SYNC yet
+            **({"link_lost_timeout": 86400.0} if args.gateways else {}),  # no pre-signed SYNCs yet
+            **({"plume_threshold": 1e6} if plans[member.index] is split.TRAVEL else {}),  # no detours
         )
         stack.start_agent(member.index)
     overrides = {"host": args.host, "port": args.port, "map_port": args.map_port, "poll_interval": 2.0}
