@@ -4,8 +4,9 @@ A gateway's score for a vehicle (dB) is the mean SNR of the vehicle's frames it 
 ``10 log10`` of the share of the vehicle's frames it heard (half of them heard costs 3 dB): a gateway
 that hears loudly but seldom is not preferred to one that hears every frame a little less loudly.
 Hysteresis: the vehicle moves only to a gateway better by ``margin`` dB, and not before it has been
-``dwell`` s on its gateway; it moves at once if its gateway is silent (no heartbeat) or heard none of
-its frames in the window. A pin is kept whatever the scores.
+``dwell`` s on its gateway (also when its gateway heard none of its frames in the window: a few lost
+frames must not move it); it moves at once if its gateway is silent (no heartbeat). A pin is kept
+whatever the scores.
 """
 
 from __future__ import annotations
@@ -60,10 +61,13 @@ def choose(
         return Decision(best, f"{best} heard it best ({scores[best]:.1f} dB)", moved=True)
     if current.gateway not in alive:
         return Decision(best, f"{current.gateway} is silent; {best} heard it best", moved=True)
-    if current.gateway not in scores:
-        return Decision(best, f"{current.gateway} heard none of its frames; {best} did", moved=True)
     if best == current.gateway:
         return Decision(best, f"{best} hears it best ({scores[best]:.1f} dB)")
+    if current.gateway not in scores:  # lost frames or out of its reach: the dwell tells them apart
+        if now - current.since < dwell:
+            return Decision(current.gateway, f"{current.gateway} heard none of its frames; {best} did: "
+                            f"moving after the {dwell:.0f} s dwell")  # fmt: skip
+        return Decision(best, f"{current.gateway} heard none of its frames; {best} did", moved=True)
     gain = scores[best] - scores[current.gateway]
     if gain < margin:
         return Decision(current.gateway, f"{best} is {gain:.1f} dB better, under the {margin:.1f} dB margin")

@@ -36,11 +36,13 @@ def test_a_better_gateway_takes_the_vehicle_only_by_the_margin_and_after_the_dwe
     assert late.gateway == "buoy" and late.moved
 
 
-def test_a_silent_or_deaf_gateway_loses_its_vehicle_at_once() -> None:
+def test_a_silent_gateway_loses_its_vehicle_at_once_a_deaf_one_after_the_dwell() -> None:
     on_ship = Current("ship", since=100.0)
     silent = choose(on_ship, heard(ship=30.0, buoy=5.0), {"buoy"}, 101.0, 3.0, 60.0)
     assert silent.gateway == "buoy" and silent.moved and "silent" in silent.reason
-    deaf = choose(on_ship, heard(buoy=5.0), ALIVE, 101.0, 3.0, 60.0)
+    early = choose(on_ship, heard(buoy=5.0), ALIVE, 101.0, 3.0, 60.0)  # frames lost, or out of reach
+    assert early.gateway == "ship" and not early.moved and "dwell" in early.reason
+    deaf = choose(on_ship, heard(buoy=5.0), ALIVE, 160.0, 3.0, 60.0)
     assert deaf.gateway == "buoy" and deaf.moved
 
 
