@@ -1,7 +1,5 @@
 """routing: the gateways the center knows, each vehicle's gateway (assignment, pins), and each
-command's dispatches through the gateways; telemetry ticks as 64-bit integers (a tick is time / period:
-past 2**31 today for periods under a second, which PostgreSQL's INTEGER refused: the center could not
-store a decoded packet)
+command's dispatches through the gateways
 
 Revision ID: 0010
 Revises: 0008
@@ -52,17 +50,9 @@ def upgrade() -> None:
         sa.PrimaryKeyConstraint("id"),
     )
     op.create_index(op.f("ix_dispatch_command_id"), "dispatch", ["command_id"], unique=False)
-    with op.batch_alter_table("telemetry", schema=None) as batch_op:
-        batch_op.alter_column(
-            "tick", existing_type=sa.Integer(), type_=sa.BigInteger(), existing_nullable=False
-        )
 
 
 def downgrade() -> None:
-    with op.batch_alter_table("telemetry", schema=None) as batch_op:
-        batch_op.alter_column(
-            "tick", existing_type=sa.BigInteger(), type_=sa.Integer(), existing_nullable=False
-        )
     op.drop_index(op.f("ix_dispatch_command_id"), table_name="dispatch")
     op.drop_table("dispatch")
     op.drop_table("assignment")

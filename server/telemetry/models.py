@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import enum
 
-from sqlalchemy import JSON, BigInteger, Column, Index, LargeBinary
+from sqlalchemy import JSON, Column, Index, LargeBinary
 from sqlmodel import AutoString, Field, SQLModel
 
 from server.core.db import now
@@ -87,7 +87,7 @@ class Telemetry(SQLModel, table=True):
     id: int | None = Field(default=None, primary_key=True)
     vehicle_id: int = Field(foreign_key="vehicle.id")
     stream: str = Field(max_length=16)
-    tick: int = Field(sa_type=BigInteger)  # time / period: past 2**31 for periods under a second since 1987
+    tick: int
     time: float
     values: list = Field(default_factory=list, sa_column=Column(JSON, nullable=False))
     certain: bool = True
