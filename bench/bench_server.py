@@ -38,7 +38,9 @@ TOKEN = "bench-token"
 ADDRESS = 2
 
 
-def frames(count: int, priority_share: float, key: bytes) -> tuple[list[bytes], int]:
+def frames(
+    count: int, priority_share: float, key: bytes, address: int = ADDRESS, progress: bool = True
+) -> tuple[list[bytes], int]:
     """Check-points and real codec output (a noisy IMU stream), in the order a vehicle sends them and
     signed as the agent signs them: each check-point covers the priority packets sent since the last one
     (a check-point is due before 12 are uncovered, as on the vehicle). Returns the frames and how many are
@@ -52,7 +54,7 @@ def frames(count: int, priority_share: float, key: bytes) -> tuple[list[bytes], 
     checkpoints = 0
     t0 = time.time() - 3600
     tick = 0
-    bar = tqdm(total=count, desc="encoding frames", unit="frame")
+    bar = tqdm(total=count, desc="encoding frames", unit="frame", disable=not progress)
     while len(out) < count or uncovered:  # the last frame is a check-point: every packet is vouched for
         seq = len(out) % 256
         if rng.random() < priority_share and len(uncovered) < 12 and len(out) < count - 1:
@@ -61,7 +63,7 @@ def frames(count: int, priority_share: float, key: bytes) -> tuple[list[bytes], 
                 tick += 1
             encoded = encoder.take()
             encoder.resolve(True)
-            frame = auth.tag_priority(with_seq(encoded.packet, seq), key, ADDRESS)
+            frame = auth.tag_priority(with_seq(encoded.packet, seq), key, address)
             uncovered.append((seq, auth.packet_hash(frame)))
         else:
             cp = CheckpointPacket(
@@ -72,7 +74,7 @@ def frames(count: int, priority_share: float, key: bytes) -> tuple[list[bytes], 
                 temperature=20.0,
                 covered=cover_bitmap(seq, [q for q, _ in uncovered]),
             )
-            frame = auth.sign_checkpoint(cp, key, 1, ADDRESS, [h for _, h in uncovered])
+            frame = auth.sign_checkpoint(cp, key, 1, address, [h for _, h in uncovered])
             uncovered, checkpoints = [], checkpoints + 1
         out.append(frame)
         bar.update()

@@ -305,7 +305,8 @@ async def shutdown(stack: Stack, server: Any, serving: asyncio.Task) -> None:
 
 
 async def _register(http: Any, member: Member) -> int:
-    """A vehicle of the demo: created, or found from an earlier run by its address (and given its key)."""
+    """A vehicle of the demo: created, or found from an earlier run by its address (and given its key and
+    its home)."""
     created = await http.post("/api/v1/vehicles", json={**member.registration(), "max_depth": 20.0})
     if created.status_code == 201:
         return created.json()["id"]
@@ -317,6 +318,7 @@ async def _register(http: Any, member: Member) -> int:
     rotated = await http.post(f"/api/v1/vehicles/{existing['id']}/key", json={"key": member.key})
     if rotated.status_code != 200:
         raise DemoError(f"vehicle {member.name}: {rotated.json()['detail']}")
+    await http.put(f"/api/v1/vehicles/{existing['id']}/home", json={"home": list(member.home)})
     return existing["id"]
 
 

@@ -32,9 +32,14 @@ class Rig:
         environment: dict | None = None,
         agent_config: dict | None = None,
         settle: float = 3.0,
+        attacker: bool = False,
+        recorder: bool = False,
+        stepped_clocks: bool = False,
+        server: dict | None = None,
     ) -> None:
         """``settle``: wall seconds to wait once the agent is up and connected (benchmarks time their first
-        command from there; tests need none)."""
+        command from there; tests need none). ``attacker``, ``recorder``, ``stepped_clocks``: as in
+        ``StackConfig``; ``server``: settings overriding the rig's."""
         self.dir = Path(tempfile.mkdtemp(prefix="tacit-bench-"))
         self.scale = scale
         self.stack = Stack(
@@ -48,6 +53,9 @@ class Rig:
                 environment=environment,
                 keys=[KEY],
                 write_tokens=[TOKEN],
+                attacker=attacker,
+                recorder=recorder,
+                stepped_clocks=stepped_clocks,
             )
         )
         self.stack.start_sim()
@@ -59,6 +67,7 @@ class Rig:
             "ping_interval": 100000,
             "command_attempts": attempts,
             "confirm_timeout": 60,
+            **(server or {}),
         }
         self.stack.start_server(self.port, **self.server_overrides)
         self.http = httpx.Client(
@@ -71,7 +80,8 @@ class Rig:
             "/vehicles", json={"name": "rov1", "address": VEHICLE_ADDRESS, "key": KEY}
         ).raise_for_status()
         missions = [{"builtin": "square", "number": 1, "side": 20.0, "depth": 2.0}] if mission else None
-        self.stack.write_agent_config(checkpoint_interval=60, missions=missions, **(agent_config or {}))
+        self.agent_values = {"checkpoint_interval": 60, "missions": missions, **(agent_config or {})}
+        self.stack.write_agent_config(**self.agent_values)
         self.quiet = None
         if agent:
             self.stack.start_agent()
@@ -84,6 +94,12 @@ class Rig:
 
     def start_agent(self) -> None:
         self.stack.start_agent()
+
+    def restart_agent(self, **changes: object) -> None:
+        """SIGKILL the agent and start it again on its configuration with ``changes``."""
+        self.kill_agent()
+        self.stack.write_agent_config(**{**self.agent_values, **changes})
+        self.start_agent()
 
     def kill_agent(self) -> None:
         self.stack.kill(self.stack.agent)

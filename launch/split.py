@@ -92,6 +92,7 @@ def center_settings(stack: Stack, database_url: str, time_scale: float) -> dict[
         routing_window=240.0 / time_scale,  # a few polls by each gateway: one exchange per slot each
         routing_dwell=120.0 / time_scale,  # each gateway polls a vehicle about once a minute here
         sync_interval=240.0,  # the heartbeat divides it by the time scale: a SYNC a minute, not 4
+        metrics_port=0,  # no /metrics listener: nothing scrapes the demo
     )
 
 

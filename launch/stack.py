@@ -26,11 +26,13 @@ from typing import IO, Any, TypeVar
 
 from launch.processes import stop
 from tacit.config import dump_toml
+from tacit.navigation import Origin
 from tacit.private import open_private, private_dir
 
 T = TypeVar("T")
 SHORE_ADDRESS = 1
 VEHICLE_ADDRESS = 2  # the first vehicle's; the others follow (3, 4, ...)
+SIM_ORIGIN = Origin()  # where the simulator's GPS puts the fleet's origin (simulators.mavlink_vehicle)
 SPACING_M = 30.0  # the fleet's homes, east of each other: the demo's 20 m squares do not overlap
 GATEWAY_SPACING_M = 900.0  # a split shore's modems, east of each other: each hears its end of the water
 
@@ -49,6 +51,8 @@ class StackConfig:
     replay: str = ""  # a .tlog the simulated vehicle streams instead of simulating its own motion
     position_source: bool = False  # the simulated vehicle has a position fix (GPS at the surface, USBL)
     attacker: bool = False  # one more modem in the water, for tests of forged traffic
+    recorder: bool = False  # one more that reports every data frame it hears (a recorder on the channel)
+    stepped_clocks: bool = False  # the server's and agents' wall clocks can be stepped (``step_clock``)
     vehicles: int = 1  # simulated BlueROV2s on the one channel, each with its own agent
     gateways: int = 0  # a split shore's modems (a `tacit gateway` each), ``range_m`` west of home and
     # then every GATEWAY_SPACING_M east; 0: the one shore modem of `tacit serve`
@@ -101,7 +105,12 @@ class Member:
 
     def registration(self) -> dict[str, Any]:
         """The body of ``POST /api/v1/vehicles`` for it."""
-        return {"name": self.name, "address": self.address, **({"key": self.key} if self.key else {})}
+        return {
+            "name": self.name,
+            "address": self.address,
+            "home": list(self.home),
+            **({"key": self.key} if self.key else {}),
+        }
 
 
 def gateway_address(index: int) -> int:
@@ -174,13 +183,24 @@ class Stack:
             }
             for m in self.members
         ]
+        last = max(m.address for m in self.members)
         if c.attacker:  # the first address after the fleet's
             modems.append(
                 {
-                    "address": max(m.address for m in self.members) + 1,
+                    "address": last + 1,
                     "name": "attacker",
                     "position": [-100.0, 30.0, 1.0],
                     "link": str(self.pty("attacker")),
+                }
+            )
+        if c.recorder:
+            modems.append(
+                {
+                    "address": last + 2,
+                    "name": "recorder",
+                    "position": [-150.0, -30.0, 1.0],
+                    "link": str(self.pty("recorder")),
+                    "recorder": True,
                 }
             )
         channel: dict[str, Any] = {"extra_loss": c.extra_loss}
@@ -213,7 +233,8 @@ class Stack:
         return vehicle
 
     def pty(self, name: str) -> Path:
-        """Where the simulated modem ``name`` (shore, vehicle, vehicle-rov2, attacker) has its serial port."""
+        """Where the simulated modem ``name`` (shore, vehicle, vehicle-rov2, attacker, recorder) has its
+        serial port."""
         return self.dir / f"{name}.pty"
 
     def mavlink_of(self, vehicle: int = 0) -> str:
@@ -233,6 +254,7 @@ class Stack:
             "database_url": f"sqlite:///{self.dir / 'tacit.db'}", "modem_url": str(self.pty("shore")),
             "modem_log": str(self.dir / "shore-modem.log"), "write_tokens": list(c.write_tokens),
             "read_tokens": list(c.read_tokens), "time_scale": c.time_scale, "default_range": c.range_m,
+            "origin": (SIM_ORIGIN.lat, SIM_ORIGIN.lon),
         }  # fmt: skip
         values.update(overrides)
         return values
@@ -240,7 +262,7 @@ class Stack:
     def start_server(self, port: int, **overrides: Any) -> subprocess.Popen[str]:
         """``tacit serve`` as a child process, configured through its ``TACIT_*`` environment."""
         env = {f"TACIT_{k.upper()}": _env_value(v) for k, v in self.server_settings(**overrides).items()}
-        self.server = self.spawn(["serve", "--port", str(port)], "serve.log", env=env)
+        self.server = self.spawn(["serve", "--port", str(port)], "serve.log", env=env, clock="shore")
         return self.server
 
     # a split shore's gateways -----------------------------------------------------------------------
@@ -278,7 +300,10 @@ class Stack:
     def start_agent(self, vehicle: int = 0) -> subprocess.Popen[str]:
         """``tacit agent`` on the vehicle's config last written (``write_agent_config``)."""
         log = self.members[vehicle].file("agent.log")
-        self.agents[vehicle] = self.spawn(["agent", "--config", str(self.agent_config(vehicle))], log)
+        clock = self.members[vehicle].file("agent")
+        self.agents[vehicle] = self.spawn(
+            ["agent", "--config", str(self.agent_config(vehicle))], log, clock=clock
+        )
         return self.agents[vehicle]
 
     @property
@@ -292,15 +317,32 @@ class Stack:
             proc.send_signal(signal.SIGKILL)
             proc.wait(timeout=10)
 
+    # clocks ----------------------------------------------------------------------------------------
+    def step_clock(self, name: str, seconds: float) -> None:
+        """Set the wall clock of ``name`` (``shore``, ``agent``, ``agent-rov2``) ``seconds`` off the true
+        time, at once, while it runs (``stepped_clocks`` stacks only; ``launch.stepped_clock``)."""
+        if not self.config.stepped_clocks:
+            raise StackError("this stack's clocks cannot be stepped (StackConfig.stepped_clocks)")
+        write_private(self.dir / f"{name}.clock", repr(float(seconds)))
+
     # processes -------------------------------------------------------------------------------------
     def spawn(
-        self, args: list[str], log: str, capture: bool = False, env: dict[str, str] | None = None
+        self,
+        args: list[str],
+        log: str,
+        capture: bool = False,
+        env: dict[str, str] | None = None,
+        clock: str = "",
     ) -> subprocess.Popen[str]:
         """``tacit ARGS`` as a child; stderr (and stdout unless captured) appended to ``log``. What the child
-        creates (its database, tlogs, modem logs) is owner-only as well (umask 077)."""
+        creates (its database, tlogs, modem logs) is owner-only as well (umask 077). ``clock``: the name
+        its wall clock is stepped by (``step_clock``), in a stack with ``stepped_clocks``."""
         out: IO[str] | int = subprocess.PIPE if capture else open_private(self.dir / log)
+        entry = ["-m", "tacit.cli"]
+        if clock and self.config.stepped_clocks:
+            entry = ["-m", "launch.stepped_clock", str(self.dir / f"{clock}.clock")]
         proc = subprocess.Popen(
-            [sys.executable, "-m", "tacit.cli", "--log-level", "INFO", *args],
+            [sys.executable, *entry, "--log-level", "INFO", *args],
             stdout=out,
             stderr=open_private(self.dir / log),
             text=True,

@@ -1,6 +1,10 @@
-"""Alembic environment: Tacit's models are the target; SQLite gets batch mode (ALTER via copy)."""
+"""Alembic environment: Tacit's models are the target; SQLite gets batch mode (ALTER via copy). Run by
+hand (`alembic upgrade head`, reading alembic.ini), TACIT_DATABASE_URL names the database as it does for
+the server; the server passes its own URL."""
 
 from __future__ import annotations
+
+import os
 
 from alembic import context
 from sqlalchemy import engine_from_config, pool
@@ -10,6 +14,8 @@ import server.tables  # noqa: F401  (registers every domain's tables)
 
 config = context.config
 target_metadata = SQLModel.metadata
+if config.config_file_name is not None and os.environ.get("TACIT_DATABASE_URL"):
+    config.set_main_option("sqlalchemy.url", os.environ["TACIT_DATABASE_URL"])
 
 
 def run_migrations_offline() -> None:

@@ -31,6 +31,7 @@ from server.link.ingest import Ingest
 from server.missions import endpoints as missions
 from server.operators import endpoints as operators
 from server.routing import endpoints as routing
+from server.safety import endpoints as safety
 from server.screens import endpoints as screens
 from server.shore import Shore
 from server.telemetry import endpoints as telemetry
@@ -62,6 +63,7 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     settings = shore.settings
     await asyncio.to_thread(migrate, settings.database_url)
     shore.bus.bind(asyncio.get_running_loop())
+    shore.watcher.start()
     await shore.link.start()
     tasks = [asyncio.create_task(run(shore)) for run in app.state.background]
     operator_map = None
@@ -82,6 +84,7 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
             task.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
         await shore.link.stop()
+        await asyncio.to_thread(shore.watcher.stop)
 
 
 class Pages(StaticFiles):
@@ -127,7 +130,18 @@ def create_app(
             response.headers["Content-Security-Policy"] = DOCS_CSP
         return response
 
-    for module in (system, operators, vehicles, commands, missions, telemetry, link, screens, routing):
+    for module in (
+        system,
+        operators,
+        vehicles,
+        commands,
+        missions,
+        telemetry,
+        link,
+        screens,
+        safety,
+        routing,
+    ):
         app.include_router(module.router)
     errors.install(app)
     _offline_docs(app)

@@ -12,13 +12,15 @@ from sqlalchemy import Engine
 
 from server.commands.service import CommandDesk
 from server.core.config import Settings
-from server.core.events import Bus
+from server.core.events import Bus, Watcher
 from server.core.security import Throttle
 from server.link.engine import LinkEngine
 from server.link.ingest import Ingest
 from server.missions.service import Missions
+from server.missions.teams import Teams
 from server.operators.service import Operators
 from server.routing.service import Routing
+from server.safety.service import Separation
 from server.screens.service import Screens
 from server.telemetry.service import TelemetryReader
 from server.vehicles.service import Vehicles
@@ -39,6 +41,9 @@ class Shore:
     screens: Screens
     operators: Operators
     sign_ins: Throttle  # the API's wrong tokens, by client address
+    safety: Separation
+    teams: Teams
+    watcher: Watcher  # runs the safety checks and the team missions' steps off the event loop
     routing: Routing  # the center's gateways and each vehicle's (empty on a single shore)
 
     @classmethod
@@ -51,6 +56,14 @@ class Shore:
         link = LinkEngine(settings, db, bus, ingest, commands, vehicles)
         commands.wake = link.wake  # a queued command starts the next slot at once
         operators = Operators(settings, db)
+        screens = Screens(settings, db, link)
+        safety = Separation(settings, screens, vehicles, commands, bus)
+        commands.guard = safety.check  # every command's path, against the other vehicles'
+        teams = Teams(settings, db, commands, vehicles, safety, bus)
+        watcher = Watcher(bus, settings.separation_check_interval / settings.time_scale)
+        watcher.on_event(safety.on_event)
+        watcher.every(safety.recheck)
+        watcher.on_event(teams.on_event)
         return cls(
             settings,
             db,
@@ -61,8 +74,11 @@ class Shore:
             commands,
             Missions(db, commands),
             TelemetryReader(db, ingest.streams),
-            Screens(settings, db, link),
+            screens,
             operators,
             Throttle(settings, operators.actor),
+            safety,
+            teams,
+            watcher,
             Routing(db, settings),
         )

@@ -3,7 +3,7 @@
 from server.backhaul.models import RelayedFrame
 from server.commands.models import CommandRecord, CommandStep
 from server.link.models import LinkEvent, SavedLinkState
-from server.missions.models import Mission
+from server.missions.models import Mission, TeamMission, TeamProposal
 from server.operators.models import Operator
 from server.routing.models import Assignment, Dispatch, GatewayRecord
 from server.telemetry.models import Frame, Packet, Telemetry
@@ -22,6 +22,8 @@ __all__ = [
     "Packet",
     "RelayedFrame",
     "SavedLinkState",
+    "TeamMission",
+    "TeamProposal",
     "Telemetry",
     "Vehicle",
 ]

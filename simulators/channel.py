@@ -3,9 +3,10 @@
 A transmission occupies [start, start + airtime] at its sender and arrives at every other node over
 [start + d, start + d + airtime], d = range / c. When an arrival ends, the receiver's outcome is
 decided: lost whole if the receiver was transmitting during it (half duplex) or another arrival
-overlapped it there (collision); otherwise each frame survives with probability 1 - FER(SNR), and
-then the configured extra loss. Random draws come from one seeded generator in event order, so the
-same seed gives the same outcome.
+overlapped it there (collision); otherwise each frame survives with probability 1 - FER(SNR), then
+the configured extra loss, then the sender's and the receiver's own (a modem taken out of range at run
+time). Random draws come from one seeded generator in event order, so the same seed gives the same
+outcome.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from simulators.acoustics import ChannelParameters, frame_error_rate
 from simulators.clock import Scheduler
 
 Position = tuple[float, float, float]  # north, east, depth (m)
+NO_LOSS = 0.0
 
 
 class Kind(enum.Enum):
@@ -69,6 +71,9 @@ class Node:
     on_receive: Callable[[Reception], None]
     sends: list[tuple[float, float]] = field(default_factory=list)
     arrivals: list[tuple[float, float, Transmission]] = field(default_factory=list)
+    #: probability (0..1, read at each arrival) that a frame to or from this node is lost, on top of the
+    #: channel's: a modem taken out of range at run time (``SIM_MODEM_LOSS`` on its vehicle)
+    loss: Callable[[], float] = lambda: NO_LOSS
 
 
 class Channel:
@@ -81,9 +86,13 @@ class Channel:
         self.stats = {"transmissions": 0, "receptions": 0, "lost": 0, "collisions": 0, "half_duplex": 0}
 
     def add_node(
-        self, name: str, position: Callable[[], Position], on_receive: Callable[[Reception], None]
+        self,
+        name: str,
+        position: Callable[[], Position],
+        on_receive: Callable[[Reception], None],
+        loss: Callable[[], float] = lambda: NO_LOSS,
     ) -> Node:
-        node = Node(name, position, on_receive)
+        node = Node(name, position, on_receive, loss=loss)
         self.nodes[name] = node
         return node
 
@@ -125,7 +134,13 @@ class Channel:
         else:
             fer = frame_error_rate(snr, tx.rate, self.params.fer_width_db)
             extra = self.params.extra_loss_by_kind.get(tx.kind.value, self.params.extra_loss)
-            frames_ok = [self.rng.random() >= fer and self.rng.random() >= extra for _ in range(count)]
+            isolated = max(node.loss(), self.nodes[tx.sender].loss())  # no draw when 0: same seed, same run
+            frames_ok = [
+                self.rng.random() >= fer
+                and self.rng.random() >= extra
+                and (isolated <= 0 or self.rng.random() >= isolated)
+                for _ in range(count)
+            ]
         self.stats["receptions"] += 1
         self.stats["collisions"] += collided
         self.stats["half_duplex"] += deaf

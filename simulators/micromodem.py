@@ -15,7 +15,7 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from simulators.channel import Channel, Kind, Reception, Transmission
+from simulators.channel import NO_LOSS, Channel, Kind, Reception, Transmission
 from simulators.clock import Cancellable, Scheduler
 from tacit import nmea, rates
 from tacit.rates import RATES
@@ -58,8 +58,14 @@ class MicroModemEmulator:
         channel: Channel,
         scheduler: Scheduler,
         position: Callable[[], tuple[float, float, float]],
+        hears_all: bool = False,
+        loss: Callable[[], float] = lambda: NO_LOSS,
     ) -> None:
+        """``hears_all``: report every data frame heard, whoever it is for (a recorder on the channel; it
+        acknowledges only its own). ``loss``: the probability that a frame to or from this modem is lost, on
+        top of the channel's (read at each arrival)."""
         self.name = name
+        self.hears_all = hears_all
         self.channel = channel
         self.scheduler = scheduler
         self.config = dict(DEFAULT_CONFIG, SRC=str(address))
@@ -72,7 +78,7 @@ class MicroModemEmulator:
         self._ack_until = 0.0  # an acknowledgement is due or on the air until then
         self._ping: _Ping | None = None
         self.counters = {"host_lines": 0, "errors": 0, "tx": 0, "rx_frames": 0, "bad_frames": 0}
-        channel.add_node(name, position, self._receive)
+        channel.add_node(name, position, self._receive, loss)
 
     @property
     def address(self) -> int:
@@ -329,7 +335,7 @@ class MicroModemEmulator:
 
     def _heard_data(self, rec: Reception) -> None:
         tx = rec.transmission
-        if not self._for_me(tx.dest) or not (rec.heard or self._expecting is not None):
+        if not (self._for_me(tx.dest) or self.hears_all) or not (rec.heard or self._expecting is not None):
             return
         if self._expecting is not None:
             self._expecting.cancel()

@@ -28,6 +28,9 @@ simulated river. Example (TOML)::
     position_source = false # true: a DVL/USBL gives a position fix (GUIDED works)
     current = [0.05, 0.0]   # water current, m/s north, east
     replay = ""             # a .tlog to stream instead of simulating
+
+A vehicle's ``SIM_MODEM_LOSS`` parameter (PARAM_SET over its MAVLink, 0..1) takes the modem riding it out
+of range while it runs, and back.
 """
 
 from __future__ import annotations
@@ -55,6 +58,10 @@ from simulators.tlog_replay import TlogReplay
 from tacit.config import check_keys
 
 log = logging.getLogger("simulators")
+#: A simulated vehicle's parameter (PARAM_SET over MAVLink, as SITL's SIM_* failure parameters): the
+#: probability 0..1 that a frame to or from the modem riding it is lost, on top of the channel's. 1 takes
+#: the vehicle out of range of every other modem while it runs; 0 brings it back.
+MODEM_LOSS = "SIM_MODEM_LOSS"
 
 
 @dataclass
@@ -65,6 +72,7 @@ class ModemSpec:
     attach: str = ""
     link: str = ""
     tcp_port: int | None = None
+    recorder: bool = False  # a hydrophone's recorder: reports every data frame it hears, whoever it is for
 
 
 @dataclass
@@ -196,8 +204,17 @@ class SimWorld:
         def position() -> tuple[float, float, float]:
             return (rov.north, rov.east, rov.depth) if rov is not None else (north, east, depth)
 
+        def loss() -> float:  # a vehicle's modem taken out of range: its SIM_MODEM_LOSS, set over MAVLink
+            return min(1.0, max(0.0, rov.params.get(MODEM_LOSS, 0.0))) if rov is not None else 0.0
+
         modem = MicroModemEmulator(
-            spec.name or f"modem{spec.address}", spec.address, self.channel, self.scheduler, position
+            spec.name or f"modem{spec.address}",
+            spec.address,
+            self.channel,
+            self.scheduler,
+            position,
+            hears_all=spec.recorder,
+            loss=loss,
         )
         pty = PtyPort(asyncio.get_running_loop(), modem.handle_line, spec.link or None)
         ports: list[PtyPort | TcpPort] = [pty]

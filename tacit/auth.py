@@ -67,6 +67,8 @@ _DOMAIN = b"tacit-control-v2"
 _CP_DOMAIN = b"tacit-checkpoint-v2"
 _TAG_DOMAIN = b"tacit-priority-v3"
 MAX_COMBINATIONS = 4
+MAX_CORRECTION = 86400.0 + 3600.0  # s a SYNC may move a clock: one set a whole day wrong, with its
+# travel and an hour of drift on top (a bound of exactly a day refused the SYNC that would fix it)
 CHALLENGES = 8  # the MACs of its latest check-points an unsynced vehicle takes an echo of
 FLOOR_SLACK = 5  # s: a command stamped this much before the answering SYNC's time still counts
 
@@ -267,7 +269,7 @@ class SyncWindow:
     """Accepts SYNC packets whose counter (``seq``) grows, within ``max_correction`` s of the local clock;
     while unsynced (``counter`` None: the state was lost), only one that echoes a challenge."""
 
-    max_correction: float = 86400.0
+    max_correction: float = MAX_CORRECTION
     counter: int | None = 0  # the last accepted SYNC's; None: unsynced
     challenges: deque[bytes] = field(default_factory=lambda: deque(maxlen=CHALLENGES))
 

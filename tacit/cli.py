@@ -27,6 +27,8 @@ COMMANDS: dict[str, Subcommand] = {
     "serve": Subcommand("server.app", "server", "Run the shore control center (API, dashboard, 3D map, shore modem)"),
     "gateway": Subcommand("server.backhaul.gateway", "gateway", "Run a gateway: one shore modem relaying to the center over NATS"),
     "center": Subcommand("server.backhaul.center", "center", "Run the center: gateways' frames from NATS into the store"),
+    "database": Subcommand("server.ops.backup", "", "Back up the center's database, or restore a backup into an empty one"),
+    "broker-config": Subcommand("server.backhaul.access", "", "Write the NATS broker's users, permissions and credentials for a list of gateways"),
     "agent": Subcommand("vehicle_agent.agent", "agent", "Run the vehicle agent between ArduSub and the vehicle's modem"),
     "sim": Subcommand("simulators.run", "sim", "Start simulated Micro-Modems, acoustic channel and BlueROV2"),
     "replay": Subcommand("launch.replay", "demo", "Run a real .tlog through the agent and the simulated link"),

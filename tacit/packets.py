@@ -124,6 +124,10 @@ class PacketError(ValueError):
     """A frame that is not a valid Tacit packet."""
 
 
+class OldVersion(PacketError):
+    """A packet of the protocol version before this one: its sender needs updating, not a closer look."""
+
+
 class FieldRangeError(PacketError):
     """A value outside the documented range of its field."""
 
@@ -550,7 +554,7 @@ def packet_type(frame: bytes) -> PacketType:
         raise PacketError(f"a packet is {PACKET_SIZE} bytes, got {len(frame)}")
     version = frame[0] >> 6
     if version == VERSION - 1:
-        raise PacketError(f"protocol version {version} (this end speaks {VERSION}): update its agent")
+        raise OldVersion(f"protocol version {version} (this end speaks {VERSION}): update its agent")
     if version != VERSION:
         raise PacketError(f"unknown packet version {version}")
     try:

@@ -1,8 +1,8 @@
 """The sample streams the vehicle sends and the shore decodes: both ends build them from here.
 
 A stream's id travels in the priority packet header (2 bits), so both ends must agree on its channels,
-error bounds and period; a deployment may override the bounds in its configuration (the same file is
-read by the agent and the server).
+error bounds and period: they are defined here only, and changing one is changing the protocol (vehicle
+and shore are updated together).
 """
 
 from __future__ import annotations

@@ -74,7 +74,7 @@ class AgentConfig:
     key: str = ""
     key_version: int = 1
     next_key: str = ""  # the key of version key_version + 1, installed before a rotation at sea
-    max_clock_correction: float = 86400.0  # s the shore's SYNC time may move the clock
+    max_clock_correction: float = auth.MAX_CORRECTION  # s the shore's SYNC time may move the clock
     modem_url: str = "/dev/ttyUSB0"
     mavlink_url: str = "tcp:127.0.0.1:5777"
     state_file: str = "/var/lib/tacit/agent-state.json"

@@ -5,7 +5,8 @@
 
 const state = { token: "", role: null, vehicles: [], vehicleId: null, form: null, config: null,
   packets: [], commands: new Map(), timeline: [], streams: {}, series: [], channel: "env:temperature",
-  lastSent: null, estimate: null, angleMode: "relative" };
+  lastSent: null, estimate: null, angleMode: "relative", fleet: [], fleetAt: 0, origin: null,
+  pendingFleet: null, fleetSent: [] };
 const $ = (id) => document.getElementById(id);
 const esc = (s) => String(s ?? "").replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c]);
 
@@ -15,6 +16,12 @@ function ago(seconds) {
   const s = Math.max(0, Math.round(seconds));
   return s < 120 ? `${s} s ago` : s < 7200 ? `${Math.round(s / 60)} min ago` : `${(s / 3600).toFixed(1)} h ago`;
 }
+
+/** The fleet's vehicles by id and by name; each one's colour comes from the server's one palette (GET /fleet). */
+const vehicleOf = (id) => state.vehicles.find((v) => v.id === id);
+const nameOf = (id) => vehicleOf(id)?.name ?? `vehicle ${id}`;
+const colourOf = (name) => state.fleet.find((v) => v.name === name)?.colour ?? "#000";
+const swatch = (name) => `<span class="swatch" style="background:${esc(colourOf(name))}"></span>`;
 
 async function api(path, options = {}) {
   const headers = { ...(options.headers || {}) };
@@ -109,21 +116,37 @@ async function load() {
   }
   select.value = state.channel;
   state.vehicles = await api("/vehicles");
-  state.vehicleId = state.vehicles[0]?.id ?? null;
-  $("vehicle-name").textContent = state.vehicles[0]?.name ?? "(none registered)";
-  state.form = state.vehicleId !== null ? await api(`/vehicles/${state.vehicleId}/form`) : config.form;
-  buildForm();
-  if (state.vehicleId !== null) {
-    const recent = await api(`/vehicles/${state.vehicleId}/commands?limit=10`);
-    await Promise.all(recent.map((c) => loadCommand(c.id)));
-  }
+  await refreshFleet();
+  buildVehicleSelect();
+  state.form = config.form;
+  await selectVehicle(state.vehicles[0]?.id ?? null);
+  const recent = await Promise.all(state.vehicles.map((v) => api(`/vehicles/${v.id}/commands?limit=10`)));
+  await Promise.all(recent.flat().map((c) => loadCommand(c.id)));
   const page = await api("/packets?limit=100");
   state.packets = page.items.map(packetRow).reverse();
-  for (const p of state.packets) state.timeline.push({ at: p.at, kind: p.type === "checkpoint" ? "cp" : `p${p.priority}` });
-  await loadSeries();
+  for (const p of state.packets) state.timeline.push({ at: p.at, kind: p.type === "checkpoint" ? "cp" : `p${p.priority}`, vehicle: p.vehicle });
   renderAll();
-  await Promise.all([refreshLink(), refreshEstimate()]);
+  await refreshLink();
   connect();
+}
+
+/** The vehicle the dashboard follows (its details, its data plot) and the command form sends to. */
+async function selectVehicle(id) {
+  state.vehicleId = id;
+  $("vehicle-name").textContent = id === null ? "(none registered)" : nameOf(id);
+  $("vehicle").value = id ?? "";
+  if (id !== null) state.form = await api(`/vehicles/${id}/form`);  // its limits narrow the packet's ranges
+  buildForm();
+  state.estimate = null;
+  renderVehicle();
+  renderFleet();
+  await Promise.all([refreshEstimate(), loadSeries().then(renderPlot)]);
+}
+
+function buildVehicleSelect() {
+  const select = $("vehicle");
+  select.innerHTML = "";
+  for (const v of state.vehicles) select.add(new Option(`${v.name} (modem ${v.address})`, v.id));
 }
 
 /** A command with its history: the timeline's control row gets one mark per transmission. */
@@ -133,9 +156,10 @@ async function loadCommand(id) {
   state.commands.set(id, c);
   const marked = new Set(state.timeline.filter((e) => e.kind === "ctl").map((e) => `${e.id}@${e.at}`));
   for (const h of c.history) {
-    if (h.status === "sent" && !marked.has(`${id}@${h.at}`)) state.timeline.push({ at: h.at, kind: "ctl", id });
+    if (h.status === "sent" && !marked.has(`${id}@${h.at}`)) state.timeline.push({ at: h.at, kind: "ctl", id, vehicle: nameOf(c.vehicle_id) });
   }
   if (state.lastSent === id) showResult(c);
+  if (state.fleetSent.includes(id)) showFleetResult();
   return known;
 }
 
@@ -181,7 +205,7 @@ function connect() {
     const p = JSON.parse(e.data);
     state.packets.push(packetRow(p));
     state.packets = state.packets.slice(-300);
-    state.timeline.push({ at: p.at ?? Date.now() / 1000, kind: p.type === "checkpoint" ? "cp" : `p${p.priority}` });
+    state.timeline.push({ at: p.at ?? Date.now() / 1000, kind: p.type === "checkpoint" ? "cp" : `p${p.priority}`, vehicle: p.vehicle });
     renderPackets(); renderTimeline();
   });
   source.addEventListener("command", async (e) => {
@@ -189,10 +213,13 @@ function connect() {
     try { await loadCommand(c.id); } catch (error) { return; }
     renderCommands(); renderTimeline();
   });
-  source.addEventListener("vehicle", () => refreshEstimate());
+  source.addEventListener("vehicle", (e) => {
+    if (JSON.parse(e.data).vehicle === nameOf(state.vehicleId)) refreshEstimate();
+    soonRefreshFleet();
+  });
   source.addEventListener("telemetry", (e) => {
     const t = JSON.parse(e.data);
-    if (t.stream !== state.channel.split(":")[0]) return;
+    if (t.stream !== state.channel.split(":")[0] || t.vehicle !== nameOf(state.vehicleId)) return;
     // several samples may share a tick and ticks may be skipped: each sample's own time, never its index
     t.values.forEach((values, i) => state.series.push({ time: t.times[i], values, certain: true, trust: "pending", packet: t.packet_id }));
     renderPlot();
@@ -205,13 +232,108 @@ function connect() {
  * verified packet's samples are believed only if its chain is trusted too (``trusted``); otherwise they stay
  * unverified for good. */
 function settle(s) {
-  const trust = new Map([...s.verified.map((id) => [id, "verified"]), ...s.forged.map((id) => [id, "forged"])]);
+  const trust = new Map([
+    ...s.verified.map((id) => [id, "verified"]), ...s.forged.map((id) => [id, "forged"]),
+    ...s.unverifiable.map((id) => [id, "unverifiable"]),
+  ]);
   for (const p of state.packets) if (trust.has(p.id)) p.auth = trust.get(p.id);
   const trusted = new Set(s.trusted);
   const sampleTrust = (id) => (trusted.has(id) ? "verified" : trust.get(id) === "forged" ? "forged" : "unverifiable");
   for (const p of state.series) if (p.trust === "pending" && trust.has(p.packet)) p.trust = sampleTrust(p.packet);
   renderPackets();
   if (state.series.some((p) => p.trust === "pending" && p.packet === undefined)) loadSeries().then(renderPlot); else renderPlot();
+}
+
+// --- the fleet --------------------------------------------------------------------------------------
+
+async function refreshFleet() {
+  let fleet;
+  try { fleet = await api("/fleet"); } catch (error) { return; }
+  if (fleet.vehicles.map((v) => v.id).join() !== state.vehicles.map((v) => v.id).join()) {  // one registered meanwhile
+    state.vehicles = await api("/vehicles");
+    buildVehicleSelect();
+    $("vehicle").value = state.vehicleId ?? "";
+  }
+  state.fleet = fleet.vehicles;
+  state.origin = fleet.origin;
+  state.fleetAt = Date.now() / 1000;
+  $("origin").textContent = fleet.origin ? `positions in m from the fleet's origin, ${latlon([fleet.origin.lat, fleet.origin.lon])}`
+    : "positions in m from the fleet's origin (its latitude and longitude are not set: TACIT_ORIGIN)";
+  renderFleet();
+}
+
+let fleetTimer = null;
+/** Many check-points can arrive at once: one fetch of the fleet for them. */
+function soonRefreshFleet() {
+  if (fleetTimer === null) fleetTimer = setTimeout(() => { fleetTimer = null; refreshFleet(); }, 500);
+}
+
+function latlon([lat, lon]) {
+  return `${Math.abs(lat).toFixed(5)}° ${lat >= 0 ? "N" : "S"}, ${Math.abs(lon).toFixed(5)}° ${lon >= 0 ? "E" : "W"}`;
+}
+
+/** The vehicle's clock against the shore's (at least this far ahead, from its check-points). */
+function clockOffset(v) {
+  if (v.clock_offset_s === null) return "";
+  const s = v.clock_offset_s;
+  return `<span class="sub" title="The vehicle's clock minus the shore's, at least (from its recent check-points); report times on the shore's clock are corrected by it">clock ≥ ${s >= 0 ? "+" : "−"}${Math.abs(s).toFixed(1)} s</span>`;
+}
+
+function fleetRow(v, since) {
+  const cp = v.reported, p = v.predicted, silent = v.last_heard === null ? null : Date.now() / 1000 - v.last_heard;
+  const why = v.last_heard === null ? "never heard" : `heard nothing for ${silent.toFixed(0)} s` +
+    (v.overdue_after_s === null ? "" : ` (its schedule allows ${v.overdue_after_s.toFixed(0)} s)`);
+  const report = cp ? `${ago(v.age_s + since)}<br><span class="sub" title="vehicle clock ${utc(cp.time)} UTC">at ${utc(v.reported_shore_time)} UTC</span> ${clockOffset(v)}`
+    : "none yet";
+  const predicted = p ? `N ${p.north.toFixed(1)}, E ${p.east.toFixed(1)} m, ${p.depth.toFixed(1)} m deep <strong>± ${p.radius_m.toFixed(1)} m</strong>` +
+    (v.predicted_latlon ? `<br><span class="sub">${latlon(v.predicted_latlon)}</span>` : "") : "-";
+  const snr = (x) => (x === null ? "-" : x.toFixed(1));
+  return `<tr data-id="${v.id}" data-name="${esc(v.name)}" class="${v.overdue ? "overdue" : ""} ${v.id === state.vehicleId ? "selected" : ""}" title="${v.overdue ? `Overdue: ${esc(why)}` : esc(why)}">
+    <td>${swatch(v.name)}<strong>${esc(v.name)}</strong> <span class="sub">modem ${v.address}</span></td>
+    <td title="${esc(v.state_hint ?? "")}">${esc(v.state_label ?? "no check-point yet")}${v.overdue ? " <span class=\"sub\">(overdue)</span>" : ""}</td>
+    <td>${report}</td><td>${predicted}</td><td>${cp ? `${cp.battery.toFixed(1)} V` : "-"}</td>
+    <td>SNR ${snr(v.snr_in)} / ${snr(v.snr_out)} dB<br><span class="sub">${v.range_m === null ? "range -" : `${v.range_m.toFixed(0)} m`}</span></td>
+    <td>${v.airtime_s.total.toFixed(0)} s <span class="sub">(${(v.airtime_share * 100).toFixed(0)} %)</span></td></tr>`;
+}
+
+function renderFleet() {
+  const since = Date.now() / 1000 - state.fleetAt;
+  $("fleet").tBodies[0].innerHTML = state.fleet.map((v) => fleetRow(v, since)).join("");
+}
+
+/** Abort all, return all home, hold all: asked, then confirmed; one command per vehicle, each followed. */
+function askFleet(button) {
+  state.pendingFleet = button.dataset.command;
+  $("fleet-confirm").textContent = `Confirm: ${button.textContent.toLowerCase()} (${state.vehicles.length} vehicles)`;
+  $("fleet-confirm").dataset.label = button.textContent;
+  $("fleet-confirm").hidden = $("fleet-cancel").hidden = false;
+}
+
+function cancelFleet() {
+  state.pendingFleet = null;
+  $("fleet-confirm").hidden = $("fleet-cancel").hidden = true;
+}
+
+async function sendFleet() {
+  const command = state.pendingFleet;
+  cancelFleet();
+  try {
+    const sent = await api("/fleet/commands", { method: "POST", body: JSON.stringify({ command }) });
+    state.fleetSent = sent.commands.map((c) => c.id);
+    state.fleetLabel = $("fleet-confirm").dataset.label;
+    await Promise.all(state.fleetSent.map(loadCommand));
+    renderCommands(); showFleetResult();
+  } catch (error) {
+    $("fleet-result").className = "status-refused";
+    $("fleet-result").textContent = `Refused: ${error.message}`;
+  }
+}
+
+function showFleetResult() {
+  const each = state.fleetSent.map((id) => state.commands.get(id)).filter(Boolean)
+    .map((c) => `<span class="fleet-command status-${c.status}" data-id="${c.id}">${swatch(nameOf(c.vehicle_id))}${esc(nameOf(c.vehicle_id))} #${c.id}: ${c.status}</span>`);
+  $("fleet-result").className = "";
+  $("fleet-result").innerHTML = `${esc(state.fleetLabel)}: ${each.join(", ")}`;
 }
 
 // --- the vehicle and the link -----------------------------------------------------------------------
@@ -232,7 +354,8 @@ function renderVehicle() {
   const toward = p.target ? `toward north ${p.target[0].toFixed(1)}, east ${p.target[1].toFixed(1)} m${e.speed_mps ? ` at ${e.speed_mps} m/s` : ""}` : "staying put";
   $("vehicle-state").innerHTML = `
     <div class="reported"><span class="what">Last report</span> <strong title="${esc(e.state_hint)}">${esc(e.state_label)}</strong>,
-      <span class="age ${age > 120 ? "old" : ""}">${ago(age)}</span> (${utc(e.heard_at)} UTC)<br>
+      <span class="age ${age > 120 ? "old" : ""}">${ago(age)}</span> (heard ${utc(e.heard_at)} UTC; stamped ${utc(cp.time)} by the vehicle,
+      ${clockOffset(state.fleet.find((v) => v.id === state.vehicleId) ?? { clock_offset_s: null })})<br>
       <span class="hint" id="state-hint">${esc(e.state_hint)}</span><br>
       mission ${cp.mission_id}, waypoint ${cp.waypoint}<br>
       north ${cp.north.toFixed(1)} m, east ${cp.east.toFixed(1)} m, depth ${cp.depth.toFixed(2)} m, heading ${cp.heading.toFixed(0)}&deg;<br>
@@ -253,6 +376,10 @@ async function refreshLink() {
         ["range (m)", v.range_m?.toFixed(0) ?? "-"]);
     }
     for (const v of vehicles) rows.push([`${esc(v.name)} key`, keyState(v)]);
+    for (const v of state.fleet) {
+      const share = v.airtime_share * 100, a = v.airtime_s;
+      rows.push([`${swatch(v.name)}airtime: ${esc(v.name)}`, `<span class="bar" style="width:${(share * 0.08).toFixed(2)}rem;background:${esc(v.colour)}"></span> ${share.toFixed(0)} % <span class="sub">(${a.total} s: commands ${a.commands}, polls ${a.polls}, check-points ${a.checkpoints}, data ${a.priority})</span>`]);
+    }
     const names = { commands: "commands", polls: "polls", checkpoints: "check-points", priority: "priority data" };
     for (const [k, label] of Object.entries(names)) {
       const share = shares.shares[k] * 100;
@@ -269,8 +396,9 @@ async function refreshLink() {
 function keyState(v) {
   const r = v.key_rotation;
   if (!r) return `version ${v.key_version}`;
+  const held = r.held ? "the vehicle holds it: commands are signed with it" : "the vehicle has not said it holds it";
   return `rotation to version ${r.pending_version} waiting for the vehicle since ${utc(r.since)} UTC ` +
-    `<span class="sub">(${r.probes} probe SYNCs sent; cancel: DELETE /api/v1/vehicles/${v.id}/key/pending)</span>`;
+    `<span class="sub">(${held}; cancel: DELETE /api/v1/vehicles/${v.id}/key/pending)</span>`;
 }
 
 function setBadge(text, kind) { const b = $("link-badge"); b.textContent = text; b.className = `badge ${kind}`; }
@@ -278,10 +406,10 @@ function setBadge(text, kind) { const b = $("link-badge"); b.textContent = text;
 // --- the command form (from the server's spec) -------------------------------------------------------
 
 function buildForm() {
-  const select = $("cmd");
+  const select = $("cmd"), chosen = select.value;  // another vehicle's form keeps the command chosen
   select.innerHTML = "";
   for (const name of Object.keys(state.form.commands)) select.add(new Option(name.replace(/_/g, " "), name));
-  select.value = "move";
+  select.value = chosen in state.form.commands ? chosen : "move";
   renderFields();
 }
 
@@ -346,9 +474,20 @@ function describe(c) {
 
 function showResult(c) {
   const last = c.history?.[c.history.length - 1];
-  const when = last ? ` at ${utc(last.at)} UTC` : "";
+  const when = last ? ` at ${utc(stepTime(last))} UTC` : "";
   $("command-result").className = `status-${c.status}`;
-  $("command-result").textContent = `#${c.id} ${describe(c)} (seq ${c.seq}${c.issued_by ? `, by ${c.issued_by}` : ""}): ${c.status}${when}${c.reason ? `: ${c.reason}` : ""}`;
+  $("command-result").textContent = `#${c.id} ${describe(c)} to ${nameOf(c.vehicle_id)} (seq ${c.seq}${c.issued_by ? `, by ${c.issued_by}` : ""}): ${c.status}${when}${c.reason ? `: ${c.reason}` : ""}`;
+}
+
+/** When a step happened on the shore's clock. A step the vehicle reported is at the latest time it can have
+ * happened on board (``report.shore_time``: the vehicle's stamp corrected by its clock offset, never after the
+ * shore heard it; server.telemetry.clock), so it never shows before the command was sent. */
+function stepTime(h) { return h.report?.shore_time ?? h.at; }
+
+function stepTitle(h) {
+  const said = h.detail ? `${h.detail}; ` : "";
+  return h.report ? `${said}reported by the vehicle: ${h.report.state} at ${utc(h.report.time)} UTC on its clock, on the shore's clock by ${utc(stepTime(h))}; the shore heard it at ${utc(h.at)}`
+    : said + "shore clock";
 }
 
 /** What each packet trust means (server.telemetry.models.PacketTrust); the packet log's legend says the same. */
@@ -364,37 +503,47 @@ const TRUST = {
 
 function renderPackets() {
   const rows = state.packets.slice(-100).reverse().map((p) => `<tr data-id="${p.id}"><td>${utc(p.at)}</td>
-    <td>${esc(p.vehicle)}</td><td>${p.type}</td><td>${p.seq}</td><td>${p.priority}</td><td>${p.size}</td><td>${p.snr ?? "-"}</td>
+    <td>${swatch(p.vehicle)}${esc(p.vehicle)}</td><td>${p.type}</td><td>${p.seq}</td><td>${p.priority}</td><td>${p.size}</td><td>${p.snr ?? "-"}</td>
     <td class="trust trust-${esc(p.auth)}" title="${esc(TRUST[p.auth] ?? "")}">${esc(p.auth)}</td></tr>`);
   $("packets").tBodies[0].innerHTML = rows.join("");
 }
 
 function renderCommands() {
   const rows = [...state.commands.values()].sort((a, b) => b.id - a.id).slice(0, 10).map((c) => {
-    const history = (c.history || []).map((h) => `<span class="step status-${h.status}" title="${esc(h.detail)}">${h.status} ${utc(h.at)}</span>`).join(" → ");
-    return `<tr><td>${c.id}</td><td>${esc(describe(c))}<br><span class="sub">seq ${c.seq}${c.issued_by ? ` · by ${esc(c.issued_by)}` : ""}</span></td><td class="status-${c.status}">${c.status}</td>
+    const history = (c.history || []).map((h) => `<span class="step status-${h.status}" data-status="${h.status}" data-at="${stepTime(h)}" title="${esc(stepTitle(h))}">${h.status} ${utc(stepTime(h))}${h.report ? ' <span class="on-board">on board</span>' : ""}</span>`).join(" → ");
+    const name = nameOf(c.vehicle_id);
+    return `<tr data-id="${c.id}"><td>${c.id}</td><td>${swatch(name)}${esc(name)}</td><td>${esc(describe(c))}<br><span class="sub">seq ${c.seq}${c.issued_by ? ` · by ${esc(c.issued_by)}` : ""}</span></td><td class="status-${c.status}">${c.status}</td>
       <td class="history">${history}</td><td>${c.attempts}</td><td>${esc(c.reason || "")}</td></tr>`;
   });
   $("commands").tBodies[0].innerHTML = rows.join("");
 }
 
+/** One row per vehicle (in its colour), each with its control packets (squares), check-points and priority
+ * packets (circles by priority) over the last ten minutes. */
 function renderTimeline() {
-  const canvas = $("timeline"), ctx = canvas.getContext("2d");
+  const canvas = $("timeline"), ctx = canvas.getContext("2d"), lane = 44, names = state.vehicles.map((v) => v.name);
   canvas.width = canvas.clientWidth;
+  canvas.height = 40 + lane * Math.max(1, names.length);
   ctx.clearRect(0, 0, canvas.width, canvas.height);
   const now = Date.now() / 1000, span = 600, left = 100, x = (t) => left + (canvas.width - left - 10) * (1 - (now - t) / span);
-  const rows = { ctl: 20, cp: 60, p0: 100, p1: 100, p2: 100, p3: 100 };
+  const offsets = { ctl: 6, cp: 20, p0: 34, p1: 34, p2: 34, p3: 34 };
   const colours = { ctl: "#000", cp: "#0a0", p0: "#2a5ad8", p1: "#e0b000", p2: "#f08020", p3: "#d01010" };
-  ctx.font = "14px system-ui"; ctx.fillStyle = "#333";
-  ctx.fillText("control", 4, 30); ctx.fillText("check-point", 4, 70); ctx.fillText("priority", 4, 110);
-  ctx.strokeStyle = "#999"; ctx.beginPath(); ctx.moveTo(left, 130); ctx.lineTo(canvas.width - 10, 130); ctx.stroke();
+  ctx.font = "14px system-ui";
+  names.forEach((name, i) => {
+    ctx.fillStyle = colourOf(name); ctx.fillRect(0, i * lane + 4, 6, lane - 8);
+    ctx.fillText(name, 12, i * lane + 26);
+    ctx.strokeStyle = "#ddd"; ctx.beginPath(); ctx.moveTo(left, (i + 1) * lane); ctx.lineTo(canvas.width - 10, (i + 1) * lane); ctx.stroke();
+  });
+  const axis = lane * Math.max(1, names.length) + 4;
+  ctx.fillStyle = "#333"; ctx.strokeStyle = "#999"; ctx.beginPath(); ctx.moveTo(left, axis); ctx.lineTo(canvas.width - 10, axis); ctx.stroke();
   for (let k = 0; k <= 5; k++) {
     const t = now - span + k * span / 5;
-    ctx.fillText(utc(t).slice(0, 5), x(t) - 18, 150);
+    ctx.fillText(utc(t).slice(0, 5), x(t) - 18, axis + 20);
   }
-  for (const e of state.timeline.filter((e) => now - e.at < span)) {
+  for (const e of state.timeline.filter((e) => now - e.at < span && names.includes(e.vehicle))) {
+    const top = names.indexOf(e.vehicle) * lane + offsets[e.kind];
     ctx.fillStyle = colours[e.kind]; ctx.beginPath();
-    if (e.kind === "ctl") ctx.rect(x(e.at) - 5, rows.ctl, 10, 10); else ctx.arc(x(e.at), rows[e.kind] + 5, 6, 0, 2 * Math.PI);
+    if (e.kind === "ctl") ctx.rect(x(e.at) - 5, top - 1, 10, 10); else ctx.arc(x(e.at), top + 4, 5, 0, 2 * Math.PI);
     ctx.fill();
   }
 }
@@ -425,7 +574,7 @@ function renderPlot() {
     ctx.fillText(utc(t), Math.min(x(t) - 28, right - 60), bottom + 18);
   }
   ctx.save(); ctx.translate(14, top + (bottom - top) / 2 + 40); ctx.rotate(-Math.PI / 2); ctx.fillText(`${channel} (${unit})`, 0, 0); ctx.restore();
-  ctx.fillText("time (UTC)", right - 80, bottom + 36);
+  ctx.fillText("time (UTC, vehicle clock)", right - 170, bottom + 36);
   ctx.fillStyle = "rgba(0, 64, 160, 0.18)";
   for (const p of points) if (present(p)) ctx.fillRect(x(p.time) - 1, y(p.values[index] + eps), 2, y(p.values[index] - eps) - y(p.values[index] + eps));
   ctx.strokeStyle = "#0040a0"; ctx.lineWidth = 2; ctx.beginPath();
@@ -444,13 +593,18 @@ function renderPlot() {
   ctx.fillText(`eps ±${eps} ${unit}`, right - 120, top);
 }
 
-function renderAll() { renderPackets(); renderCommands(); renderTimeline(); renderPlot(); }
+function renderAll() { renderFleet(); renderPackets(); renderCommands(); renderTimeline(); renderPlot(); }
 
 // --- wiring -----------------------------------------------------------------------------------------
 
 $("login").addEventListener("submit", (e) => { e.preventDefault(); signIn($("token").value.trim()); $("token").value = ""; });
 $("sign-out").addEventListener("click", signOut);
 $("cmd").addEventListener("change", renderFields);
+$("vehicle").addEventListener("change", (e) => selectVehicle(Number(e.target.value)));
+$("fleet").addEventListener("click", (e) => { const row = e.target.closest("tr[data-id]"); if (row) selectVehicle(Number(row.dataset.id)); });
+for (const button of document.querySelectorAll("#fleet-actions [data-command]")) button.addEventListener("click", () => askFleet(button));
+$("fleet-confirm").addEventListener("click", sendFleet);
+$("fleet-cancel").addEventListener("click", cancelFleet);
 $("stream-channel").addEventListener("change", async (e) => { state.channel = e.target.value; await loadSeries(); renderPlot(); });
 $("command-form").addEventListener("submit", async (e) => {
   e.preventDefault();
@@ -473,7 +627,8 @@ $("command-form").addEventListener("submit", async (e) => {
   }
 });
 setInterval(() => { $("clock").textContent = `${utc(Date.now() / 1000)} UTC`; }, 1000);
-setInterval(() => { if (state.role) { renderTimeline(); renderVehicle(); } }, 2000);
+setInterval(() => { if (state.role) { renderTimeline(); renderVehicle(); renderFleet(); } }, 2000);
+setInterval(() => { if (state.role) refreshFleet(); }, 5000);
 setInterval(() => { if (state.role) { refreshLink(); refreshEstimate(); } }, 10000);
 $("clock").textContent = `${utc(Date.now() / 1000)} UTC`;
 {

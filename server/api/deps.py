@@ -11,11 +11,14 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from server.commands.service import CommandDesk
 from server.core.config import Settings
 from server.core.events import Bus
+from server.core.schemas import DB_INT_MAX
 from server.core.security import Actor, Role, open_reads
 from server.link.engine import LinkEngine
 from server.missions.service import Missions
+from server.missions.teams import Teams
 from server.operators.service import Operators
 from server.routing.service import Routing
+from server.safety.service import Separation
 from server.screens.service import Screens
 from server.shore import Shore
 from server.telemetry.service import TelemetryReader
@@ -48,6 +51,14 @@ def _missions(shore: ShoreDep) -> Missions:
     return shore.missions
 
 
+def _teams(shore: ShoreDep) -> Teams:
+    return shore.teams
+
+
+def _safety(shore: ShoreDep) -> Separation:
+    return shore.safety
+
+
 def _telemetry(shore: ShoreDep) -> TelemetryReader:
     return shore.telemetry
 
@@ -75,6 +86,8 @@ def _routing(shore: ShoreDep) -> Routing:
 VehiclesDep = Annotated[Vehicles, Depends(_vehicles)]
 CommandsDep = Annotated[CommandDesk, Depends(_commands)]
 MissionsDep = Annotated[Missions, Depends(_missions)]
+TeamsDep = Annotated[Teams, Depends(_teams)]
+SafetyDep = Annotated[Separation, Depends(_safety)]
 TelemetryDep = Annotated[TelemetryReader, Depends(_telemetry)]
 ScreensDep = Annotated[Screens, Depends(_screens)]
 LinkDep = Annotated[LinkEngine, Depends(_link)]
@@ -123,7 +136,6 @@ def require_write(shore: ShoreDep, request: Request, credentials: Credentials) -
     return found
 
 
-DB_INT_MAX = 2**31 - 1  # what every database's INTEGER holds: larger ids cannot exist, say 422 not 500
 Id = Annotated[int, Path(ge=1, le=DB_INT_MAX)]
 QueryId = Annotated[int, Query(ge=1, le=DB_INT_MAX)]
 OptionalId = Annotated[int | None, Query(ge=1, le=DB_INT_MAX)]

@@ -18,6 +18,7 @@ from nats.js.api import RetentionPolicy, StorageType, StreamConfig
 from nats.js.errors import BadRequestError
 
 from server.backhaul import subjects
+from server.backhaul.access import BrokerAuth
 
 log = logging.getLogger("tacit.backhaul.broker")
 
@@ -28,8 +29,10 @@ async def connect(
     on_state: Callable[[bool], None] | None = None,
     retry: float = 0.2,
     retry_max: float = 5.0,
+    auth: BrokerAuth | None = None,
 ) -> Client:
-    """A connection to ``url``; waits (retrying) while the broker does not answer. Once connected, the
+    """A connection to ``url`` as ``auth``'s user; waits (retrying) while the broker does not answer or
+    refuses the credentials (logged: a broker being reconfigured, or a wrong file). Once connected, the
     client reconnects by itself after any outage; ``on_state`` hears ``True``/``False`` as it comes and
     goes."""
 
@@ -63,6 +66,7 @@ async def connect(
                 disconnected_cb=down,
                 reconnected_cb=up,
                 error_cb=error,
+                **(auth or BrokerAuth()).options(),
             )
         except (NatsError, OSError, TimeoutError) as exc:
             log.warning("backhaul: %s does not answer (%s); retrying in %.1f s", url, exc, wait)

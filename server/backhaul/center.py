@@ -23,8 +23,11 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import logging
+import sys
 import time
+from collections import Counter
 from collections.abc import Awaitable, Callable
 from typing import TYPE_CHECKING, Any
 
@@ -34,10 +37,13 @@ from nats.errors import Error as NatsError
 from nats.js import JetStreamContext
 from nats.js.api import AckPolicy, ConsumerConfig, DeliverPolicy
 from nats.js.errors import NotFoundError
+from sqlalchemy.exc import InterfaceError, OperationalError
 
-from server.backhaul import broker, subjects
+from server.backhaul import access, broker, subjects
+from server.backhaul.access import BrokerAuth
+from server.backhaul.guard import Guard
 from server.backhaul.relay import RelayedIncoming, RelayIngest
-from server.backhaul.subjects import CommandMessage, EventMessage, FrameMessage, PayloadError
+from server.backhaul.subjects import CommandMessage, EventMessage
 
 if TYPE_CHECKING:
     from server.shore import Shore
@@ -56,8 +62,10 @@ class Center:
         batch: int = 64,
         ack_wait: float = 30.0,
         duplicate_window: float = subjects.DUPLICATE_WINDOW,
+        auth: BrokerAuth | None = None,
     ) -> None:
         self.ingest = ingest
+        self.auth = auth
         self.url = url
         self.durable = durable
         self.batch = batch
@@ -70,9 +78,16 @@ class Center:
         self.on_event: Callable[[EventMessage], Awaitable[None]] | None = None
         self.events: JetStreamContext.PullSubscription | None = None
         self.counters = {"messages": 0, "batches": 0, "malformed": 0, "retries": 0}
+        self.guard = Guard()
+        self.frames: Counter[str] = Counter()  # frame messages consumed, by gateway
+        self.pending = 0  # frame messages in the stream not yet delivered to this center
+        self.up, self.since = False, time.time()  # the broker connection, and since when
+
+    def _state(self, up: bool) -> None:
+        self.up, self.since = up, time.time()
 
     async def connect(self) -> None:
-        self.nc = await broker.connect(self.url, "tacit-center")
+        self.nc = await broker.connect(self.url, "tacit-center", self._state, auth=self.auth)
         self.js = self.nc.jetstream()
         await broker.ensure_streams(self.js, self.duplicate_window)
         self.sub = await self._subscribe(self.js)
@@ -85,8 +100,10 @@ class Center:
 
     async def close(self) -> None:
         if self.nc is not None:
-            await self.nc.close()
+            with contextlib.suppress(NatsError, OSError):  # the backhaul may be down: closed all the same
+                await self.nc.close()
         self.nc = self.js = self.sub = self.events = None
+        self._state(False)
 
     async def run(self, *also: Awaitable[None]) -> None:
         """Connect, then consume frames and events for ever, with ``also`` (the dispatcher)."""
@@ -141,43 +158,60 @@ class Center:
         except (TimeoutError, NatsError) as exc:
             await _pause(exc)
             return 0
-        frames, good = [], []
+        batch: list[tuple[RelayedIncoming, Msg]] = []
         for msg in msgs:
-            try:
-                frame = FrameMessage.decode(msg.data)
-                if msg.subject != subjects.frames(frame.gateway) or not frame.id.startswith(
-                    f"{frame.gateway}-"
-                ):
-                    raise PayloadError(
-                        f"gateway {frame.gateway!r}, id {frame.id!r} on another gateway's subject"
-                    )
-                frames.append(RelayedIncoming.of(frame))
-                good.append(msg)
-            except PayloadError as exc:
+            frame = self.guard.frame(msg.subject, msg.data)
+            if frame is None:
                 self.counters["malformed"] += 1
-                log.error("backhaul: malformed frame message on %s dropped: %s", msg.subject, exc)
                 await msg.term()
-        await self._store(frames, good)
-        for msg in good:
+            else:
+                batch.append((RelayedIncoming.of(frame), msg))
+                self.frames[frame.gateway] += 1
+        self.pending = msgs[-1].metadata.num_pending if msgs else 0
+        for msg in await self._store(batch) if batch else []:
             await msg.ack()
         self.counters["messages"] += len(msgs)
         self.counters["batches"] += 1
         return len(msgs)
 
-    async def _store(self, frames: list[RelayedIncoming], msgs: list[Msg]) -> None:
-        """Ingest the batch; retried (the messages kept in progress) until it commits."""
+    async def _store(self, batch: list[tuple[RelayedIncoming, Msg]]) -> list[Msg]:
+        """Ingest the batch in one transaction; the messages stored. Retried while the database is away
+        (the messages kept in progress, nothing later fetched). A batch the pipeline fails on for what it
+        holds is taken frame by frame, and a frame it fails on alone is stored undecoded, logged with its
+        stream sequence: one bad frame must not stop every gateway's, nor be lost."""
         wait = 0.2
-        while frames:
+        while True:
             try:
-                await asyncio.to_thread(self.ingest.handle_batch, list(frames))
-                return
-            except Exception:  # the database away: nothing is acked, nothing later fetched
+                await asyncio.to_thread(self.ingest.handle_batch, [frame for frame, _ in batch])
+                return [msg for _, msg in batch]
+            except (OperationalError, InterfaceError):  # the database away, or locked
                 self.counters["retries"] += 1
-                log.exception("backhaul: storing %d frames failed; retrying in %.1f s", len(frames), wait)
-                for msg in msgs:
+                log.exception("backhaul: storing %d frames failed; retrying in %.1f s", len(batch), wait)
+                for _, msg in batch:
                     await msg.in_progress()
                 await asyncio.sleep(wait)
                 wait = min(wait * 2, 5.0)
+            except Exception:
+                if len(batch) > 1:
+                    return [msg for one in batch for msg in await self._store([one])]
+                return await self._undecoded(*batch[0])
+
+    async def _undecoded(self, frame: RelayedIncoming, msg: Msg) -> list[Msg]:
+        log.exception(
+            "backhaul: frame %s (stream seq %d) failed in the pipeline; stored undecoded",
+            frame.id,
+            msg.metadata.sequence.stream,
+        )
+        try:
+            await asyncio.to_thread(self.ingest.keep_undecoded, frame)
+        except (OperationalError, InterfaceError):
+            return []  # the database went away meanwhile: not acked, it comes again
+        except Exception:  # not even its bytes can be stored: refused, left in the stream to look at
+            self.counters["malformed"] += 1
+            log.exception("backhaul: frame %s refused by the store", frame.id)
+            await msg.term()
+            return []
+        return [msg]
 
     async def step_events(self, timeout: float = 1.0) -> int:
         """Fetch the gateways' events, hand each to ``on_event``, ack it; how many were fetched. An
@@ -193,10 +227,8 @@ class Center:
         return len(msgs)
 
     async def _event(self, msg: Msg) -> None:
-        try:
-            event = EventMessage.decode(msg.data)
-        except PayloadError as exc:
-            log.warning("backhaul: malformed event on %s: %s", msg.subject, exc)
+        event = self.guard.event(msg.subject, msg.data, time.time())
+        if event is None:
             await msg.term()
             return
         if event.kind == "heartbeat":
@@ -230,13 +262,14 @@ async def _pause(exc: Exception) -> None:
         await asyncio.sleep(0.5)
 
 
-async def serve(shore: Shore, url: str, durable: str = DURABLE) -> None:
+async def serve(shore: Shore, url: str, durable: str = DURABLE, auth: BrokerAuth | None = None) -> None:
     """The center's backhaul in a shore's app: the consumers into its ingest and the dispatcher of its
-    command desk (a queued command wakes it)."""
+    command desk (a queued command wakes it), with the retention and ``/metrics`` (``server.ops``)."""
     from server.backhaul.dispatch import Dispatcher
+    from server.ops.process import operate
 
     assert isinstance(shore.ingest, RelayIngest), "a center's shore is built with RelayIngest"
-    center = Center(shore.ingest, url, durable=durable)
+    center = Center(shore.ingest, url, durable=durable, auth=auth)
     dispatcher = Dispatcher(
         shore.commands,
         shore.routing,
@@ -247,11 +280,14 @@ async def serve(shore: Shore, url: str, durable: str = DURABLE) -> None:
     )
     center.on_event = dispatcher.on_event
     shore.commands.wake = dispatcher.wake
-    await center.run(dispatcher.run())
+    await operate(center, center.run(dispatcher.run()), shore.ingest.db, shore.settings)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--nats", default="nats://127.0.0.1:4222", help="the broker (default %(default)s)")
+    parser.add_argument(
+        "--nats", default=None, help="the broker (default TACIT_NATS_URL or nats://127.0.0.1:4222)"
+    )
+    access.add_arguments_for_client(parser, {})  # their defaults are the settings' (TACIT_NATS_*)
     parser.add_argument(
         "--database-url",
         default=None,
@@ -260,6 +296,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--durable", default=DURABLE, help="the consumer's durable name (default %(default)s)"
+    )
+    parser.add_argument(
+        "--metrics-port",
+        type=int,
+        default=None,
+        help="serve /metrics (Prometheus) on this port of TACIT_METRICS_HOST; 0: none "
+        "(default TACIT_METRICS_PORT or 9464)",
     )
     parser.add_argument("--config", help="a TOML settings file (TACIT_* environment variables override it)")
     parser.add_argument("--host", help="the API's bind address (default 127.0.0.1)")
@@ -276,11 +319,27 @@ def run(args: argparse.Namespace) -> int:
 
     settings = settings_from(args)
     settings.modem_url = ""
-    app = create_app(settings, RelayIngest, [lambda shore: serve(shore, args.nats, args.durable)])
+    overrides = {
+        "nats_url": args.nats,
+        "nats_credentials": args.nats_credentials,
+        "nats_ca": args.nats_ca,
+        "metrics_port": args.metrics_port,
+    }
+    for name, value in overrides.items():
+        if value is not None:
+            setattr(settings, name, value)
+    try:
+        auth = BrokerAuth.load(settings.nats_credentials, settings.nats_ca)
+    except access.CredentialsError as exc:
+        print(f"tacit center: {exc}", file=sys.stderr)
+        return 2
+    app = create_app(
+        settings, RelayIngest, [lambda shore: serve(shore, settings.nats_url, args.durable, auth)]
+    )
     log.info(
         "center: consuming %s from %s; API on %s:%d",
         subjects.frames(">"),
-        args.nats,
+        settings.nats_url,
         settings.host,
         settings.port,
     )

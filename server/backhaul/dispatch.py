@@ -122,7 +122,7 @@ class Dispatcher:
                 start_by=time.time() + self.settings.dispatch_receipt,
             )  # fmt: skip
             await self.publish(subjects.commands(gateway), message.encode(), message.id)
-            await self.heartbeat.sent(state, sync, acked=False)
+            self.heartbeat.sent(state, sync, acked=False)
 
     # --- commands down ---------------------------------------------------------------------------
 

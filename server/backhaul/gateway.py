@@ -20,6 +20,8 @@ import argparse
 import asyncio
 import contextlib
 import logging
+import os
+import sys
 import time
 from collections import deque
 from pathlib import Path
@@ -29,8 +31,10 @@ from nats.aio.msg import Msg
 from nats.errors import Error as NatsError
 from nats.js import JetStreamContext
 from nats.js.api import AckPolicy, ConsumerConfig, DeliverPolicy
+from nats.js.errors import NotFoundError
 
-from server.backhaul import broker, subjects
+from server.backhaul import access, broker, subjects
+from server.backhaul.access import BrokerAuth
 from server.backhaul.outbox import Outbox, Publisher
 from server.backhaul.slots import ATTEMPT_AIRTIME, Schedule, SlotPlan
 from server.backhaul.subjects import CommandMessage, EventMessage, PayloadError, ScheduleMessage
@@ -45,10 +49,12 @@ class Gateway:
         outbox: Outbox,
         url: str,
         driver: mm.ModemDriver | None = None,
-        heartbeat: float = 10.0,
+        heartbeat: float = subjects.HEARTBEAT,
         duplicate_window: float = subjects.DUPLICATE_WINDOW,
+        auth: BrokerAuth | None = None,
     ) -> None:
         self.outbox = outbox
+        self.auth = auth or BrokerAuth()
         self.name = outbox.gateway
         self.url = url
         self.driver = driver
@@ -94,26 +100,15 @@ class Gateway:
         start publishing, taking commands and beating."""
         if self.driver is not None:  # frames heard from now on are stored, broker or not
             await self.driver.start()
-        self.nc = await broker.connect(self.url, f"tacit-gateway-{self.name}", self._state)
+        self.nc = await broker.connect(self.url, f"tacit-gateway-{self.name}", self._state, auth=self.auth)
         js = self.nc.jetstream()
-        await broker.ensure_streams(js, self.duplicate_window)
+        if not self.auth.restricted:  # on a broker with accounts, the streams are the center's
+            await broker.ensure_streams(js, self.duplicate_window)
         self.publisher = Publisher(self.outbox, js)
-        commands = await js.pull_subscribe(
-            subjects.commands(self.name),
-            durable=f"gateway-{self.name}",
-            stream=subjects.COMMANDS_STREAM,
-            config=ConsumerConfig(ack_policy=AckPolicy.EXPLICIT, ack_wait=30.0),
-        )
-        await js.subscribe(
-            subjects.schedule(self.name),
-            stream=subjects.SCHEDULE_STREAM,
-            cb=self._schedule,
-            ordered_consumer=True,
-            deliver_policy=DeliverPolicy.LAST_PER_SUBJECT,
-        )
         self._tasks = [
             asyncio.create_task(self.publisher.run()),
-            asyncio.create_task(self._commands(commands)),
+            asyncio.create_task(self._commands(js)),
+            asyncio.create_task(self._schedules(js)),
             asyncio.create_task(self._beat()),
         ]
         if self.driver is not None:
@@ -127,7 +122,7 @@ class Gateway:
                 await task
         self._tasks = []
         if self.nc is not None:
-            with contextlib.suppress(NatsError):
+            with contextlib.suppress(NatsError, OSError):  # the backhaul may be down: closed all the same
                 await self.nc.close()
             self.nc = None
         if self.driver is not None:
@@ -138,7 +133,23 @@ class Gateway:
 
     # --- commands down ---------------------------------------------------------------------------
 
-    async def _commands(self, sub: JetStreamContext.PullSubscription) -> None:
+    async def _subscribe(self, js: JetStreamContext) -> JetStreamContext.PullSubscription:
+        """The gateway's own command consumer; retried while the commands stream does not exist yet (the
+        center creates it) or the broker does not answer."""
+        while True:
+            try:
+                return await js.pull_subscribe(
+                    subjects.commands(self.name),
+                    durable=access.GATEWAY_CONSUMER.format(name=self.name),
+                    stream=subjects.COMMANDS_STREAM,
+                    config=ConsumerConfig(ack_policy=AckPolicy.EXPLICIT, ack_wait=30.0),
+                )
+            except (NatsError, TimeoutError) as exc:
+                log.info("backhaul: no command consumer yet (%s); retrying", type(exc).__name__)
+                await asyncio.sleep(0.5)
+
+    async def _commands(self, js: JetStreamContext) -> None:
+        sub = await self._subscribe(js)
         while True:
             try:
                 msgs = await sub.fetch(16, timeout=1.0)
@@ -237,10 +248,45 @@ class Gateway:
         self.outbox.set_command(command.id, outcome)
         self.outbox.add_event("attempt", {"command": command.id, "outcome": outcome, "final": True})
 
-    async def _schedule(self, msg: Msg) -> None:
+    async def _schedule_consumer(self, js: JetStreamContext) -> JetStreamContext.PullSubscription:
+        """The gateway's own schedule consumer, made anew so that it starts at the last schedule the
+        stream keeps for this gateway; retried while the stream does not exist yet (the center creates
+        it) or the broker does not answer."""
+        durable = access.SCHEDULE_CONSUMER.format(name=self.name)
+        while True:
+            try:
+                with contextlib.suppress(NotFoundError):
+                    await js.delete_consumer(subjects.SCHEDULE_STREAM, durable)
+                return await js.pull_subscribe(
+                    subjects.schedule(self.name),
+                    durable=durable,
+                    stream=subjects.SCHEDULE_STREAM,
+                    config=ConsumerConfig(
+                        ack_policy=AckPolicy.EXPLICIT, deliver_policy=DeliverPolicy.LAST_PER_SUBJECT
+                    ),
+                )
+            except (NatsError, TimeoutError) as exc:
+                log.info("backhaul: no schedule consumer yet (%s); retrying", type(exc).__name__)
+                await asyncio.sleep(0.5)
+
+    async def _schedules(self, js: JetStreamContext) -> None:
+        sub = await self._schedule_consumer(js)
+        while True:
+            try:
+                msgs = await sub.fetch(1, timeout=1.0)
+            except TimeoutError:
+                continue
+            except NatsError:  # failed at once (closed, consumer gone): never spin without yielding
+                await asyncio.sleep(0.5)
+                continue
+            for msg in msgs:
+                await msg.ack()
+                self._schedule(msg.data)
+
+    def _schedule(self, data: bytes) -> None:
         """The center's TDMA frame for the gateways on this band."""
         try:
-            schedule = ScheduleMessage.decode(msg.data)
+            schedule = ScheduleMessage.decode(data)
             self.schedule.receive(
                 SlotPlan(schedule.epoch, schedule.slot, schedule.guard, schedule.order), time.time()
             )
@@ -262,6 +308,7 @@ class Gateway:
         while True:
             if self.nc is not None and self.nc.is_connected:
                 detail = {
+                    "incarnation": self.outbox.incarnation,
                     "backhaul": "up",
                     "outbox": self.outbox.depth(),
                     "modem": self.driver.state.value if self.driver else "none",
@@ -275,7 +322,12 @@ class Gateway:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--nats", default="nats://127.0.0.1:4222", help="the broker (default %(default)s)")
+    parser.add_argument(
+        "--nats",
+        default=os.environ.get("TACIT_NATS_URL", "nats://127.0.0.1:4222"),
+        help="the broker (default TACIT_NATS_URL or %(default)s)",
+    )
+    access.add_arguments_for_client(parser, os.environ)
     parser.add_argument(
         "--name", required=True, help="this gateway's name, a subject token (ship, buoy, pier)"
     )
@@ -291,6 +343,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     name = subjects.gateway_name(args.name)
+    try:
+        auth = BrokerAuth.load(args.nats_credentials, args.nats_ca)
+    except access.CredentialsError as exc:
+        print(f"tacit gateway: {exc}", file=sys.stderr)
+        return 2
     outbox = Outbox(args.outbox or Path(f"gateway-{name}.db"), name)
     driver = None
     if args.modem_url:
@@ -303,7 +360,7 @@ def run(args: argparse.Namespace) -> int:
         log.warning("no modem (--modem-url): relaying nothing but commands' receipts")
 
     async def main() -> None:
-        gateway = Gateway(outbox, args.nats, driver)
+        gateway = Gateway(outbox, args.nats, driver, auth=auth)
         await gateway.start()
         log.info(
             "gateway %s: outbox %s (%d waiting), publishing to %s",

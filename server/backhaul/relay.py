@@ -20,11 +20,12 @@ from server.backhaul import repository
 from server.backhaul.models import RelayedFrame
 from server.backhaul.subjects import FrameMessage
 from server.core.config import Settings
-from server.core.db import Tx, reading
+from server.core.db import Tx, reading, writing
 from server.core.events import Bus, Event, LinkNotice
 from server.link.batch import Batch
-from server.link.ingest import Ingest
+from server.link.ingest import Ingest, frame_row
 from server.link.state import IncomingFrame
+from server.telemetry import repository as telemetry
 from tacit.codec import StreamSpec
 from tacit.packets import Stream
 
@@ -56,7 +57,20 @@ class RelayIngest(Ingest):
     ) -> None:
         super().__init__(db, bus, streams, settings)
         self.window = window
-        self.stats.update({"relayed_duplicates": 0, "diversity_copies": 0})
+        self.stats.update({"relayed_duplicates": 0, "diversity_copies": 0, "undecoded": 0})
+
+    def keep_undecoded(self, frame: RelayedIncoming) -> bool:
+        """A frame the pipeline failed on (``handle_batch`` raised for it alone): its bytes and its relay
+        record stored without decoding, in a transaction of its own, so that it is not lost and its id
+        not taken again; False if its id was stored already."""
+        with writing(self.db) as s:
+            if repository.get(s, frame.id) is not None:
+                return False
+            frame_id = telemetry.add_frame(s, frame_row(frame))
+            repository.add(s, self._row(frame, hashlib.sha256(frame.data).hexdigest(), frame_id, kept=True))
+            s.commit()
+        self.stats["undecoded"] += 1
+        return True
 
     def heard_by(self, frame_id: int) -> int:
         with reading(self.db) as s:

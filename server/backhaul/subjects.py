@@ -32,6 +32,7 @@ SCHEDULE_STREAM = "TACIT_SCHEDULE"
 DUPLICATE_WINDOW = 120.0  # s: JetStream drops a message whose id it stored this recently
 COMMAND_MAX_AGE = 600.0  # s: a signed command frame is acceptable to the vehicle for its max_age
 EVENTS_MAX_AGE = 86400.0  # s: events are kept a day for late subscribers
+HEARTBEAT = 10.0  # s between a gateway's heartbeats
 MSG_ID = "Nats-Msg-Id"
 _TOKEN = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 

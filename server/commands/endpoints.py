@@ -6,7 +6,15 @@ from fastapi import APIRouter, Depends, Query
 
 from server.api.deps import CommandsDep, Id, Offset, Writer, require_read
 from server.commands.models import CommandRecord, CommandStep
-from server.commands.schemas import CommandDetail, CommandIn, CommandListed, CommandOut, CommandStepOut
+from server.commands.schemas import (
+    CommandDetail,
+    CommandIn,
+    CommandListed,
+    CommandOut,
+    CommandStepOut,
+    FleetCommandIn,
+    FleetCommandsOut,
+)
 
 router = APIRouter(prefix="/api/v1", tags=["commands"])
 
@@ -17,6 +25,15 @@ def send_command(vehicle_id: Id, body: CommandIn, desk: CommandsDep, actor: Writ
     field at fault when outside the packet's ranges or the vehicle's limits; follow its status at
     ``GET /api/v1/commands/{id}`` or on the event stream."""
     return _out(desk.submit(vehicle_id, body, actor.name))
+
+
+@router.post("/fleet/commands", status_code=202, response_model=FleetCommandsOut)
+def send_fleet_command(body: FleetCommandIn, desk: CommandsDep, actor: Writer) -> FleetCommandsOut:
+    """One operator action for the fleet (abort all, return all home, hold all): the command queued for
+    each vehicle (``vehicle_ids``, default every one), each with its own status to follow. 404 naming an
+    unknown vehicle; nothing is queued unless every vehicle's command is."""
+    queued = desk.submit_fleet(body.vehicle_ids, CommandIn(command=body.command), actor.name)
+    return FleetCommandsOut(commands=[_out(c) for c in queued])
 
 
 @router.get(

@@ -51,6 +51,14 @@ def move(
     )
 
 
+def queued(s: Session, vehicle_id: int) -> list[CommandRecord]:
+    """The vehicle's commands not yet sent once, oldest first."""
+    query = select(CommandRecord).where(
+        CommandRecord.vehicle_id == vehicle_id, CommandRecord.status == CommandState.QUEUED
+    )
+    return list(s.exec(query.order_by(col(CommandRecord.id))))
+
+
 def oldest_pending(s: Session, vehicle_id: int) -> CommandRecord | None:
     query = select(CommandRecord).where(
         CommandRecord.vehicle_id == vehicle_id, col(CommandRecord.status).in_(PENDING)

@@ -2,16 +2,21 @@
 
 from __future__ import annotations
 
+from typing import Annotated
+
 from pydantic import BaseModel, Field, JsonValue, ValidationInfo, field_validator
 
 from server.commands.models import CommandState
-from server.core.schemas import STRICT
+from server.core.schemas import DB_INT_MAX, STRICT
 from tacit.navigation import wrap180
 from tacit.packets import FLOAT32_MAX, Command
 from tacit.packets import ControlPacket as WIRE
 
 #: What an operator may send: every command but the shore's own heartbeat.
 COMMAND_NAMES = [c.name.lower() for c in Command if c.from_operator]
+#: What may go to the whole fleet in one action (one command per vehicle): the fleet's stop is "abort all"
+#: (docs/protocol.md says why there is no broadcast stop).
+FLEET_COMMANDS = ("abort_mission", "return_home", "hold")
 
 
 class CommandIn(BaseModel):
@@ -59,6 +64,30 @@ class CommandIn(BaseModel):
         return Command[self.command.upper()]
 
 
+class FleetCommandIn(BaseModel):
+    """One operator action for several vehicles: the same command queued for each, each with its own
+    sequence number, signature and status."""
+
+    model_config = STRICT
+    command: str = Field(
+        json_schema_extra={"enum": list[JsonValue](FLEET_COMMANDS)},
+        description="what to ask of every vehicle",
+    )
+    vehicle_ids: list[Annotated[int, Field(ge=1, le=DB_INT_MAX)]] | None = Field(
+        None,
+        min_length=1,
+        max_length=127,  # a vehicle per modem address (1 .. 127): no fleet is larger
+        description="the vehicles (default: every registered vehicle)",
+    )
+
+    @field_validator("command")
+    @classmethod
+    def _for_a_fleet(cls, command: str) -> str:
+        if command not in FLEET_COMMANDS:
+            raise ValueError(f"{command!r} does not go to a fleet; one of {', '.join(FLEET_COMMANDS)}")
+        return command
+
+
 class CommandOut(BaseModel):
     id: int
     vehicle_id: int
@@ -83,6 +112,12 @@ class CommandReport(BaseModel):
     """What the vehicle's check-point said with a status: when (its clock) and where."""
 
     time: float = Field(description="vehicle time, UNIX s (whole seconds): when the status changed on board")
+    shore_time: float | None = Field(
+        None,
+        description="the latest shore time (UNIX s) it can have happened: the vehicle's time on the shore's "
+        "clock (its offset from the vehicle's check-points), never after the shore heard it and never "
+        "before its cause (server.telemetry.clock); None in reports stored before it was kept",
+    )
     state: str = Field(description="the vehicle's mission state then")
     north: float = Field(description="m from home")
     east: float = Field(description="m from home")
@@ -113,3 +148,7 @@ class CommandListed(CommandOut):
     history: list[CommandStepOut] | None = Field(
         None, description="with ?history=true: as GET /commands/{id}"
     )
+
+
+class FleetCommandsOut(BaseModel):
+    commands: list[CommandOut] = Field(description="one per vehicle, in the order of vehicle_ids (or of id)")

@@ -15,6 +15,7 @@ import logging
 import math
 import time
 from collections.abc import Callable
+from dataclasses import replace
 
 from sqlalchemy import Engine
 
@@ -25,6 +26,8 @@ from server.commands.schemas import CommandIn
 from server.core.db import Tx, reading, saved_id, writing
 from server.core.errors import NotFound, Refused, TooMany
 from server.core.events import Bus, CommandChanged
+from server.telemetry import clock
+from server.telemetry import service as telemetry
 from server.vehicles import keys
 from server.vehicles import repository as vehicle_repo
 from server.vehicles import service as vehicles
@@ -49,6 +52,7 @@ IN_FLIGHT = (
     CommandState.EXECUTING,
 )  # a check-point will end it
 RETRY_AFTER_S = 10  # a full queue's answer: about two command attempts at the default range
+ABORTED = "by an abort before it was sent"  # what happens to the commands an abort overtakes
 
 
 class CommandRefused(Refused):
@@ -56,11 +60,17 @@ class CommandRefused(Refused):
 
 
 def check_limits(body: CommandIn, vehicle: Vehicle, pose: Pose | None = None) -> None:
-    """Raise ``CommandRefused`` if the command breaks one of the vehicle's limits (``tacit.limits``)."""
+    """Raise ``CommandRefused`` if the command breaks one of the vehicle's limits (``tacit.limits``); ``pose``
+    is in the fleet's frame (a check-point's), the geofence around the vehicle's home."""
     if not math.isfinite(body.param_value):
         raise CommandRefused("param_value must be a finite number", "param_value")
+    from_home = (
+        None
+        if pose is None
+        else replace(pose, north=pose.north - vehicle.home_north, east=pose.east - vehicle.home_east)
+    )
     refused = vehicle.limits().check(
-        body.kind(), body.distance, body.angle, body.depth, body.speed, body.absolute_angle, pose
+        body.kind(), body.distance, body.angle, body.depth, body.speed, body.absolute_angle, from_home
     )
     if refused is not None:
         raise CommandRefused(refused.message, refused.field)
@@ -149,7 +159,9 @@ def apply_checkpoint(s: Tx, vehicle: Vehicle, cp: CheckpointPacket, body: dict) 
         return []
     latest = vehicle.next_seq - 1  # the check-point names the latest seq with these low 16 bits
     last = latest - ((latest - cp.last_command) % 65536)
-    report = report_of(body)
+    heard_at = time.time()
+    vehicle_offset = telemetry.clock_offset(s, saved_id(vehicle), (cp.time, heard_at))
+    report = {**report_of(body), "shore_time": clock.on_shore_clock(cp.time, heard_at, vehicle_offset)}
     settled: list[tuple[int, CommandStatus | None, dict | None]] = [
         (last - k, status, None) for k, status in enumerate(unpack_settled(cp.settled), start=1)
     ]
@@ -191,30 +203,70 @@ class CommandDesk:
         self.pose = pose  # by modem address: the last check-point's pose, if any
         self.max_queued = max_queued  # Settings.max_queued_commands
         self.wake: Callable[[], None] = lambda: None  # the link's: send what was queued now
+        # the safety functions' check of the command's path against the other vehicles' (raises Refused)
+        self.guard: Callable[[int, CommandIn], None] = lambda _vehicle_id, _body: None
 
     def submit(
         self, vehicle_id: int, body: CommandIn, issued_by: str, then: Callable[[Tx], None] | None = None
     ) -> CommandRecord:
-        """Queue a command sent by the operator named ``issued_by``; ``then(s)`` runs in the same transaction (a mission's new status). Refused with
-        ``TooMany`` while the vehicle already has ``max_queued`` commands waiting for the link: at a few
-        seconds per attempt, a longer queue would only hold the link for minutes (and each command would
-        run long after the operator asked for it)."""
+        """Queue a command sent by the operator named ``issued_by``; ``then(s)`` runs in the same transaction (a mission's new status).
+        First the guard: a command whose path passes too close to another vehicle's is refused
+        (``server.safety``)."""
+        self.guard(vehicle_id, body)
+        events: list[CommandChanged] = []
         with writing(self.db) as s:
-            vehicle = vehicles.get(s, vehicle_id)
-            waiting = repo.pending_count(s, vehicle_id)
-            if waiting >= self.max_queued:
-                raise TooMany(
-                    f"vehicle {vehicle.name} has {waiting} commands waiting for the link (the most it "
-                    "may have); wait for them to be sent, or to fail if it cannot be reached, then "
-                    "send again",
-                    RETRY_AFTER_S,
-                )
-            command = queue(s, vehicle, body, issued_by, self.pose(vehicle.address))
+            command = self._queue(s, vehicles.get(s, vehicle_id), body, issued_by, events)
             if then is not None:
                 then(s)
             s.commit()
+        self._announce(events)
+        return command
+
+    def submit_fleet(
+        self, vehicle_ids: list[int] | None, body: CommandIn, issued_by: str
+    ) -> list[CommandRecord]:
+        """One operator action for several vehicles (every registered one if ``vehicle_ids`` is None): the
+        command queued once per vehicle, each with its own seq and status, all or none (one transaction:
+        an unknown vehicle, or one whose queue is full, refuses the action before anything is queued)."""
+        events: list[CommandChanged] = []
+        with writing(self.db) as s:
+            fleet = [vehicles.get(s, i) for i in vehicle_ids] if vehicle_ids else vehicle_repo.every(s)
+            if not fleet:
+                raise Refused("no vehicle is registered", "vehicle_ids")
+            if len({v.id for v in fleet}) < len(fleet):
+                raise Refused("a vehicle is named twice", "vehicle_ids")
+            queued = [self._queue(s, vehicle, body, issued_by, events) for vehicle in fleet]
+            s.commit()
+        self._announce(events)
+        return queued
+
+    def _queue(
+        self, s: Tx, vehicle: Vehicle, body: CommandIn, issued_by: str, events: list[CommandChanged]
+    ) -> CommandRecord:
+        """Check and queue one command for ``vehicle``, its events added to ``events``. An abort (the fleet's
+        stop) first supersedes the vehicle's commands not yet sent: they would only run after it, and they
+        never hold it back. Otherwise refused with ``TooMany`` while the vehicle already has ``max_queued``
+        commands waiting for the link: at a few seconds per attempt, a longer queue would only hold the
+        link for minutes (and each command would run long after the operator asked for it)."""
+        if body.kind() is Command.ABORT_MISSION:
+            events += [
+                CommandChanged(
+                    saved_id(c), c.seq, CommandState.SUPERSEDED, vehicle=vehicle.name, detail=ABORTED
+                )
+                for c in repo.queued(s, saved_id(vehicle))
+                if advance(s, c, CommandState.SUPERSEDED, ABORTED)
+            ]
+        waiting = repo.pending_count(s, saved_id(vehicle))
+        if waiting >= self.max_queued:
+            raise TooMany(
+                f"vehicle {vehicle.name} has {waiting} commands waiting for the link (the most it "
+                "may have); wait for them to be sent, or to fail if it cannot be reached, then "
+                "send again",
+                RETRY_AFTER_S,
+            )
+        command = queue(s, vehicle, body, issued_by, self.pose(vehicle.address))
         log.info("vehicle %s: command %s seq %d queued", vehicle.name, command.command, command.seq)
-        self.bus.publish(
+        events.append(
             CommandChanged(
                 saved_id(command),
                 command.seq,
@@ -223,8 +275,13 @@ class CommandDesk:
                 command=command.command,
             )
         )
-        self.wake()
         return command
+
+    def _announce(self, events: list[CommandChanged]) -> None:
+        """What was queued (and superseded) on the bus once committed, then the link woken to send it."""
+        for event in events:
+            self.bus.publish(event)
+        self.wake()
 
     # --- what the link asks ---------------------------------------------------------------------
 

@@ -22,6 +22,8 @@ class SettingsError(ValueError):
 
 
 Csv = Annotated[list[str], NoDecode]
+Latitude = Annotated[float, Field(ge=-90, le=90)]
+Longitude = Annotated[float, Field(ge=-180, le=180)]
 
 
 class Settings(BaseSettings):
@@ -46,6 +48,9 @@ class Settings(BaseSettings):
     confirm_timeout: float = Field(120.0, gt=0)  # s: an ACKed command no check-point confirmed is sent again
     sound_speed: float = Field(1500.0, gt=0)
     shore_position: tuple[float, float, float] = (0.0, 0.0, 1.0)  # north, east, depth of the shore modem
+    # latitude, longitude (deg) of the fleet's one origin, where north = east = 0 for every vehicle; None:
+    # not known (the screens then show metres only)
+    origin: tuple[Latitude, Longitude] | None = None
     default_range: float = Field(1000.0, gt=0)  # used for slot timing until a ping measures it
     sync_interval: float = Field(
         60.0, gt=0
@@ -57,14 +62,28 @@ class Settings(BaseSettings):
     max_queued_commands: int = Field(20, ge=1)  # per vehicle: more waiting for the link are refused (429)
     command_share: int = Field(3, ge=1)  # command slots in a row before the vehicle's next slot polls
     stranger_frames_kept: int = Field(1000, ge=0)  # frames from unknown modem addresses: the newest kept
-    probe_every: int = Field(3, ge=2)  # while a key rotation waits: every Nth SYNC probes with the new key
     restart_min_interval: float = Field(
         60.0, gt=0
     )  # s: an unauthenticated packet asks for a chain restart at
     # most this often (the agent's check-point interval)
     restart_sends: int = Field(2, ge=1)  # a chain-restart request is sent this often, ACKed or not
+    nats_url: str = "nats://127.0.0.1:4222"  # the center's broker (docs/backhaul.md)
+    nats_credentials: str = ""  # this role's credentials file (`tacit broker-config`); empty: no accounts
+    nats_ca: str = ""  # the CA of the broker's certificate, for a tls:// URL
+    metrics_host: str = "127.0.0.1"  # the center's /metrics listener (Prometheus)
+    metrics_port: int = Field(9464, ge=0, le=65535)  # 0: none
+    retention_days: float = Field(0.0, ge=0)  # relayed frames' records older are deleted; 0: kept for ever
     max_skew: float = Field(120.0, gt=0)  # s a check-point may be ahead of the shore's clock and raise the
     # replay floor to its time (beyond, only to the shore's time)
+    # The center's safety functions (server/safety): a command whose planned path passes closer than this
+    # to another vehicle's is refused; predicted positions within it plus both uncertainties warn.
+    separation: float = Field(5.0, gt=0)  # m, centre to centre
+    separation_check_interval: float = Field(5.0, gt=0)  # s between warning checks (silence grows doubt)
+    # The team missions' restructuring rule (server/missions/plans.py ``restructure``): when a team vehicle
+    # reports a time-sensitive anomaly, this many of the others get a waypoint this far from it.
+    restructure_vehicles: int = Field(2, ge=0)
+    restructure_radius: float = Field(15.0, gt=0)  # m
+    restructure_auto: bool = False  # apply the proposal at once; otherwise an operator confirms it
     # --- the center and its gateways (docs/backhaul.md) ---
     routing_window: float = Field(120.0, gt=0)  # s of frames a gateway's score for a vehicle is made of
     routing_margin: float = Field(3.0, ge=0)  # dB another gateway must score better by to take a vehicle
@@ -82,7 +101,15 @@ class Settings(BaseSettings):
             return [item.strip() for item in value.split(",") if item.strip()]
         return value
 
-    @field_validator("shore_position", mode="before")
+    @field_validator("retention_days")
+    @classmethod
+    def _outlives_the_stream(cls, value: float) -> float:
+        """A record must outlive every redelivery of its message: the frames stream keeps them 7 days."""
+        if 0 < value < 8:
+            raise ValueError("retention_days is 0 (keep) or at least 8 (the frames stream keeps 7 days)")
+        return value
+
+    @field_validator("shore_position", "origin", mode="before")
     @classmethod
     def _position(cls, value: Any) -> Any:
         return tuple(float(x) for x in value.split(",")) if isinstance(value, str) else value

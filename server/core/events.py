@@ -9,10 +9,15 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
+import queue as queues
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar
+
+log = logging.getLogger("tacit.server.events")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -90,13 +95,15 @@ class TelemetryDecoded(Event):
 class PacketsSettled(Event):
     """A verified check-point settled the priority packets it covers (packet ids): their bytes are
     ``verified`` or ``forged`` (another packet with a vouched-for seq); of the verified, the ``trusted``
-    ones' samples may be believed (decoded along a chain of trusted packets: ``server.link.verify``)."""
+    ones' samples may be believed (decoded along a chain of trusted packets: ``server.link.verify``);
+    pending ones it left behind, out of reach of any later check-point, are ``unverifiable``."""
 
     kind: ClassVar[str] = "settled"
     vehicle: str
     verified: list[int]
     forged: list[int]
     trusted: list[int]
+    unverifiable: list[int] = field(default_factory=list)  # out of every later check-point's reach
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -112,6 +119,30 @@ class LinkNotice(Event):
     def as_dict(self) -> dict[str, Any]:
         out = super().as_dict()
         return {**out.pop("detail"), **out}
+
+
+@dataclass(frozen=True, kw_only=True)
+class SeparationWarning(Event):
+    """Two vehicles' predicted positions came within the separation plus both their uncertainties
+    (``active``), or are no longer that close (``active`` false): ``server.safety``."""
+
+    kind: ClassVar[str] = "separation"
+    vehicles: list[str]
+    distance_m: float
+    limit_m: float
+    active: bool
+
+
+@dataclass(frozen=True, kw_only=True)
+class TeamChanged(Event):
+    """A team mission moved on: ``what`` is ``started``, ``aborted``, a member's new state (``running``:
+    its next leg is queued, ``done``, ``stopped``), ``proposal`` (new work proposed), ``applied`` or
+    ``dismissed``; ``detail`` says the rest."""
+
+    kind: ClassVar[str] = "team"
+    team_id: int
+    what: str
+    detail: dict[str, Any] = field(default_factory=dict)
 
 
 class Bus:
@@ -162,3 +193,63 @@ class Bus:
     @staticmethod
     def sse(event: Event) -> str:
         return f"event: {event.kind}\ndata: {json.dumps(event.as_dict())}\n\n"
+
+
+class Watcher:
+    """Runs the handlers of bus events, and handlers due every ``interval`` s, on a thread of its own: off
+    the event loop (they read and write the database) and one at a time (a team's legs advance in order).
+    A failing handler is logged; it never stops the others."""
+
+    def __init__(self, bus: Bus, interval: float, queue_size: int = 10000) -> None:
+        self.interval = interval
+        self._queue: queues.Queue[Event | None] = queues.Queue(queue_size)
+        self._handlers: list[Callable[[Event], None]] = []
+        self._ticks: list[Callable[[], None]] = []
+        self._thread: threading.Thread | None = None
+        bus.on_event(self._put)
+
+    def on_event(self, handler: Callable[[Event], None]) -> None:
+        self._handlers.append(handler)
+
+    def every(self, handler: Callable[[], None]) -> None:
+        self._ticks.append(handler)
+
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._run, name="tacit-watcher", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        if self._thread is not None:
+            self._queue.put(None)
+            self._thread.join(timeout=10)
+            self._thread = None
+
+    def _put(self, event: Event) -> None:
+        if self._thread is None:
+            return
+        try:
+            self._queue.put_nowait(event)
+        except queues.Full:
+            log.warning("watcher behind: %s event dropped", event.kind)
+
+    def _run(self) -> None:
+        due = time.monotonic() + self.interval
+        while True:
+            try:
+                event = self._queue.get(timeout=max(0.0, due - time.monotonic()))
+                if event is None:
+                    return
+                self._call(self._handlers, (event,))
+            except queues.Empty:
+                pass
+            if time.monotonic() >= due:
+                due = time.monotonic() + self.interval
+                self._call(self._ticks, ())
+
+    @staticmethod
+    def _call(handlers: list[Callable[..., None]], args: tuple[Any, ...]) -> None:
+        for handler in handlers:
+            try:
+                handler(*args)
+            except Exception:
+                log.exception("watcher handler %s failed", getattr(handler, "__qualname__", handler))

@@ -14,6 +14,7 @@ from pydantic import BaseModel, ConfigDict
 
 # Request bodies: unknown fields and non-finite numbers are errors.
 STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
+DB_INT_MAX = 2**31 - 1  # what every database's INTEGER holds: larger ids cannot exist, say 422 not 500
 
 
 class Problem(BaseModel):

@@ -299,6 +299,7 @@ class LinkEngine:
                     "range_m": self.timing.range_m(vehicle),
                     "last_polled": turn.last_polled,
                     "last_commanded": turn.last_commanded,
+                    "polls": turn.polls,
                 }
             )
             expected += slot
@@ -317,7 +318,7 @@ class LinkEngine:
                 "address": v.address, "last_heard": v.last_heard, "snr_in": v.snr_in, "snr_out": v.snr_out,
                 "range_m": v.range_m, "frames": v.frames, "packets": v.packets, "duplicates": v.duplicates,
                 "packets_per_hour": round(v.packets / hours, 1), "bytes_saved": v.bytes_saved,
-                "checkpoint": v.link.checkpoint,
+                "checkpoint": v.link.checkpoint, "old_protocol": v.old_protocol,
             }  # fmt: skip
         counters = {
             **self.counters,

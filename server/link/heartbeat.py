@@ -12,16 +12,15 @@ goes on after a SYNC (``server.link.engine``): polling never stops for it.
 The counter comes from ``Ingest.next_sync``, which saves it before the SYNC leaves: a vehicle accepts
 only a counter above the last it accepted, whatever the shore's clock says.
 
-While a key rotation waits for the vehicle's confirmation (``server.vehicles.keys``), every
-``probe_every``-th SYNC is a probe signed with the new key instead: a vehicle holding it switches to it
-and confirms it with its next check-point; one that does not drops the probe, and the other SYNCs keep
-its link alive. A probe never carries a chain-restart request (the modem ACKs a probe the vehicle drops).
+SYNCs are signed with the key the vehicle is known to hold (``server.vehicles.keys``): during a key
+rotation, the new key only once a check-point said the vehicle holds it.
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -48,7 +47,6 @@ class Sync:
     seq: int
     echo: bytes | None  # the unsynced check-point's MAC it answers
     restart: bool  # asks the vehicle to restart its sample chains
-    probe: bool  # signed with the key of a rotation waiting for the vehicle's confirmation
 
 
 class Heartbeat:
@@ -66,15 +64,17 @@ class Heartbeat:
         self.vehicles = vehicles
         self.counter = counter  # the vehicle's next SYNC counter, saved (``Ingest.next_sync``)
         self.syncs = 0
-        self._last: dict[int, float] = {}
-        self._count: dict[int, int] = {}  # SYNCs sent, by modem address
+        self._last: dict[int, float] = {}  # when each vehicle's last SYNC left, on the monotonic clock
         self._restarts: dict[int, int] = {}  # chain-restart requests sent since it was raised, by address
 
     def due(self, vehicle: VehicleState) -> bool:
         if vehicle.link.echo is not None:
             return True  # an unsynced vehicle accepts nothing before this answer
         interval = self.settings.sync_retry if vehicle.link.needs_restart else self.settings.sync_interval
-        return time.time() - self._last.get(vehicle.address, 0.0) > interval / self.settings.time_scale
+        return (
+            time.monotonic() - self._last.get(vehicle.address, -math.inf)
+            > interval / self.settings.time_scale
+        )
 
     async def sync(self, driver: mm.ModemDriver, vehicle: VehicleState) -> bool:
         """One SYNC; answers a waiting unsynced check-point, asks for a chain restart if ingest needs one.
@@ -87,22 +87,20 @@ class Heartbeat:
             log.info(
                 "vehicle %s: SYNC %d not transmitted (%s); next slot", vehicle.name, sync.seq, result.error
             )
-            self._last[vehicle.address] = 0.0
+            self._last[vehicle.address] = -math.inf
             await asyncio.sleep(self.timing.busy_wait())
             return False
-        await self.sent(vehicle, sync, result.all_acked)
+        self.sent(vehicle, sync, result.all_acked)
         return True
 
     async def signed(self, vehicle: VehicleState) -> Sync:
         """The vehicle's next SYNC, signed now (its counter saved first); the heartbeat counts it as due
         no more until ``sync_interval`` has passed."""
-        self._last[vehicle.address] = time.time()
+        self._last[vehicle.address] = time.monotonic()  # a wall clock stepped back must not stop SYNCs
         restart = vehicle.link.needs_restart
         echo = vehicle.link.echo
         row = await self.store.run(self.vehicles.get, vehicle.id)
-        count = self._count[vehicle.address] = self._count.get(vehicle.address, 0) + 1
-        probe = keys.pending(row) and not restart and echo is None and count % self.settings.probe_every == 0
-        version, key = keys.current(row) if probe else keys.for_commands(row)
+        version, key = keys.for_commands(row)
         seq = await self.store.run(self.counter, vehicle)
         packet = ControlPacket(
             Kind.SYNC,
@@ -111,15 +109,13 @@ class Heartbeat:
             echo=echo or bytes(CHECKPOINT_MAC_SIZE),
             param_id=SYNC_RESTART_CHAINS if restart else 0,
         )
-        return Sync(auth.sign(packet, key, vehicle.address, epoch=version), seq, echo, restart, probe)
+        return Sync(auth.sign(packet, key, vehicle.address, epoch=version), seq, echo, restart)
 
-    async def sent(self, vehicle: VehicleState, sync: Sync, acked: bool) -> None:
+    def sent(self, vehicle: VehicleState, sync: Sync, acked: bool) -> None:
         """``sync`` went on the air (``acked``: the vehicle's modem acknowledged it)."""
         if vehicle.link.echo == sync.echo:  # on the air: one answer per check-point (a newer one waits)
             vehicle.link.echo = None
         self.syncs += 1
-        if sync.probe:
-            await self.store.run(self.vehicles.probed, vehicle.id)
         if sync.restart:
             self._restart_sent(vehicle, acked)
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 import logging
 import math
 import threading
+from typing import Any
 
 from sqlalchemy import Engine
 
@@ -69,6 +70,7 @@ class Ingest:
             "forged": 0,
             "replayed": 0,
             "unverifiable": 0,
+            "old_protocol": 0,
         }
         self.verifier = Verifier(self.stats, settings.max_skew)
 
@@ -167,20 +169,7 @@ class Ingest:
             self.stats["rejected"] += 1  # the modem driver's parser bounds these; never trust it blindly
             log.warning("frame with impossible addresses or rate dropped")
             return []
-        frame_id = telemetry.add_frame(
-            s,
-            {
-                "direction": "in",
-                "src": frame.src,
-                "dest": frame.dest,
-                "rate": frame.rate,
-                "data": frame.data,
-                "snr_in": _finite(frame.snr_in),
-                "snr_out": _finite(frame.snr_out),
-                "stats": frame.stats,
-                "at": frame.at,
-            },
-        )
+        frame_id = telemetry.add_frame(s, frame_row(frame))
         self._stored(s, frame, frame_id)
         v = self.vehicles.get(frame.src)
         if v is None:
@@ -221,6 +210,8 @@ class Ingest:
             packet = packets.decode(chunk)
             if isinstance(packet, packets.ControlPacket):
                 raise PacketError("a control packet from a vehicle")
+        except packets.OldVersion as exc:
+            return self._old_version(batch, v, chunk, at, exc)
         except PacketError as exc:
             self.stats["rejected"] += 1
             batch.events.append(
@@ -269,6 +260,21 @@ class Ingest:
         )
         return [heard, *events]
 
+    def _old_version(
+        self, batch: Batch, v: VehicleState, chunk: bytes, at: float, exc: packets.OldVersion
+    ) -> list[Event]:
+        """A packet of the previous protocol version: refused and counted; logged (and a ``bad_packet``
+        event stored) once per vehicle, since an old agent sends nothing else until it is updated."""
+        self.stats["rejected"] += 1
+        self.stats["old_protocol"] += 1
+        v.old_protocol += 1
+        if v.old_protocol > 1:
+            return []
+        detail = {"error": str(exc), "hex": chunk.hex()}
+        batch.events.append({"vehicle_id": v.id, "kind": "bad_packet", "at": at, "detail": detail})
+        log.warning("vehicle %s: %s (logged once; GET /api/v1/link counts them)", v.name, exc)
+        return [LinkNotice(event="bad_packet", vehicle=v.name, detail={"error": str(exc)})]
+
     def _drop_strangers(self, s: Tx) -> None:
         """Frames from unknown modem addresses are kept to the newest ``stranger_frames_kept`` (a stranger's modem
         must not fill the disk), with their ``unknown_vehicle`` events (one per frame)."""
@@ -285,16 +291,18 @@ class Ingest:
         """Verify, then apply: the vehicle's state, its key's confirmation, its commands' statuses."""
         vehicle = vehicles.get(s, v.id)
         assert vehicle is not None, "a vehicle with link state is stored"
-        verdict = self.verifier.checkpoint(batch, v, vehicle, cp)
+        verdict = self.verifier.checkpoint(batch, v, vehicle, cp, lambda: vehicles.every(s))
         if verdict.trust is not PacketTrust.VERIFIED:
             return verdict.trust, verdict.events
         v.link.accept(body, verdict.floor, cp.mac)
         if cp.unsynced:
             v.link.echo = cp.mac  # the heartbeat answers it at the vehicle's next slot
         events: list[Event] = [VehicleReported(vehicle=v.name, checkpoint=body)]
-        events += self.verifier.vouch(s, batch, v, verdict.covered)
+        events += self.verifier.vouch(s, batch, v, cp.seq, verdict.covered)
         if vehicle.previous_key_hex and verdict.version == vehicle.key_version:
             events.append(self._key_confirmed(s, batch, v, vehicle.key_version))
+        elif keys.pending(vehicle) and cp.holds_next_key != vehicle.next_key_held:
+            events.append(self._next_key_held(s, batch, v, vehicle.key_version, cp.holds_next_key))
         return PacketTrust.VERIFIED, events + list(commands.apply_checkpoint(s, vehicle, cp, body))
 
     @staticmethod
@@ -305,6 +313,22 @@ class Ingest:
         )
         log.warning("vehicle %s: key version %d confirmed; commands are signed with it now", v.name, version)
         return LinkNotice(event="key_confirmed", vehicle=v.name, detail={"key_version": version})
+
+    @staticmethod
+    def _next_key_held(s: Tx, batch: Batch, v: VehicleState, version: int, held: bool) -> Event:
+        """A check-point signed with the confirmed key says whether the vehicle holds the staged key:
+        commands and SYNCs follow it (``server.vehicles.keys``)."""
+        vehicles.hold_next_key(s, v.id, held)
+        detail = {"key_version": version, "held": held}
+        batch.events.append({"vehicle_id": v.id, "kind": "next_key_held", "at": now(), "detail": detail})
+        log.warning(
+            "vehicle %s: %s key version %d; commands and SYNCs are signed with version %d",
+            v.name,
+            "holds" if held else "does not hold",
+            version,
+            version if held else version - 1,
+        )
+        return LinkNotice(event="next_key_held", vehicle=v.name, detail=detail)
 
     @staticmethod
     def _tagged(s: Tx, v: VehicleState, chunk: bytes) -> bool:
@@ -341,6 +365,21 @@ class Ingest:
         row["body"].update(decoded.body)  # what decoding found (or why it could not)
         telemetry.set_packet(s, packet_id, body=row["body"], origin=decoded.origin)
         return packet_id, decoded.events
+
+
+def frame_row(frame: IncomingFrame) -> dict[str, Any]:
+    """A received frame's row in the ``frame`` table."""
+    return {
+        "direction": "in",
+        "src": frame.src,
+        "dest": frame.dest,
+        "rate": frame.rate,
+        "data": frame.data,
+        "snr_in": _finite(frame.snr_in),
+        "snr_out": _finite(frame.snr_out),
+        "stats": frame.stats,
+        "at": frame.at,
+    }
 
 
 def _finite(value: float | None) -> float | None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import math
 import time
 
 from server.core.config import Settings
@@ -26,10 +27,10 @@ class Ranging:
         self._last: dict[int, float] = {}
 
     def due(self, vehicle: VehicleState) -> bool:
-        return self.timing.ping_due(self._last.get(vehicle.address, 0.0), time.time())
+        return self.timing.ping_due(self._last.get(vehicle.address, -math.inf), time.monotonic())
 
     async def ping(self, driver: mm.ModemDriver, vehicle: VehicleState) -> None:
-        self._last[vehicle.address] = time.time()
+        self._last[vehicle.address] = time.monotonic()  # intervals: a wall clock step must not stop pings
         self.pings += 1
         travel = await driver.ping(vehicle.address, timeout=self.timing.ping_timeout())
         if travel is None:

@@ -57,6 +57,7 @@ class Turn:
     in_a_row: int = 0  # command slots since its last poll
     last_polled: float | None = None
     last_commanded: float | None = None
+    polls: int = 0  # slots that polled it for data, since the shore started
     reason: SlotReason = SlotReason.POLL  # what its next slot carries, as last planned
 
 
@@ -105,4 +106,5 @@ class Schedule:
         elif reason is not SlotReason.SYNC:
             turn.in_a_row = 0
             turn.last_polled = time.time()
+            turn.polls += 1
             vehicle.urgent = False

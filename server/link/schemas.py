@@ -23,6 +23,7 @@ class ScheduledVehicle(BaseModel):
     )
     last_polled: float | None = Field(description="when it was last polled for data (UNIX s)")
     last_commanded: float | None = Field(description="when a command was last sent to it (UNIX s)")
+    polls: int = Field(description="slots that polled it for data since the shore started")
 
 
 class LinkSchedule(BaseModel):

@@ -108,6 +108,7 @@ class VehicleState:
     bytes_saved: int = 0
     forged: int = 0
     verified: int = 0
+    old_protocol: int = 0  # packets refused for speaking the previous protocol version (logged once)
     decoder_saved: str | None = None  # ``decoder``'s states as saved (base64); None: changed since
     share: float = 1.0  # its weight in the MAC's schedule (``server.link.schedule``), as registered
     urgent: bool = False  # it reported time-sensitive data since it was last polled

@@ -8,7 +8,6 @@ from __future__ import annotations
 from server.core.config import Settings
 from server.link.state import VehicleState
 from tacit import rates
-from tacit.link import capacity
 
 MAX_PING_RANGE_M = 4000.0
 
@@ -30,8 +29,10 @@ class Timing:
         return (floor * 1.5 + 2.0) / self.settings.time_scale
 
     def poll_window(self, vehicle: VehicleState, rate: int) -> float:
-        """How long a poll's answer may take: the cycle-init, the round trip and half a frame of data."""
-        answer = rates.data_airtime_s(rate, max(1, capacity(rate) // 2))
+        """How long a poll's answer may take: the cycle-init, the round trip, the vehicle's modem asking
+        its host for data, and the longest answer at the rate (the modem reports the frames once the
+        whole transmission is in). An unanswered poll costs all of it."""
+        answer = rates.data_airtime_s(rate, rates.rate(rate).frames)
         window = rates.airtime_s(rates.CYCLE_INIT_BITS, 0) + 2 * self.travel_s(vehicle) + 1.0 + answer
         return window * 1.3 / self.settings.time_scale
 

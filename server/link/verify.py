@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from server.core.db import Tx, now, saved_id
@@ -23,7 +24,7 @@ from server.telemetry.models import PacketTrust
 from server.vehicles import keys
 from server.vehicles.models import Vehicle
 from tacit import auth
-from tacit.packets import CheckpointPacket
+from tacit.packets import COVER_BITS, CheckpointPacket
 
 log = logging.getLogger("tacit.server.ingest")
 
@@ -40,6 +41,31 @@ class Verdict:
     floor: int = 0  # the replay floor once it is applied
 
 
+def current_floor(floor: int, shore_now: float, max_skew: float) -> int:
+    """The replay floor a check-point is held to now. ``raised_floor`` never lifts it beyond the shore's
+    time plus ``max_skew``, so a floor further ahead was raised while the shore's own clock was ahead (a
+    synced vehicle follows the shore's SYNCs): with that clock set right, it comes back to ``max_skew``
+    behind it, and the vehicle is heard again at once instead of an hour later. A check-point recorded
+    while the clock was ahead and replayed now is still refused by its MAC (the last accepted are kept)."""
+    return floor if floor <= shore_now + max_skew else int(shore_now - max_skew)
+
+
+class KeyMixUp(auth.BadMac):
+    """A check-point signed with another registered vehicle's key: a configuration mistake (two agents'
+    keys swapped, a key copied to the wrong vehicle), refused all the same."""
+
+
+def signs(
+    vehicle: Vehicle, cp: CheckpointPacket, address: int, candidates: Sequence[Sequence[bytes]]
+) -> bool:
+    """Whether one of ``vehicle``'s keys signed ``cp`` (sent from ``address``)."""
+    try:
+        auth.verify_checkpoint(cp, keys.accepted(vehicle), address, candidates)
+    except (auth.BadMac, auth.Unverifiable):
+        return False
+    return True
+
+
 def raised_floor(cp: CheckpointPacket, floor: int, shore_now: float, max_skew: float) -> int:
     """The replay floor after a verified check-point: an unsynced vehicle's time never raises it (its
     clock is unknown), and a synced one stamped more than ``max_skew`` ahead of the shore raises it only
@@ -54,10 +80,19 @@ class Verifier:
         self.stats = stats
         self.max_skew = max_skew  # Settings.max_skew
 
-    def checkpoint(self, batch: Batch, v: VehicleState, vehicle: Vehicle, cp: CheckpointPacket) -> Verdict:
+    def checkpoint(
+        self,
+        batch: Batch,
+        v: VehicleState,
+        vehicle: Vehicle,
+        cp: CheckpointPacket,
+        others: Callable[[], Sequence[Vehicle]],
+    ) -> Verdict:
         """Verify a check-point (nothing is applied here, but the challenge of an unsynced one stamped
         below the floor, which is answered all the same: a vehicle whose lost state held a large clock
-        offset would otherwise never be heard again, and a SYNC echoing an old MAC answers nothing)."""
+        offset would otherwise never be heard again, and a SYNC echoing an old MAC answers nothing).
+        ``others``: the registered vehicles, read only when the MAC fails, to tell a key configured on
+        the wrong vehicle (two agents' keys swapped) from a forgery."""
         seqs = cp.covered_seqs()
         candidates = [[h for h, _ in v.link.recent.get(seq, [])] for seq in seqs]
         try:
@@ -65,17 +100,29 @@ class Verifier:
         except auth.Unverifiable as exc:
             return self._refused(batch, v, PacketTrust.UNVERIFIABLE, cp, exc)
         except auth.BadMac as exc:
-            return self._refused(batch, v, PacketTrust.FORGED, cp, exc)
+            owner = next(
+                (o.name for o in others() if o.id != vehicle.id and signs(o, cp, v.address, candidates)), None
+            )
+            why = (
+                exc
+                if owner is None
+                else KeyMixUp(
+                    f"signed with {owner}'s key, not {v.name}'s: is {v.name}'s agent configured with {owner}'s key?"
+                )
+            )
+            return self._refused(batch, v, PacketTrust.FORGED, cp, why)
         if cp.mac in v.link.accepted_macs:
             return self._refused(batch, v, PacketTrust.REPLAYED, cp, ValueError("accepted before"))
-        if cp.time < v.link.checkpoint_time:
+        shore_now = time.time()
+        floor = current_floor(v.link.checkpoint_time, shore_now, self.max_skew)
+        if cp.time < floor:
             v.link.echo = cp.mac if cp.unsynced else v.link.echo
             return self._refused(
                 batch, v, PacketTrust.REPLAYED, cp, ValueError("older than the replay floor")
             )
         v.verified += 1
         self.stats["verified"] += 1
-        floor = raised_floor(cp, v.link.checkpoint_time, time.time(), self.max_skew)
+        floor = raised_floor(cp, floor, shore_now, self.max_skew)
         return Verdict(
             PacketTrust.VERIFIED, version=version, covered=list(zip(seqs, chosen, strict=True)), floor=floor
         )
@@ -98,17 +145,22 @@ class Verifier:
         log.warning("vehicle %s: %s check-point ignored: %s", v.name, trust.value, detail)
         return Verdict(trust, [LinkNotice(event=kind, vehicle=v.name, detail={"error": detail})])
 
-    def vouch(self, s: Tx, batch: Batch, v: VehicleState, covered: list[tuple[int, bytes]]) -> list[Event]:
-        """The ``covered`` packets (seq, hash) are verified; another packet received with one of their seqs
-        is forged."""
+    def vouch(
+        self, s: Tx, batch: Batch, v: VehicleState, seq: int, covered: list[tuple[int, bytes]]
+    ) -> list[Event]:
+        """The ``covered`` packets (seq, hash) of check-point ``seq`` are verified; another packet received
+        with one of their seqs is forged; a pending one no later check-point can reach is unverifiable."""
         good: list[int] = []
         bad: list[int] = []
-        for seq, digest in covered:
-            for h, packet_id in v.link.recent.get(seq, []):
+        for covered_seq, digest in covered:
+            for h, packet_id in v.link.recent.get(covered_seq, []):
                 (good if h == digest else bad).append(packet_id)
-            v.link.recent[seq] = [(h, pid) for h, pid in v.link.recent.get(seq, []) if h == digest]
+            v.link.recent[covered_seq] = [
+                (h, pid) for h, pid in v.link.recent.get(covered_seq, []) if h == digest
+            ]
         batch.flush(s)  # telemetry of packets in this batch is in the table before it is marked
         telemetry.set_trust(s, good, PacketTrust.VERIFIED)
+        lost = telemetry.settle_pending(s, _out_of_reach(v, seq), PacketTrust.UNVERIFIABLE)
         trusted = self._trusted(s, good)
         telemetry.trust_data(s, trusted)
         if len(trusted) < len(good) and not v.link.needs_restart:
@@ -128,7 +180,7 @@ class Verifier:
                 v.name,
                 len(bad),
             )
-        return [PacketsSettled(vehicle=v.name, verified=good, forged=bad, trusted=trusted)]
+        return [PacketsSettled(vehicle=v.name, verified=good, forged=bad, trusted=trusted, unverifiable=lost)]
 
     @staticmethod
     def _trusted(s: Tx, good: list[int]) -> list[int]:
@@ -147,6 +199,15 @@ class Verifier:
             if origin is None or origin in trusted or _was_trusted(s, origin):
                 trusted.append(saved_id(row))
         return trusted
+
+
+def _out_of_reach(v: VehicleState, seq: int) -> list[int]:
+    """The packets (ids) heard at seqs that no check-point after ``seq`` can cover (``COVER_BITS`` behind
+    it, at most half the ring: the rest are ahead), forgotten from the candidates. The vehicle covers only
+    packets whose ACK it heard; one the shore heard but whose ACK was lost stays pending here forever
+    otherwise, and the screens would say "pending" of a packet nothing will ever verify."""
+    behind = [q for q in v.link.recent if COVER_BITS <= (seq - q) % 256 < 128]
+    return [packet_id for q in behind for _, packet_id in v.link.recent.pop(q)]
 
 
 def _was_trusted(s: Tx, packet_id: int) -> bool:

@@ -15,12 +15,13 @@ from the API, and are checked by ``check_form`` before anything is sent.
 
 from __future__ import annotations
 
+import html
 import logging
 from typing import Any, Protocol
 
 import numpy as np
 
-from server.commands.schemas import CommandIn
+from server.commands.schemas import FLEET_COMMANDS, CommandIn
 from server.commands.service import CommandDesk
 from server.core.config import Settings
 from server.core.errors import ApiError
@@ -59,14 +60,18 @@ NOT_SIGNED_IN = (
     "commands (`tacit demo` prints it; it is also in the demo's `secrets.json`)."
 )
 ANGLE_MODES = {"turn from heading": "relative", "bearing (true)": "bearing"}
+FLEET_LABELS = {"abort_mission": "Abort all", "return_home": "Return all home", "hold": "Hold all"}
+assert set(FLEET_LABELS) == set(FLEET_COMMANDS), "a button for every fleet command"
+FLEET = "all:"  # a confirmation's prefix for an action that goes to every vehicle
 INPUTS = ("distance", "angle", "depth", "speed", "param_id", "param_value")
 
 LEGEND = """\
 **In the scene** (x east, y north, z up; metres from home; opens top-down, north up)
 - **red arrow from home**: north (N); **dark arrow**: east (E); grid: 5 m cells, 25 m sections
 - **depth scale**: the black line south-west of home, with its labels stepped aside
-- **vehicle**: black box; **yellow arrow outlined in black** = its heading; label = state, heading, age of the report
-- **blue line**: track it reported (check-points)
+- **fleet origin (0, 0)**: the one origin every vehicle's position is measured from (latitude, longitude when known)
+- **vehicle**: box in its colour (grey while overdue); **yellow arrow outlined in black** = its heading; label = name, state, heading, age of the report
+- **line in the vehicle's colour**: the track it reported (check-points); the same colour as its row on the dashboard
 - **grey line**: the mission's planned waypoints
 - **orange**: where the shore predicts it is now (sphere), the line from its last report to there, and a circle = how unsure (grows with silence)
 - **dots above the track**: packets by priority (blue routine, yellow, orange, red time-sensitive)
@@ -75,6 +80,31 @@ LEGEND = """\
 - **purple sphere**: where the temperature estimate is most uncertain (a good place to sample next)
 - **yellow sphere**: the point you clicked (the command's target)
 """
+
+
+def fleet_html(known: dict[str, Any]) -> str:
+    """The fleet's listing (``Screens.fleet``) as HTML: per vehicle its colour, name, state, last report and
+    its age, predicted pose with its uncertainty, battery and link; greyed while overdue."""
+    rows = [_fleet_row(v) for v in known["vehicles"]]
+    return "".join(rows) or "no vehicle registered"
+
+
+def _fleet_row(v: dict[str, Any]) -> str:
+    cp, p = v["reported"], v["predicted"]
+    style = "color:#777;background:#e4e4e4" if v["overdue"] else ""
+    swatch = f'<span style="display:inline-block;width:10px;height:10px;background:{v["colour"]}"></span>'
+    late = " <b>(overdue)</b>" if v["overdue"] else ""
+    head = f"{swatch} <b>{html.escape(v['name'])}</b>: {html.escape(v['state_label'] or 'no check-point yet')}{late}"
+    if cp is None or p is None:
+        return f'<div style="font-size:0.8em;{style}">{head}</div>'
+    snr = "-" if v["snr_in"] is None else f"{v['snr_in']:.0f}"
+    offset = "" if v["clock_offset_s"] is None else f" (its clock ≥ {v['clock_offset_s']:+.1f} s)"
+    return (
+        f'<div style="font-size:0.8em;margin-bottom:4px;{style}">{head}<br>'
+        f"report {v['age_s']:.0f} s ago{offset}: N {cp['north']:.1f}, E {cp['east']:.1f}, {cp['depth']:.1f} m deep; "
+        f"battery {cp['battery']:.1f} V, SNR {snr} dB<br>"
+        f"predicted N {p['north']:.1f}, E {p['east']:.1f} m <b>± {p['radius_m']:.1f} m</b></div>"
+    )
 
 
 def colour_scale(lo: float | None, hi: float | None) -> str:
@@ -137,8 +167,13 @@ class OperatorPanel:
             )
             self.scale_html = gui.add_html(colour_scale(None, None))
             gui.add_markdown(LEGEND)
-        with gui.add_folder("Vehicle"):
-            self.vehicle_md = gui.add_markdown("no check-point yet")
+        with gui.add_folder("Fleet"):
+            self.fleet_html = gui.add_html("waiting for the vehicles' check-points")
+            self.fleet_btns = {
+                command: gui.add_button(label, color="red" if command == "abort_mission" else None,
+                                        hint=f"{label}: one command per vehicle, each with its own status")
+                for command, label in FLEET_LABELS.items()
+            }  # fmt: skip
         with gui.add_folder("Link"):
             self.link_md = gui.add_markdown("waiting for the link engine")
         with gui.add_folder("Command"):
@@ -204,6 +239,8 @@ class OperatorPanel:
         self.home_btn.on_click(lambda _e: self.ask("return_home"))
         self.confirm_btn.on_click(lambda _e: self.confirm())
         self.cancel_btn.on_click(lambda _e: self.ask(None))
+        for command, button in self.fleet_btns.items():
+            button.on_click(lambda _e, command=command: self.ask(FLEET + command))
         self.suggest_btn.on_click(
             lambda _e: self.fill_from_point(*self.map.suggestion) if self.map.suggestion else None
         )
@@ -256,6 +293,7 @@ class OperatorPanel:
             self.home_btn,
             self.confirm_btn,
             self.suggest_btn,
+            *self.fleet_btns.values(),
         ):
             button.disabled = not write
 
@@ -314,6 +352,18 @@ class OperatorPanel:
         self.last_sent = queued.id
         return self._status(f"Command #{queued.id} **{queued.command}** seq {queued.seq}: **queued**")
 
+    def send_fleet(self, command: str) -> str:
+        """One command per vehicle (``CommandDesk.submit_fleet``), each followed in the command list."""
+        actor = self.may_act()
+        if actor is None:
+            return self._status("**Not sent**: sign in with an operator's token to send commands.")
+        try:
+            queued = self.map.desk.submit_fleet(None, CommandIn(command=command), actor.name)
+        except ApiError as exc:
+            return self._status(f"**Refused**: {exc.detail}")
+        each = ", ".join(f"#{c.id}" for c in queued)
+        return self._status(f"**{FLEET_LABELS[command]}**: {len(queued)} commands queued ({each})")
+
     def _status(self, text: str) -> str:
         self.status_md.content = text
         return text
@@ -330,12 +380,17 @@ class OperatorPanel:
         self.pending_confirm = action
         self.confirm_btn.visible = self.cancel_btn.visible = action is not None
         if action:
-            self.confirm_btn.label = f"Confirm: {action.replace('_', ' ')}"
+            fleet = action.removeprefix(FLEET)
+            what = FLEET_LABELS[fleet].lower() if action.startswith(FLEET) else action.replace("_", " ")
+            self.confirm_btn.label = f"Confirm: {what}"
 
     def confirm(self) -> None:
         action, self.pending_confirm = self.pending_confirm, None
         self.ask(None)
         if not action:
+            return
+        if action.startswith(FLEET):
+            self.send_fleet(action.removeprefix(FLEET))
             return
         try:
             param = int(self.inputs["param_id"].value) if action == "start_mission" else 0

@@ -47,8 +47,8 @@ from server.core.events import (
 )
 from server.core.security import Lookup, Throttle
 from server.map.geometry import PLAN_FOV, top_down
-from server.map.panel import OperatorPanel, colour_scale
-from server.screens import states
+from server.map.panel import OperatorPanel, colour_scale, fleet_html
+from server.screens import fleet, states
 from server.screens.service import Screens
 from server.vehicles.models import Vehicle
 from tacit.navigation import Pose
@@ -59,6 +59,7 @@ PRIORITY_COLOURS = {0: (70, 130, 230), 1: (240, 200, 40), 2: (245, 130, 30), 3: 
 DEPTH_SCALE = (-14.0, -6.0)  # (east, north) of the depth scale: off the side of the area, away from home
 DEPTH_LABEL_STEP = 4.0  # metres south between depth labels: apart when seen from above
 PENDING_COLOUR = (150, 150, 150)  # a temperature sample no check-point has verified yet
+OVERDUE_COLOUR = (170, 170, 170)  # a vehicle's body while it is overdue (the dashboard greys its row)
 PENDING_PACKETS = 500  # packets whose samples wait for a check-point (older ones were never covered)
 Sample = tuple[float, float, float, float]  # north, east, depth, degC
 RECENT_COMMANDS = 10
@@ -97,6 +98,7 @@ class OperatorMap:
         self.markers: list[tuple[float, float, float, int]] = []
         self.last_heard: dict[str, float] = {}
         self.reports: dict[str, dict] = {}  # by vehicle name: its last verified check-point
+        self.colours: dict[str, str] = {}  # by vehicle name: as on the dashboard (server.screens.fleet)
         self._nodes: dict[str, dict[str, Any]] = {}
         self.panels: dict[int, OperatorPanel] = {}  # by viser client id: one panel per browser
         self.estimate_cloud: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # points, colours, front
@@ -167,10 +169,16 @@ class OperatorMap:
             scene.add_label(
                 f"/axes/grid/e{metres}", f"{metres} m E", position=(metres, -1.0, 0.1), anchor="top-center"
             )
-        scene.add_label("/home", "home (0, 0)", position=(-1.0, -1.0, 0.8), anchor="top-right")
+        scene.add_label("/home", self._origin_text(), position=(-1.0, -1.0, 0.8), anchor="top-right")
         camera = self.server.initial_camera
         camera.position, camera.look_at = top_down(*self.last_pose)
         camera.fov = PLAN_FOV
+
+    def _origin_text(self) -> str:
+        """The fleet's one origin (north = east = 0 for every vehicle), with its latitude and longitude when
+        known."""
+        origin = self.settings.origin
+        return "fleet origin (0, 0)" + ("" if origin is None else f", {fleet.latlon_text(*origin)}")
 
     def _depth_scale(self) -> None:
         """The depth scale, off to the south-west of home (``DEPTH_SCALE``): a vertical line with its labels
@@ -265,8 +273,14 @@ class OperatorMap:
             segments = np.array(
                 [[a, b] for a, b in zip(track[:-1], track[1:], strict=True)], dtype=np.float32
             )
-            scene.add_line_segments(f"/tracks/{name}/actual", segments, (20, 90, 200), thickness=0.15)
+            scene.add_line_segments(f"/tracks/{name}/actual", segments, self._colour(name), thickness=0.15)
         self._planned(name, cp)
+
+    def _colour(self, name: str) -> tuple[int, int, int]:
+        """The vehicle's colour (the dashboard's too: ``server.screens.fleet``'s one palette) as RGB."""
+        if name not in self.colours:
+            self.colours = self.screens.colours()
+        return fleet.rgb(self.colours.get(name, fleet.PALETTE[0]))
 
     def _vehicle_node(self, name: str) -> dict[str, Any]:
         """The vehicle's body, heading arrow and label, made once and moved after (both the event loop and
@@ -276,7 +290,9 @@ class OperatorMap:
             if node is None:
                 scene = self.server.scene
                 frame = scene.add_frame(f"/vehicles/{name}", show_axes=False)
-                scene.add_box(f"/vehicles/{name}/body", color=(30, 30, 30), dimensions=(1.4, 0.9, 0.6))
+                body = scene.add_box(
+                    f"/vehicles/{name}/body", color=self._colour(name), dimensions=(1.4, 0.9, 0.6)
+                )
                 # the heading: a bright arrow on a larger black one, which outlines it seen from above
                 scene.add_arrows(
                     f"/vehicles/{name}/heading_outline",
@@ -295,13 +311,17 @@ class OperatorMap:
                     head_length=1.6,
                 )
                 label = scene.add_label(f"/vehicles/{name}/label", name, position=(0, 0, 1.2))
-                node = self._nodes[name] = {"frame": frame, "label": label}
+                node = self._nodes[name] = {"frame": frame, "label": label, "body": body}
         return node
 
-    def _label(self, name: str, cp: dict, age: float) -> None:
+    def _label(self, name: str, cp: dict, age: float, overdue: bool = False) -> None:
+        """The vehicle's label; an overdue vehicle (``server.screens.fleet``) is greyed and says so."""
         label, _hint = states.label(cp.get("state", ""))
-        text = f"{name}: {label}, heading {cp['heading']:.0f}°, reported {age:.0f} s ago"
-        self._vehicle_node(name)["label"].text = text
+        late = " (OVERDUE: not heard as its schedule allows)" if overdue else ""
+        text = f"{name}: {label}, heading {cp['heading']:.0f}°, reported {age:.0f} s ago{late}"
+        node = self._vehicle_node(name)
+        node["label"].text = text
+        node["body"].color = OVERDUE_COLOUR if overdue else self._colour(name)
 
     def _planned(self, name: str, cp: dict) -> None:
         """The pre-programmed trajectory (the mission's waypoints)."""
@@ -353,10 +373,10 @@ class OperatorMap:
 
     def _settled(self, event: PacketsSettled) -> None:
         """A check-point settled packets: the trusted ones' samples join the verified ones; the rest (forged,
-        or decoded on a chain nobody vouched for) are dropped."""
+        decoded on a chain nobody vouched for, or out of every check-point's reach) are dropped."""
         trusted = set(event.trusted)
         with self._lock:
-            for packet_id in [*event.verified, *event.forged]:
+            for packet_id in [*event.verified, *event.forged, *event.unverifiable]:
                 samples = self.pending.pop(packet_id, [])
                 if packet_id in trusted:
                     self.temperatures.extend(samples)
@@ -397,7 +417,8 @@ class OperatorMap:
     def command_list(self) -> str:
         """The panels' list of recent commands (markdown), newest first."""
         rows = self.screens.recent_commands(RECENT_COMMANDS)
-        return "\n".join(f"- {command_line(c)}" for c in rows) or "none yet"
+        names = {v.id: v.name for v in self.screens.vehicles()}
+        return "\n".join(f"- {command_line(c, names.get(c.vehicle_id, '?'))}" for c in rows) or "none yet"
 
     def _command_status(self, event: CommandChanged) -> None:
         lines = self.command_list()
@@ -415,34 +436,37 @@ class OperatorMap:
             time.sleep(1.0)
 
     def _tick(self) -> None:
-        status = self.screens.link_status()
-        names = list(status["vehicles"])
+        status, known = self.screens.link_status(), self.screens.fleet()
+        self.colours = {v["name"]: v["colour"] for v in known["vehicles"]}
+        names = [v["name"] for v in known["vehicles"]]
         lines = [f"**Modem**: {status['modem']}"]
-        cards = []
         for name, v in status["vehicles"].items():
             heard = f"{time.time() - v['last_heard']:.0f} s ago" if v["last_heard"] else "never"
             snr = f"{v['snr_in']:.1f} dB" if v["snr_in"] is not None else "-"
             rng = f"{v['range_m']:.0f} m" if v["range_m"] is not None else "-"
             lines.append(f"**{name}**: heard {heard}, SNR {snr}, range {rng}")
-            cards.append(self._prediction(name))
-        panels = list(self.panels.values())
-        for panel in panels:
+        for vehicle in known["vehicles"]:
+            self._prediction(vehicle)
+            share = vehicle["airtime_share"] * 100
+            lines.append(
+                f"airtime **{vehicle['name']}**: {vehicle['airtime_s']['total']:.0f} s ({share:.0f} %)"
+            )
+        listing = fleet_html(known)
+        for panel in list(self.panels.values()):
             if names and list(panel.vehicle_dd.options) != names:
                 panel.vehicle_dd.options = names
             panel.link_md.content = "  \n".join(lines)
-            panel.vehicle_md.content = "\n\n".join(c for c in cards if c) or "no check-point yet"
+            panel.fleet_html.content = listing
         if time.time() - self._gp_at > 10:
             self._gp_at = time.time()
             self._gaussian_process()
 
-    def _prediction(self, name: str) -> str:
-        """Draw where the shore thinks the vehicle is now and how sure; return the panel's text."""
-        vehicle = self.screens.vehicle(name)
-        known = self.screens.estimate(vehicle.id) if vehicle and vehicle.id else None
-        if not known or not known["reported"]:
-            return ""
-        cp, p = known["reported"], known["predicted"]
-        self._label(name, cp, known["age_s"])
+    def _prediction(self, vehicle: dict[str, Any]) -> None:
+        """Draw where the shore thinks the vehicle (a row of ``Screens.fleet``) is now and how sure."""
+        cp, p, name = vehicle["reported"], vehicle["predicted"], vehicle["name"]
+        if not cp or not p:
+            return
+        self._label(name, cp, vehicle["age_s"], vehicle["overdue"])
         scene = self.server.scene
         here, there = (cp["east"], cp["north"], -cp["depth"]), (p["east"], p["north"], -p["depth"])
         scene.add_icosphere(f"/predicted/{name}/now", radius=0.45, color=(250, 150, 30), position=there)
@@ -466,14 +490,6 @@ class OperatorMap:
             np.stack([ring[:-1], ring[1:]], axis=1),
             (250, 150, 30),
             thickness=0.06,
-        )
-        toward = f"toward N {p['target'][0]:.1f}, E {p['target'][1]:.1f} m" if p["target"] else "staying put"
-        return (
-            f"**{name}**: *{known['state_label']}* ({known['state_hint']})  \n"
-            f"last report **{known['age_s']:.0f} s ago**: N {cp['north']:.1f}, E {cp['east']:.1f}, "
-            f"depth {cp['depth']:.1f} m, heading {cp['heading']:.0f}°  \n"
-            f"predicted now: N {p['north']:.1f}, E {p['east']:.1f}, depth {p['depth']:.1f} m "
-            f"**± {radius:.1f} m** ({toward})"
         )
 
     def _gaussian_process(self) -> None:
@@ -533,13 +549,13 @@ def _scene_points(samples: np.ndarray) -> np.ndarray:
     return np.column_stack([samples[:, 1], samples[:, 0], -samples[:, 2]]).astype(np.float32)
 
 
-def command_line(c: CommandRecord) -> str:
-    """One command as the panel lists it, with its parameters and times (UTC), e.g.
-    ``#12 move 10 m, turn +45°, 1 m deeper: executed 12:03:04Z (queued 12:02:50Z)``."""
+def command_line(c: CommandRecord, vehicle: str) -> str:
+    """One command as the panel lists it, with its vehicle, parameters and times (UTC, the shore's clock),
+    e.g. ``#12 rov1 move 10 m, turn +45°, 1 m deeper: executed 12:03:04Z (queued 12:02:50Z)``."""
     queued, last = _utc(c.created_at), _utc(c.updated_at)
     since = "" if c.status == "queued" else f" (queued {queued})"
     reason = f": {c.reason}" if c.reason else ""
-    return f"#{c.id} {_parameters(c)}: **{c.status}** {last}{since}{reason}"
+    return f"#{c.id} {vehicle} {_parameters(c)}: **{c.status}** {last}{since}{reason}"
 
 
 def _parameters(c: CommandRecord) -> str:

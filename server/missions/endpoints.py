@@ -1,13 +1,14 @@
-"""Missions: recorded on the shore, started and aborted by a control packet naming their number."""
+"""Missions: recorded on the shore, started and aborted by a control packet naming their number; team
+missions split among vehicles and run leg by leg, and the shore's proposals to restructure them."""
 
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends
 
-from server.api.deps import Id, MissionsDep, Writer, require_read, require_write
+from server.api.deps import Id, MissionsDep, TeamsDep, Writer, require_read, require_write
 from server.commands.schemas import CommandOut
-from server.missions.models import Mission
-from server.missions.schemas import MissionIn, MissionOut
+from server.missions.models import Mission, ProposalStatus, TeamMission, TeamProposal
+from server.missions.schemas import MissionIn, MissionOut, ProposalOut, TeamIn, TeamOut
 
 router = APIRouter(prefix="/api/v1", tags=["missions"])
 
@@ -43,3 +44,72 @@ def start_mission(mission_id: Id, missions: MissionsDep, actor: Writer) -> Comma
 @router.post("/missions/{mission_id}/abort", status_code=202, response_model=CommandOut)
 def abort_mission(mission_id: Id, missions: MissionsDep, actor: Writer) -> CommandOut:
     return CommandOut.model_validate(missions.abort(mission_id, actor.name), from_attributes=True)
+
+
+# --- team missions (server.missions.teams; docs/missions.md) ------------------------------------------
+
+
+def _team(team: TeamMission, teams: TeamsDep) -> TeamOut:
+    fields = {name: getattr(team, name) for name in TeamOut.model_fields if name != "link"}
+    return TeamOut.model_validate({**fields, "link": teams.cost(team)})
+
+
+def _proposal(proposal: TeamProposal) -> ProposalOut:
+    return ProposalOut.model_validate(proposal, from_attributes=True)
+
+
+@router.post("/teams", status_code=201, response_model=TeamOut, dependencies=[Depends(require_write)])
+def create_team(body: TeamIn, teams: TeamsDep) -> TeamOut:
+    """Split a survey area among named vehicles, as lanes of a lawnmower (one contiguous set each, west
+    to east in the order given). 422 with the reason for an unknown vehicle, an empty or crossed area,
+    fewer lanes than vehicles, or lanes outside a vehicle's limits or a control packet's fields."""
+    return _team(teams.create(body), teams)
+
+
+@router.get("/teams", response_model=list[TeamOut], dependencies=[Depends(require_read)])
+def list_teams(teams: TeamsDep) -> list[TeamOut]:
+    return [_team(t, teams) for t in teams.every()]
+
+
+@router.get("/teams/{team_id}", response_model=TeamOut, dependencies=[Depends(require_read)])
+def get_team(team_id: Id, teams: TeamsDep) -> TeamOut:
+    """The team mission with each vehicle's waypoints, current leg (its command) and state."""
+    return _team(teams.get(team_id), teams)
+
+
+@router.post("/teams/{team_id}/start", status_code=202, response_model=TeamOut)
+def start_team(team_id: Id, teams: TeamsDep, actor: Writer) -> TeamOut:
+    """Queue each vehicle's first leg; refused (422) if a first leg passes too close to another
+    vehicle's path or the lost-link actions could bring two vehicles together."""
+    return _team(teams.start(team_id, actor.name), teams)
+
+
+@router.post("/teams/{team_id}/abort", status_code=202, response_model=TeamOut)
+def abort_team(team_id: Id, teams: TeamsDep, actor: Writer) -> TeamOut:
+    """Queue no more legs: each vehicle finishes the leg it has and holds."""
+    return _team(teams.abort(team_id, actor.name), teams)
+
+
+@router.get(
+    "/teams/{team_id}/proposals", response_model=list[ProposalOut], dependencies=[Depends(require_read)]
+)
+def team_proposals(team_id: Id, teams: TeamsDep) -> list[ProposalOut]:
+    return [_proposal(p) for p in teams.proposals(team_id)]
+
+
+@router.get("/proposals", response_model=list[ProposalOut], dependencies=[Depends(require_read)])
+def proposals(teams: TeamsDep, status: ProposalStatus | None = None) -> list[ProposalOut]:
+    """The shore's proposals of new work (newest first): when a team vehicle reports a time-sensitive
+    anomaly, the restructuring rule sends others near it (settings ``restructure_*``)."""
+    return [_proposal(p) for p in teams.proposals(None, status)]
+
+
+@router.post("/proposals/{proposal_id}/confirm", status_code=202, response_model=ProposalOut)
+def confirm_proposal(proposal_id: Id, teams: TeamsDep, actor: Writer) -> ProposalOut:
+    """Apply the proposal: each helper's leg to its new waypoint is queued (checked like any command)."""
+    return _proposal(teams.confirm(proposal_id, actor.name))
+
+
+@router.post("/proposals/{proposal_id}/dismiss", response_model=ProposalOut)
+def dismiss_proposal(proposal_id: Id, teams: TeamsDep, actor: Writer) -> ProposalOut:
+    return _proposal(teams.dismiss(proposal_id, actor.name))

@@ -1,11 +1,18 @@
-"""The mission table's SQL."""
+"""The mission tables' SQL: missions, team missions and their proposals."""
 
 from __future__ import annotations
 
 from sqlalchemy import update
 from sqlmodel import Session, col, select
 
-from server.missions.models import Mission, MissionStatus
+from server.missions.models import (
+    Mission,
+    MissionStatus,
+    ProposalStatus,
+    TeamMission,
+    TeamProposal,
+    TeamStatus,
+)
 
 
 def add(s: Session, mission: Mission) -> Mission:
@@ -36,3 +43,67 @@ def started(s: Session, vehicle_id: int) -> Mission | None:
 
 def set_status(s: Session, mission_id: int, status: MissionStatus) -> None:
     s.execute(update(Mission).where(col(Mission.id) == mission_id).values(status=status.value))
+
+
+def add_team(s: Session, team: TeamMission) -> TeamMission:
+    s.add(team)
+    s.commit()
+    s.refresh(team)
+    return team
+
+
+def team(s: Session, team_id: int) -> TeamMission | None:
+    return s.get(TeamMission, team_id)
+
+
+def teams(s: Session) -> list[TeamMission]:
+    return list(s.exec(select(TeamMission).order_by(col(TeamMission.id).desc())))
+
+
+def started_teams(s: Session) -> list[TeamMission]:
+    return list(s.exec(select(TeamMission).where(TeamMission.status == TeamStatus.STARTED)))
+
+
+def save_team(s: Session, team_id: int, members: list, status: TeamStatus) -> None:
+    """A team's members (a new list: the JSON column is replaced whole) and status."""
+    s.execute(
+        update(TeamMission).where(col(TeamMission.id) == team_id).values(members=members, status=status.value)
+    )
+
+
+def add_proposal(s: Session, proposal: TeamProposal) -> TeamProposal:
+    s.add(proposal)
+    s.commit()
+    s.refresh(proposal)
+    return proposal
+
+
+def proposal(s: Session, proposal_id: int) -> TeamProposal | None:
+    return s.get(TeamProposal, proposal_id)
+
+
+def proposals(s: Session, team_id: int | None, status: ProposalStatus | None) -> list[TeamProposal]:
+    query = select(TeamProposal)
+    if team_id is not None:
+        query = query.where(TeamProposal.team_id == team_id)
+    if status is not None:
+        query = query.where(TeamProposal.status == status)
+    return list(s.exec(query.order_by(col(TeamProposal.id).desc())))
+
+
+def proposal_by(s: Session, team_id: int, finder: str) -> TeamProposal | None:
+    """The team's proposal prompted by ``finder`` that is still open or was applied."""
+    query = select(TeamProposal).where(
+        TeamProposal.team_id == team_id,
+        TeamProposal.finder == finder,
+        col(TeamProposal.status) != ProposalStatus.DISMISSED,
+    )
+    return s.exec(query).first()
+
+
+def decide(s: Session, proposal_id: int, status: ProposalStatus, by: str, detail: str) -> None:
+    s.execute(
+        update(TeamProposal)
+        .where(col(TeamProposal.id) == proposal_id)
+        .values(status=status.value, decided_by=by, detail=detail)
+    )

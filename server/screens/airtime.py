@@ -11,14 +11,19 @@ POLL_S = rates.airtime_s(rates.CYCLE_INIT_BITS, 0)
 ACK_S = rates.airtime_s(rates.ACK_BITS, 0)
 
 
-def link_shares(commands_sent: int, polls: int, checkpoints: int, priority: int, samples: int) -> dict:
-    """Airtime by use (seconds and shares), and bits saved against sending every sample (16 bits each)."""
-    airtime = {
+def by_use(commands_sent: int, polls: int, checkpoints: int, priority: int) -> dict[str, float]:
+    """Seconds on the air by use: the link's, or one vehicle's (what was sent to it and what it sent)."""
+    return {
         "commands": commands_sent * (FRAME_S + ACK_S),
         "polls": polls * POLL_S,
         "checkpoints": checkpoints * FRAME_S,
         "priority": priority * FRAME_S,
     }
+
+
+def link_shares(commands_sent: int, polls: int, checkpoints: int, priority: int, samples: int) -> dict:
+    """Airtime by use (seconds and shares), and bits saved against sending every sample (16 bits each)."""
+    airtime = by_use(commands_sent, polls, checkpoints, priority)
     total = sum(airtime.values())
     raw_bits, sent_bits = samples * 16, priority * PACKET_SIZE * 8
     return {

@@ -6,7 +6,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends
 
 from server.api.deps import Id, ScreensDep, require_read
-from server.screens.schemas import CommandForm, LinkShares, ScreenConfig, VehicleEstimate
+from server.screens.schemas import CommandForm, Fleet, LinkShares, ScreenConfig, VehicleEstimate
 
 router = APIRouter(prefix="/api/v1", tags=["data"])
 
@@ -25,6 +25,15 @@ def estimate(vehicle_id: Id, screens: ScreensDep) -> VehicleEstimate:
     """The last reported check-point with its age, and the shore's predicted pose since (dead reckoning
     toward the current target) with an uncertainty radius that grows with silence."""
     return VehicleEstimate.model_validate(screens.estimate(vehicle_id))
+
+
+@router.get("/fleet", response_model=Fleet, dependencies=[Depends(require_read)])
+def fleet(screens: ScreensDep) -> Fleet:
+    """Every vehicle as both screens list it: its colour, state, last report (vehicle clock, and on the
+    shore's with the clock offset), predicted pose with its uncertainty, battery, link quality, whether it
+    is overdue for its place in the schedule, and its airtime; the fleet's origin in latitude and
+    longitude when known."""
+    return Fleet.model_validate(screens.fleet())
 
 
 @router.get("/link/shares", response_model=LinkShares, dependencies=[Depends(require_read)])

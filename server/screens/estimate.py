@@ -53,16 +53,17 @@ class Estimate:
 
 
 def target_of(
-    cp: dict, waypoints: list[dict] | None, command: dict | None
+    cp: dict, waypoints: list[dict] | None, command: dict | None, home: tuple[float, float] = (0.0, 0.0)
 ) -> tuple[float, float, float] | None:
-    """Where the vehicle in check-point ``cp`` is steering: its mission's waypoint, home, the commanded
-    target (``command``: the executing command and the pose it was given from), or None (staying put)."""
+    """Where the vehicle in check-point ``cp`` is steering, in the fleet's frame: its mission's waypoint
+    (relative to its ``home``), home, the commanded target (``command``: the executing command and the
+    pose it was given from), or None (staying put)."""
     state = state_of(cp)
     if state in FOLLOWING and waypoints:
         w = waypoints[min(int(cp.get("waypoint", 0)), len(waypoints) - 1)]
-        return (w["north"], w["east"], w["depth"])
+        return (home[0] + w["north"], home[1] + w["east"], w["depth"])
     if state is MissionState.RETURNING:
-        return (0.0, 0.0, cp["depth"])
+        return (home[0], home[1], cp["depth"])
     if state is MissionState.COMMANDED and command:
         if command["command"] == "goto_depth":
             return (cp["north"], cp["east"], command["depth"])

@@ -42,6 +42,53 @@ class VehicleEstimate(BaseModel):
     predicted: PredictedPose | None
 
 
+class LatLon(BaseModel):
+    lat: float = Field(description="deg north")
+    lon: float = Field(description="deg east")
+
+
+class FleetVehicle(BaseModel):
+    """One vehicle as both screens list it."""
+
+    id: int
+    name: str
+    address: int
+    colour: str = Field(description="#rrggbb: its track and rows on both screens (the fleet's palette)")
+    home: list[float] = Field(description="m north, east of the fleet's origin where it starts")
+    reported: dict[str, Any] | None = Field(description="its last verified check-point (vehicle clock)")
+    heard_at: float | None = Field(description="when the shore received it (shore clock, UNIX s)")
+    age_s: float | None
+    state_label: str | None
+    state_hint: str | None
+    predicted: PredictedPose | None
+    predicted_latlon: list[float] | None = Field(description="[lat, lon] of the prediction, origin known")
+    reported_shore_time: float | None = Field(
+        description="the check-point's time on the shore's clock: the latest it can have been made"
+    )
+    clock_offset_s: float | None = Field(
+        description="the vehicle's clock minus the shore's, at least (from its recent check-points)"
+    )
+    battery_v: float | None
+    last_heard: float | None = Field(description="the last frame heard from it (shore clock)")
+    snr_in: float | None
+    snr_out: float | None
+    range_m: float | None
+    overdue: bool = Field(description="heard nothing for longer than its place in the schedule allows")
+    overdue_after_s: float | None = Field(
+        description="the silence that makes it overdue: its report gap and three of its slot intervals"
+    )
+    next_slot: str | None = Field(description="what its next slot carries (GET /link/schedule)")
+    share: float
+    airtime_s: dict[str, float] = Field(description="its seconds on the air by use, and their total")
+    airtime_share: float = Field(description="its part of the fleet's airtime")
+
+
+class Fleet(BaseModel):
+    origin: LatLon | None = Field(description="the fleet's one origin (north = east = 0); None: not known")
+    palette: list[str] = Field(description="the vehicles' colours, in order of registration")
+    vehicles: list[FleetVehicle]
+
+
 class LinkShares(BaseModel):
     airtime_s: dict[str, float]
     shares: dict[str, float]
@@ -61,6 +108,10 @@ class VehicleLinkStatus(BaseModel):
     packets_per_hour: float
     bytes_saved: int
     checkpoint: dict[str, Any] | None
+    old_protocol: int = Field(
+        description="packets refused for speaking the previous protocol version (its agent needs "
+        "updating; logged once)"
+    )
 
 
 class LinkStatus(BaseModel):

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 from sqlalchemy import Engine
@@ -15,18 +16,47 @@ from sqlalchemy import Engine
 from server.commands import repository as command_repo
 from server.commands.models import CommandRecord
 from server.core.config import Settings
-from server.core.db import Tx, reading
+from server.core.db import Tx, reading, saved_id
 from server.link.engine import LinkEngine
 from server.missions import repository as mission_repo
-from server.screens import airtime, estimate, states
+from server.screens import airtime, estimate, fleet, states
 from server.screens.form import command_form
+from server.telemetry import clock
 from server.telemetry import repository as telemetry
+from server.telemetry import service as telemetry_service
 from server.telemetry.models import Packet
 from server.vehicles import repository as vehicle_repo
 from server.vehicles import service as vehicles
 from server.vehicles.models import Vehicle
-from tacit.navigation import Pose
+from tacit.navigation import Origin, Pose
 from tacit.streams import UNITS
+
+REPORTED = (
+    "reported",
+    "heard_at",
+    "age_s",
+    "state_label",
+    "state_hint",
+    "predicted",
+)  # estimate()'s, per row
+
+
+COUNTS_TTL_S = 5.0  # s the fleet's airtime counts are kept before they are counted again
+
+
+@dataclass(frozen=True)
+class Channel:
+    """What the link says of every vehicle, read once per listing of the fleet."""
+
+    link: dict[str, dict[str, Any]]  # LinkEngine.status()'s vehicles, by name
+    planned: dict[int, dict[str, Any]]  # LinkEngine.schedule_status()'s vehicles, by vehicle id
+    frames_sent: dict[int, int]  # by modem address
+    packets: dict[tuple[int, str], int]  # by (vehicle id, packet type)
+    colours: dict[str, str]  # by vehicle name
+
+    def slots(self) -> list[tuple[float, float]]:
+        """Each planned vehicle's (share, slot length)."""
+        return [(p["share"], p["slot_s"]) for p in self.planned.values()]
 
 
 class Screens:
@@ -35,6 +65,7 @@ class Screens:
         self.db = db
         self.link = link
         self.map_port: Callable[[], int | None] = lambda: None  # set when the map runs
+        self._counted: tuple[float, dict[int, int], dict[tuple[int, str], int]] = (-1e18, {}, {})
 
     # --- vehicles ---------------------------------------------------------------------------------
 
@@ -69,7 +100,8 @@ class Screens:
             mission = mission_repo.numbered(s, vehicle_id, int(cp.get("mission_id", 0)))
             followed = _commanded(s, vehicle, cp)
         speed = _speed(rows, vehicle, self.settings.time_scale)
-        target = estimate.target_of(cp, mission.plan.get("waypoints") if mission else None, followed)
+        waypoints = mission.plan.get("waypoints") if mission else None
+        target = estimate.target_of(cp, waypoints, followed, vehicle.home)
         guess = estimate.estimate(cp, last.at, time.time() if now is None else now, target, speed)
         label, hint = states.label(cp.get("state", ""))
         return {
@@ -84,17 +116,94 @@ class Screens:
         }
 
     def route(self, vehicle_id: int) -> list[tuple[float, float, float]]:
-        """The waypoints (north, east, depth) of the vehicle's started mission."""
+        """The waypoints (north, east, depth) of the vehicle's started mission, in the fleet's frame (a
+        plan's are relative to the vehicle's home)."""
         with reading(self.db) as s:
+            vehicle = vehicles.get(s, vehicle_id)
             mission = mission_repo.started(s, vehicle_id)
+        north, east = vehicle.home
         return [
-            (w["north"], w["east"], w["depth"])
+            (north + w["north"], east + w["east"], w["depth"])
             for w in (mission.plan.get("waypoints", []) if mission else [])
         ]
 
     def recent_commands(self, n: int = 6) -> list[CommandRecord]:
         with reading(self.db) as s:
             return command_repo.page(s, None, n)
+
+    # --- the fleet --------------------------------------------------------------------------------
+
+    def fleet(self, now: float | None = None) -> dict[str, Any]:
+        """Every vehicle as both screens list it, in order of registration (its colour's order), with the
+        fleet's one origin (latitude and longitude, None when not known) and the palette."""
+        now = time.time() if now is None else now
+        channel = self._channel()
+        rows = [self._member(v, channel, now) for v in self.vehicles()]
+        total = sum(r["airtime_s"]["total"] for r in rows)
+        for row in rows:
+            row["airtime_share"] = round(row["airtime_s"]["total"] / total, 4) if total else 0.0
+        origin = self.settings.origin
+        return {
+            "origin": None if origin is None else {"lat": origin[0], "lon": origin[1]},
+            "palette": list(fleet.PALETTE),
+            "vehicles": rows,
+        }
+
+    def _channel(self) -> Channel:
+        planned = {p["vehicle_id"]: p for p in self.link.schedule_status()["vehicles"]}
+        sent, packets = self._counts()
+        return Channel(self.link.status()["vehicles"], planned, sent, packets, self.colours())
+
+    def _counts(self) -> tuple[dict[int, int], dict[tuple[int, str], int]]:
+        """Frames sent by address and packets by vehicle and type, counted again at most every
+        ``COUNTS_TTL_S``: the map lists the fleet every second, and the counts scan whole tables."""
+        if time.monotonic() - self._counted[0] > COUNTS_TTL_S:
+            with reading(self.db) as s:
+                counts = telemetry.frames_sent_by_dest(s), telemetry.packets_by_vehicle_and_type(s)
+            self._counted = (time.monotonic(), *counts)
+        return self._counted[1], self._counted[2]
+
+    def colours(self) -> dict[str, str]:
+        """Each vehicle's colour by name: the palette in order of registration (``fleet.colour``)."""
+        return {v.name: fleet.colour(i) for i, v in enumerate(self.vehicles())}
+
+    def _member(self, vehicle: Vehicle, channel: Channel, now: float) -> dict[str, Any]:
+        """One vehicle's row: what it last reported, its link, whether it is overdue, its airtime."""
+        vehicle_id = saved_id(vehicle)
+        known = self.estimate(vehicle_id, now)
+        with reading(self.db) as s:
+            heard = [r.at for r in telemetry.checkpoints(s, vehicle_id, clock.WINDOW)]
+            offset = telemetry_service.clock_offset(s, vehicle_id)
+        plan = channel.planned.get(vehicle_id)
+        return {
+            "id": vehicle_id,
+            "name": vehicle.name,
+            "address": vehicle.address,
+            "colour": channel.colours[vehicle.name],
+            "home": list(vehicle.home),
+            **self._reported(known, offset),
+            **_heard(vehicle, channel, heard, now),
+            "next_slot": None if plan is None else plan["next_slot"],
+            "share": vehicle.share,
+            "airtime_s": _airtime(vehicle, plan, channel),
+        }
+
+    def _reported(self, known: dict[str, Any], offset: float | None) -> dict[str, Any]:
+        """What the vehicle last reported (``estimate``), its time on the shore's clock with the vehicle's
+        clock offset, and the prediction in latitude and longitude."""
+        cp, predicted = known["reported"], known["predicted"]
+        return {
+            **{k: known.get(k) for k in REPORTED},
+            "predicted_latlon": None if predicted is None else self._latlon(predicted["north"], predicted["east"]),
+            "reported_shore_time": None if cp is None else clock.on_shore_clock(cp["time"], known["heard_at"], offset),
+            "clock_offset_s": None if offset is None else round(offset, 2),
+            "battery_v": None if cp is None else cp.get("battery"),
+        }  # fmt: skip
+
+    def _latlon(self, north: float, east: float) -> list[float] | None:
+        """A point of the fleet's frame in latitude and longitude, when the origin is known."""
+        origin = self.settings.origin
+        return None if origin is None else [round(x, 7) for x in Origin(*origin).to_global(north, east)]
 
     # --- the link ---------------------------------------------------------------------------------
 
@@ -143,6 +252,31 @@ class Screens:
             "form": command_form(),
             "time_scale": self.settings.time_scale,
         }
+
+
+def _heard(vehicle: Vehicle, channel: Channel, heard: list[float], now: float) -> dict[str, Any]:
+    """The vehicle's link (last frame heard, SNR, range) and whether it is overdue for its place in the
+    schedule (``fleet.overdue_after``: ``heard`` are its last check-points' arrival times)."""
+    link = channel.link.get(vehicle.name, {})
+    limit = fleet.overdue_after(fleet.report_gap(heard), fleet.slot_interval(vehicle.share, channel.slots()))
+    last = link.get("last_heard")
+    return {
+        **{k: link.get(k) for k in ("last_heard", "snr_in", "snr_out", "range_m")},
+        "overdue": last is None or (limit is not None and now - last > limit),
+        "overdue_after_s": None if limit is None else round(limit, 1),
+    }
+
+
+def _airtime(vehicle: Vehicle, plan: dict[str, Any] | None, channel: Channel) -> dict[str, float]:
+    """The vehicle's seconds on the air by use (what was sent to it, polls since start), and their total."""
+    vehicle_id = saved_id(vehicle)
+    seconds = airtime.by_use(
+        channel.frames_sent.get(vehicle.address, 0),
+        0 if plan is None else plan["polls"],
+        channel.packets.get((vehicle_id, "checkpoint"), 0),
+        channel.packets.get((vehicle_id, "priority"), 0),
+    )
+    return {**{k: round(v, 1) for k, v in seconds.items()}, "total": round(sum(seconds.values()), 1)}
 
 
 def _speed(rows: list[Packet], vehicle: Vehicle, time_scale: float) -> float | None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import enum
 
-from sqlalchemy import JSON, Column, Index, LargeBinary
+from sqlalchemy import JSON, BigInteger, Column, Index, LargeBinary
 from sqlmodel import AutoString, Field, SQLModel
 
 from server.core.db import now
@@ -18,7 +18,7 @@ class PacketTrust(enum.StrEnum):
     VERIFIED = "verified"  # a check-point's MAC vouched for it (a check-point: its own MAC held)
     FORGED = "forged"  # its MAC failed, or a verified check-point vouched for another packet with its seq
     REPLAYED = "replayed"  # a check-point older than the last one applied
-    UNVERIFIABLE = "unverifiable"  # a check-point covering a packet this shore never received
+    UNVERIFIABLE = "unverifiable"  # a check-point covering a packet never received; a packet out of reach
 
 
 class SampleTrust(enum.StrEnum):
@@ -87,7 +87,7 @@ class Telemetry(SQLModel, table=True):
     id: int | None = Field(default=None, primary_key=True)
     vehicle_id: int = Field(foreign_key="vehicle.id")
     stream: str = Field(max_length=16)
-    tick: int
+    tick: int = Field(sa_column=Column(BigInteger, nullable=False))  # UNIX time / period: beyond 2**31
     time: float
     values: list = Field(default_factory=list, sa_column=Column(JSON, nullable=False))
     certain: bool = True

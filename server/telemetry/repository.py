@@ -59,6 +59,16 @@ def set_trust(s: Session, packet_ids: Sequence[int], trust: PacketTrust) -> None
         s.execute(update(Packet).where(col(Packet.id).in_(packet_ids)).values(auth=trust.value))
 
 
+def settle_pending(s: Session, packet_ids: Sequence[int], trust: PacketTrust) -> list[int]:
+    """Of the packets, those still pending get ``trust``: their ids."""
+    if not packet_ids:
+        return []
+    pending = col(Packet.id).in_(packet_ids) & (col(Packet.auth) == PacketTrust.PENDING.value)
+    ids = [int(i) for i in s.exec(select(Packet.id).where(pending)).all() if i is not None]
+    set_trust(s, ids, trust)
+    return ids
+
+
 def trust_data(s: Session, packet_ids: Sequence[int]) -> None:
     """The packets' data may be believed: they and their samples are marked so."""
     if packet_ids:
@@ -173,6 +183,20 @@ def frames_sent(s: Session) -> int:
 
 def packets_by_type(s: Session) -> dict[str, int]:
     return {kind: int(n) for kind, n in s.exec(select(Packet.type, func.count()).group_by(Packet.type)).all()}
+
+
+def frames_sent_by_dest(s: Session) -> dict[int, int]:
+    """Frames the shore sent, by the modem address they went to."""
+    query = select(Frame.dest, func.count()).where(Frame.direction == "out").group_by(col(Frame.dest))
+    return {int(dest): int(n) for dest, n in s.exec(query).all()}
+
+
+def packets_by_vehicle_and_type(s: Session) -> dict[tuple[int, str], int]:
+    """Vehicle packets stored, by (vehicle id, type)."""
+    query = select(Packet.vehicle_id, Packet.type, func.count()).group_by(
+        col(Packet.vehicle_id), col(Packet.type)
+    )
+    return {(int(vehicle), kind): int(n) for vehicle, kind, n in s.exec(query).all() if vehicle is not None}
 
 
 def certain_ticks_by_stream(s: Session) -> dict[str, int]:

@@ -8,8 +8,9 @@ from dataclasses import dataclass
 
 from sqlalchemy import Engine
 
-from server.core.db import reading
+from server.core.db import Tx, reading
 from server.core.errors import Refused
+from server.telemetry import clock
 from server.telemetry import repository as repo
 from server.telemetry.metadata import Dataset
 from server.telemetry.models import Packet, SampleTrust, Telemetry
@@ -18,6 +19,14 @@ from tacit.codec import StreamSpec
 from tacit.packets import Stream
 
 Sample = tuple[Telemetry, SampleTrust]
+
+
+def clock_offset(s: Tx, vehicle_id: int, *latest: tuple[float, float]) -> float | None:
+    """The vehicle's clock offset (``clock.offset``) over its last verified check-points and ``latest``
+    (vehicle time, shore time heard) pairs not stored yet."""
+    rows = repo.checkpoints(s, vehicle_id, clock.WINDOW)
+    stored = [(float(r.body["time"]), r.at) for r in rows if "time" in r.body]
+    return clock.offset([*latest, *stored])
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ from fastapi import APIRouter, Depends
 from server.api.deps import Id, LinkDep, VehiclesDep, require_read, require_write
 from server.vehicles import keys
 from server.vehicles.models import Vehicle
-from server.vehicles.schemas import KeyIn, LimitsIn, ShareIn, VehicleCreated, VehicleIn, VehicleOut
+from server.vehicles.schemas import HomeIn, KeyIn, LimitsIn, ShareIn, VehicleCreated, VehicleIn, VehicleOut
 
 router = APIRouter(prefix="/api/v1/vehicles", tags=["vehicles"])
 
@@ -52,6 +52,13 @@ def set_share(vehicle_id: Id, body: ShareIn, vehicles: VehiclesDep, link: LinkDe
     return _out(vehicle)
 
 
+@router.put("/{vehicle_id}/home", response_model=VehicleOut, dependencies=[Depends(require_write)])
+def set_home(vehicle_id: Id, body: HomeIn, vehicles: VehiclesDep) -> VehicleOut:
+    """Where the vehicle starts, m north and east of the fleet's one origin (its agent's ``[nav] home``):
+    its mission's waypoints and its return home are relative to it on the screens."""
+    return _out(vehicles.set_home(vehicle_id, body.home))
+
+
 @router.post("/{vehicle_id}/key", response_model=VehicleCreated, dependencies=[Depends(require_write)])
 def rotate_key(vehicle_id: Id, body: KeyIn, vehicles: VehiclesDep) -> VehicleCreated:
     """Rotate the vehicle's key (at the surface: put the new key in the agent's configuration too)."""
@@ -61,6 +68,6 @@ def rotate_key(vehicle_id: Id, body: KeyIn, vehicles: VehiclesDep) -> VehicleCre
 @router.delete("/{vehicle_id}/key/pending", response_model=VehicleOut, dependencies=[Depends(require_write)])
 def cancel_key_rotation(vehicle_id: Id, vehicles: VehiclesDep) -> VehicleOut:
     """Cancel a key rotation the vehicle has not confirmed: the previous key (and its version) is current
-    again. 409 if none waits. Only while the vehicle has not switched: one that took the new key from a
-    probe confirms it with its next check-point, and the rotation is over."""
+    again. 409 if none waits. Only while the vehicle has not switched: one that said it holds the new key
+    is sent commands and SYNCs signed with it, and confirms it with its next check-point."""
     return _out(vehicles.cancel_rotation(vehicle_id))

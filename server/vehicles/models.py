@@ -3,6 +3,7 @@ channel (the polled MAC's weight, ``server.link.schedule``)."""
 
 from __future__ import annotations
 
+from sqlalchemy import false
 from sqlmodel import Field, SQLModel
 
 from server.core.db import now
@@ -19,14 +20,25 @@ class Vehicle(SQLModel, table=True):
     # are signed with it until a check-point signed with the new key arrives. None: nothing staged.
     previous_key_hex: str | None = Field(default=None, max_length=128)
     rotation_since: float | None = None  # when the staged rotation began
-    rotation_probes: int = Field(default=0, sa_column_kwargs={"server_default": "0"})  # probe SYNCs sent
+    # Its last check-point signed with the confirmed key said it holds the staged one (version
+    # key_version): commands and SYNCs are signed with the new key from then on.
+    next_key_held: bool = Field(default=False, sa_column_kwargs={"server_default": false()})
     next_seq: int = Field(default=1)
     max_depth: float = Limits.max_depth
     max_distance: float = Limits.max_distance
     max_speed: float = Limits.max_speed
     geofence_radius: float = Limits.geofence_radius
     share: float = Field(default=1.0, sa_column_kwargs={"server_default": "1"})  # its weight in the MAC
+    # where it starts, m north and east of the fleet's origin (its agent's [nav] home): its mission's
+    # waypoints and its return home are relative to it, its check-points in the fleet's frame
+    home_north: float = Field(default=0.0, sa_column_kwargs={"server_default": "0"})
+    home_east: float = Field(default=0.0, sa_column_kwargs={"server_default": "0"})
     created_at: float = Field(default_factory=now)
+
+    @property
+    def home(self) -> tuple[float, float]:
+        """(north, east) of its home in the fleet's frame."""
+        return self.home_north, self.home_east
 
     def limits(self) -> Limits:
         """The vehicle's limits as the shore holds them (set through the API)."""

@@ -57,14 +57,10 @@ def confirm_key(s: Session, vehicle_id: int) -> None:
     s.execute(
         update(Vehicle)
         .where(col(Vehicle.id) == vehicle_id)
-        .values(previous_key_hex=None, rotation_since=None, rotation_probes=0)
+        .values(previous_key_hex=None, rotation_since=None, next_key_held=False)
     )
 
 
-def count_probe(s: Session, vehicle_id: int) -> None:
-    """One more probe SYNC signed with the staged key went out."""
-    s.execute(
-        update(Vehicle)
-        .where(col(Vehicle.id) == vehicle_id)
-        .values(rotation_probes=col(Vehicle.rotation_probes) + 1)
-    )
+def hold_next_key(s: Session, vehicle_id: int, held: bool) -> None:
+    """What the vehicle's last check-point signed with its confirmed key said of the staged one."""
+    s.execute(update(Vehicle).where(col(Vehicle.id) == vehicle_id).values(next_key_held=held))

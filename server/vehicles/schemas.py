@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Annotated
+
 from pydantic import BaseModel, Field
 
 from server.core.schemas import STRICT
@@ -30,11 +32,27 @@ class LimitsIn(BaseModel):
     )
 
 
+NORTH = CheckpointPacket.field("north")  # a position in the fleet's frame a check-point can report
+Coordinate = Annotated[float, Field(ge=NORTH.lo, le=NORTH.hi)]
+
+
+class HomeIn(BaseModel):
+    model_config = STRICT
+    home: tuple[Coordinate, Coordinate] = Field(
+        description="m north, east of the fleet's origin where it starts (its agent's [nav] home)"
+    )
+
+
 class VehicleIn(LimitsIn):
     name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")
     address: int = Field(ge=1, le=127, description="the vehicle modem's address")
     key: str | None = Field(
         None, max_length=MAX_KEY_HEX, description="hex, 16 to 64 bytes; generated when absent"
+    )
+    home: tuple[Coordinate, Coordinate] = Field(
+        (0.0, 0.0),
+        description="m north, east of the fleet's origin where it starts (its agent's [nav] home): its "
+        "mission's waypoints and its return home are relative to it",
     )
 
 
@@ -59,16 +77,20 @@ class KeyRotation(BaseModel):
     """A key rotation waiting for the vehicle's confirmation (``server.vehicles.keys``)."""
 
     pending_version: int = Field(
-        description="the new key's version; commands use the one before until confirmed"
+        description="the new key's version; commands use the one before until the vehicle holds it"
     )
     since: float = Field(description="when it was staged (UNIX s)")
-    probes: int = Field(description="SYNCs signed with the new key sent so far")
+    held: bool = Field(
+        description="the vehicle's last check-point said it holds the new key: commands and SYNCs are "
+        "signed with it, and its next check-point signed with it ends the rotation"
+    )
 
 
 class VehicleOut(LimitsIn):
     id: int
     name: str
     address: int
+    home: tuple[float, float] = Field(description="m north, east of the fleet's origin where it starts")
     key_version: int
     share: float = Field(description="its weight in the channel's schedule")
     key_rotation: KeyRotation | None = None

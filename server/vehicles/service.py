@@ -63,6 +63,8 @@ class Vehicles:
                 name=body.name,
                 address=body.address,
                 key_hex=_unshared(s, _key(body.key)).hex(),
+                home_north=body.home[0],
+                home_east=body.home[1],
                 **body.model_dump(include=set(LimitsIn.model_fields)),
             )
             return repo.save(s, vehicle)
@@ -79,6 +81,13 @@ class Vehicles:
         with writing(self.db) as s:
             vehicle = get(s, vehicle_id)
             vehicle.share = share
+            return repo.save(s, vehicle)
+
+    def set_home(self, vehicle_id: int, home: tuple[float, float]) -> Vehicle:
+        """Where the vehicle starts in the fleet's frame (as its agent's ``[nav] home`` says)."""
+        with writing(self.db) as s:
+            vehicle = get(s, vehicle_id)
+            vehicle.home_north, vehicle.home_east = home
             return repo.save(s, vehicle)
 
     def rotate_key(self, vehicle_id: int, key_hex: str | None = None) -> Vehicle:
@@ -100,7 +109,7 @@ class Vehicles:
             vehicle.previous_key_hex = vehicle.key_hex  # staged: see server.vehicles.keys
             vehicle.key_hex = key.hex()
             vehicle.key_version += 1
-            vehicle.rotation_since, vehicle.rotation_probes = now(), 0
+            vehicle.rotation_since, vehicle.next_key_held = now(), False
             return repo.save(s, vehicle)
 
     def cancel_rotation(self, vehicle_id: int) -> Vehicle:
@@ -112,11 +121,5 @@ class Vehicles:
                 raise Conflict(f"vehicle {vehicle.name} has no key rotation waiting", "key")
             vehicle.key_hex, vehicle.previous_key_hex = vehicle.previous_key_hex or "", None
             vehicle.key_version -= 1
-            vehicle.rotation_since, vehicle.rotation_probes = None, 0
+            vehicle.rotation_since, vehicle.next_key_held = None, False
             return repo.save(s, vehicle)
-
-    def probed(self, vehicle_id: int) -> None:
-        """A probe SYNC signed with the staged key went out (counted for the API)."""
-        with writing(self.db) as s:
-            repo.count_probe(s, vehicle_id)
-            s.commit()

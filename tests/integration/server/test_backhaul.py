@@ -31,15 +31,15 @@ from server.core.db import make_engine, migrate
 from server.core.events import Bus
 from tacit.streams import default_streams
 from tests.conftest import postgres_database
-from tests.support.nats import NATS_SERVER, Broker
+from tests.support.nats import NATS_SERVER, NatsServer
 
 ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.skipif(not Path(NATS_SERVER).exists(), reason="nats-server is not installed")
 
 
 @pytest.fixture
-def broker(tmp_path: Path) -> Iterator[Broker]:
-    b = Broker(tmp_path / "jetstream")
+def broker(tmp_path: Path) -> Iterator[NatsServer]:
+    b = NatsServer(tmp_path)
     b.start()
     try:
         yield b
@@ -89,7 +89,9 @@ def per_vehicle(rows: list[tuple[int, bytes, float | None]], src: int) -> list[b
     return [data for s, data, _ in rows if s == src]
 
 
-def test_frames_reach_the_center_once_and_in_order(broker: Broker, sqlite_url: str, tmp_path: Path) -> None:
+def test_frames_reach_the_center_once_and_in_order(
+    broker: NatsServer, sqlite_url: str, tmp_path: Path
+) -> None:
     async def main() -> None:
         outbox = Outbox(tmp_path / "ship.db", "ship")
         gateway = Gateway(outbox, broker.url, heartbeat=0.2)
@@ -113,7 +115,7 @@ def test_frames_reach_the_center_once_and_in_order(broker: Broker, sqlite_url: s
 
 
 def test_a_backhaul_outage_loses_nothing_and_doubles_nothing(
-    broker: Broker, sqlite_url: str, tmp_path: Path
+    broker: NatsServer, sqlite_url: str, tmp_path: Path
 ) -> None:
     async def main() -> None:
         outbox = Outbox(tmp_path / "buoy.db", "buoy")
@@ -146,7 +148,7 @@ def test_a_backhaul_outage_loses_nothing_and_doubles_nothing(
 
 
 def test_a_center_dying_before_its_acks_loses_and_doubles_nothing(
-    broker: Broker, sqlite_url: str, tmp_path: Path
+    broker: NatsServer, sqlite_url: str, tmp_path: Path
 ) -> None:
     async def main() -> None:
         outbox = Outbox(tmp_path / "pier.db", "pier")
@@ -177,7 +179,7 @@ def test_a_center_dying_before_its_acks_loses_and_doubles_nothing(
     asyncio.run(main())
 
 
-def test_a_retry_after_the_broker_window_is_still_stored_once(broker: Broker, sqlite_url: str) -> None:
+def test_a_retry_after_the_broker_window_is_still_stored_once(broker: NatsServer, sqlite_url: str) -> None:
     async def main() -> None:
         center = Center(ingest_on(sqlite_url), broker.url, duplicate_window=1.0)
         await center.connect()
@@ -206,7 +208,7 @@ def test_a_retry_after_the_broker_window_is_still_stored_once(broker: Broker, sq
 
 
 def test_two_gateways_hearing_one_frame_store_it_once_with_the_best_snr(
-    broker: Broker, tmp_path: Path, postgres_server: str
+    broker: NatsServer, tmp_path: Path, postgres_server: str
 ) -> None:
     """On PostgreSQL, as the center runs."""
     with postgres_database(postgres_server) as url:
@@ -257,7 +259,7 @@ def test_two_gateways_hearing_one_frame_store_it_once_with_the_best_snr(
 
 
 def test_commands_go_down_once_and_are_kept_by_the_gateway(
-    broker: Broker, sqlite_url: str, tmp_path: Path
+    broker: NatsServer, sqlite_url: str, tmp_path: Path
 ) -> None:
     async def main() -> None:
         outbox = Outbox(tmp_path / "ship.db", "ship")
@@ -346,7 +348,7 @@ def test_a_frame_two_gateways_heard_is_decoded_once(sqlite_url: str) -> None:
 
 
 def test_a_gateway_on_a_modem_relays_what_it_hears_and_sends_what_it_is_given(
-    broker: Broker, sqlite_url: str, tmp_path: Path
+    broker: NatsServer, sqlite_url: str, tmp_path: Path
 ) -> None:
     """A scripted Micro-Modem on a pty: a frame it hears reaches the center with its statistics; a
     command from the center is sent in a data cycle and its ACK goes up as the attempt's outcome."""
@@ -406,7 +408,7 @@ def test_a_gateway_on_a_modem_relays_what_it_hears_and_sends_what_it_is_given(
     assert any(e["kind"] == "modem" and e["detail"]["state"] == "ready" for e in events)
 
 
-def test_a_frame_on_another_gateways_subject_is_refused(broker: Broker, sqlite_url: str) -> None:
+def test_a_frame_on_another_gateways_subject_is_refused(broker: NatsServer, sqlite_url: str) -> None:
     async def main() -> None:
         center = Center(ingest_on(sqlite_url), broker.url)
         await center.connect()

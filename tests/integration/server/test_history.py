@@ -99,7 +99,9 @@ def test_history_has_every_step_attempt_reason_and_where_and_when(client: TestCl
     assert [e["detail"] for e in steps[1:3]] == ["attempt 1", "attempt 2"]
     assert all(a["at"] <= b["at"] for a, b in zip(steps, steps[1:], strict=False))
     assert all(e["report"] is None for e in steps[:4])  # the shore's own steps
-    executed = steps[-1]["report"]
+    executed = dict(steps[-1]["report"])
+    # on the shore's clock: never before the command left, never after the shore heard it
+    assert steps[2]["at"] <= executed.pop("shore_time") <= steps[-1]["at"]
     assert executed == {
         "time": stamp,
         "state": "commanded",

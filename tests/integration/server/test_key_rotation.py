@@ -1,11 +1,12 @@
-"""Key rotation, the shore half: SYNCs stay signed with the confirmed key while a rotation waits, with
-a probe signed with the new key every ``probe_every``-th; a waiting rotation shows on the API and can be
-cancelled."""
+"""Key rotation, the shore half: SYNCs and commands stay signed with the confirmed key while a rotation
+waits, until a check-point says the vehicle holds the new key; a waiting rotation shows on the API and
+can be cancelled."""
 
 from __future__ import annotations
 
 import asyncio
 import itertools
+import time
 from pathlib import Path
 
 import pytest
@@ -14,13 +15,15 @@ from fastapi.testclient import TestClient
 from server.app import create_app
 from server.core.config import Settings
 from server.link.heartbeat import Heartbeat
-from server.link.state import VehicleState
+from server.link.state import IncomingFrame, VehicleState
 from server.link.store import LinkStore
 from server.link.timing import Timing
 from server.shore import Shore
 from tacit import auth
 from tacit import modem as mm
-from tacit.packets import Command
+from tacit.packets import CheckpointPacket, MissionState
+
+STAMPS = itertools.count()
 
 OP = {"Authorization": "Bearer operator-token"}
 
@@ -66,21 +69,45 @@ def client(tmp_path: Path):
         yield client
 
 
-def test_syncs_stay_signed_with_the_confirmed_key_and_every_third_probes_with_the_new(client) -> None:
+def checkpoint(shore: Shore, key: bytes, version: int, holds_next_key: bool) -> None:
+    """A check-point from vehicle 1, signed with ``key``, through the shore's ingest."""
+    stamp = int(time.time()) + next(STAMPS)  # each above the last: none is a replay
+    packet = CheckpointPacket(
+        seq=stamp % 256, time=stamp, state=MissionState.WAITING, holds_next_key=holds_next_key
+    )
+    shore.ingest.handle(IncomingFrame(2, 1, auth.sign_checkpoint(packet, key, version, 2, [])))
+
+
+def signed_with(shore: Shore, client: TestClient, key: bytes, version: int) -> bool:
+    """Whether the next SYNCs and a command's frame are all signed with ``key`` (and name ``version``)."""
+    client.post("/api/v1/vehicles/1/commands", json={"command": "hold"}, headers=OP).raise_for_status()
+    command = shore.commands.next_to_send(1, time.time())
+    assert command is not None
+    frames = [*syncs(shore, 4), shore.commands.frame(command)]
+    try:
+        return all(auth.verify(frame, key, 2).key_epoch == version for frame in frames)
+    except auth.BadMac:
+        return False
+
+
+def test_the_new_key_is_used_once_a_checkpoint_says_the_vehicle_holds_it_and_never_before(client) -> None:
     shore: Shore = client.app.state.shore
     old = bytes.fromhex(
         client.post("/api/v1/vehicles", json={"name": "rov1", "address": 2}, headers=OP).json()["key"]
     )
+    shore.ingest.load_vehicles()
     new = bytes.fromhex(client.post("/api/v1/vehicles/1/key", json={}, headers=OP).json()["key"])
-    frames = syncs(shore, 6)
-    for number, frame in enumerate(frames, start=1):
-        probe = number % 3 == 0  # probe_every's default
-        packet = auth.verify(frame, new if probe else old, 2)
-        assert packet.command is Command.SYNC and packet.key_epoch == (2 if probe else 1)
-        with pytest.raises(auth.BadMac):
-            auth.verify(frame, old if probe else new, 2)
-    rotation = client.get("/api/v1/vehicles/1", headers=OP).json()["key_rotation"]
-    assert rotation["pending_version"] == 2 and rotation["probes"] == 2 and rotation["since"] > 0
+    rotation = lambda: client.get("/api/v1/vehicles/1", headers=OP).json()["key_rotation"]  # noqa: E731
+    checkpoint(shore, old, 1, holds_next_key=False)
+    assert signed_with(shore, client, old, 1) and not signed_with(shore, client, new, 2)
+    assert rotation()["pending_version"] == 2 and rotation()["held"] is False and rotation()["since"] > 0
+    checkpoint(shore, old, 1, holds_next_key=True)  # the vehicle has it as its next_key
+    assert rotation()["held"] is True and signed_with(shore, client, new, 2)
+    checkpoint(shore, old, 1, holds_next_key=False)  # restarted without it: back to the confirmed key
+    assert rotation()["held"] is False and signed_with(shore, client, old, 1)
+    checkpoint(shore, old, 1, holds_next_key=True)
+    checkpoint(shore, new, 2, holds_next_key=False)  # it switched: confirmed, the rotation is over
+    assert rotation() is None and signed_with(shore, client, new, 2)
 
 
 def test_a_waiting_rotation_can_be_cancelled(client) -> None:

@@ -26,6 +26,8 @@ from server.core.events import CommandChanged, PacketsSettled, TelemetryDecoded
 from server.map.panel import LEGEND, OperatorPanel
 from server.map.scene import OperatorMap
 from server.operators.schemas import OperatorIn
+from server.screens.fleet import PALETTE, rgb
+from server.vehicles.schemas import VehicleIn
 
 OP = {"Authorization": "Bearer operator-token"}
 
@@ -282,9 +284,11 @@ def test_the_command_list_is_filled_from_the_start_with_parameters_and_times(sho
     ):
         client_post(shore, body)
     text = panel_for(owner).commands_md.content
-    assert text.splitlines()[0].startswith("- #3 hold: **queued** ")
-    assert re.search(r"#1 move 10 m, turn \+45°, 1 m deeper, 0.5 m/s: \*\*queued\*\* \d\d:\d\d:\d\dZ", text)
-    assert "#2 move 6 m, bearing 270°" in text
+    assert text.splitlines()[0].startswith("- #3 rov1 hold: **queued** ")
+    assert re.search(
+        r"#1 rov1 move 10 m, turn \+45°, 1 m deeper, 0.5 m/s: \*\*queued\*\* \d\d:\d\d:\d\dZ", text
+    )
+    assert "#2 rov1 move 6 m, bearing 270°" in text
 
 
 def test_speed_is_sent_only_when_set(shore_map: tuple) -> None:
@@ -300,3 +304,40 @@ def test_speed_is_sent_only_when_set(shore_map: tuple) -> None:
     panel.inputs["speed"].value = 0.4
     panel.send_btn.press()
     assert [c.speed for c in commands(shore)] == [0.0, 0.4]  # 0 on the wire: nothing set, the cruise speed
+
+
+def test_the_fleet_buttons_send_one_command_per_vehicle_once_confirmed(shore_map: tuple) -> None:
+    shore, owner = shore_map
+    shore.vehicles.create(VehicleIn(name="rov2", address=3, home=(0.0, 30.0)))
+    watcher, panel = panel_for(owner), panel_for(owner)
+    watcher.fleet_btns["abort_mission"].press()
+    watcher.confirm_btn.press()  # not signed in: nothing leaves
+    assert commands(shore) == []
+    assert panel.sign_in("operator-token") == "write" and not panel.fleet_btns["hold"].disabled
+    panel.fleet_btns["abort_mission"].press()
+    assert panel.confirm_btn.visible and panel.confirm_btn.label == "Confirm: abort all"
+    assert commands(shore) == []  # asked, not yet confirmed
+    panel.confirm_btn.press()
+    sent = commands(shore)
+    assert sorted((c.vehicle_id, c.command) for c in sent) == [(1, "abort_mission"), (2, "abort_mission")]
+    assert "**Abort all**: 2 commands queued" in panel.status_md.content
+    assert re.search(r"#\d+ rov2 abort mission: \*\*queued\*\*", owner.command_list())
+
+
+def test_each_vehicle_in_its_colour_and_greyed_while_overdue(shore_map: tuple) -> None:
+    shore, owner = shore_map
+    shore.vehicles.create(VehicleIn(name="rov2", address=3, home=(0.0, 30.0)))
+    owner.server = fake_server()
+    panel = panel_for(owner)
+    owner.panels[1] = panel
+    for name, east in (("rov1", 0.0), ("rov2", 30.0)):
+        for north in (0.0, 4.0):
+            owner._checkpoint(
+                name, {"north": north, "east": east, "depth": 2.0, "heading": 0.0, "state": "holding"}
+            )
+    nodes = owner.server.scene.nodes
+    assert nodes["/tracks/rov1/actual"].args[1] == rgb(PALETTE[0])
+    assert nodes["/tracks/rov2/actual"].args[1] == rgb(PALETTE[1])  # the dashboard's colours: one palette
+    owner._tick()  # the shore never heard either on its link (no modem here): both overdue
+    assert "rov1" in panel.fleet_html.content and "rov2" in panel.fleet_html.content
+    assert panel.fleet_html.content.count("(overdue)") == 2

@@ -12,6 +12,8 @@ TABLES = {
     "vehicle",
     "mission",
     "operator",
+    "teammission",
+    "teamproposal",
     "command",
     "commandevent",
     "frame",

@@ -13,8 +13,12 @@ import time
 from pathlib import Path
 
 import pytest
+from fastapi.testclient import TestClient
 from sqlmodel import Session
 
+from launch.stack import wait_for
+from launch.stepped_clock import stepped
+from server.app import create_app
 from server.core.config import Settings
 from server.core.db import make_engine, migrate
 from server.core.events import Bus
@@ -34,6 +38,7 @@ from vehicle_agent.agent import Agent, AgentConfig
 KEY = bytes(range(32))
 ADDRESS = 2
 HOUR = 3600
+DAY = 86400
 
 
 def make_agent(tmp_path: Path) -> Agent:
@@ -170,20 +175,79 @@ def test_attack_4_a_shore_clock_an_hour_ahead_then_fixed_is_heard_again_at_its_n
     assert agent.link.receiver.window.floor == int(now) - auth.FLOOR_SLACK  # never moved by a SYNC
 
 
-def test_version_2_frames_are_refused_with_a_clear_reason(shore, tmp_path: Path, caplog) -> None:
+def test_attack_4_a_shore_clock_an_hour_ahead_then_set_right_hears_the_vehicle_again_at_once(
+    shore, tmp_path: Path, monkeypatch
+) -> None:
     ingest, _ = shore()
-    old = bytearray(checkpoint(time.time()))
+    clock = tmp_path / "shore.clock"
+    clock.write_text(repr(float(HOUR)))
+    monkeypatch.setattr(time, "time", stepped(clock))  # the shore's wall clock (launch.stepped_clock)
+    ahead = checkpoint(time.time())  # the vehicle followed the shore's SYNCs an hour ahead
+    ingest.handle(IncomingFrame(ADDRESS, 1, ahead))
+    clock.write_text("0.0")  # set right; its next SYNC corrects the vehicle back
+    wait_for(lambda: time.time() < ingest.vehicles[ADDRESS].link.checkpoint_time, 1.0, what="the step")
+    ingest.handle(IncomingFrame(ADDRESS, 1, checkpoint(time.time() - 3)))
+    ingest.handle(IncomingFrame(ADDRESS, 1, ahead))  # recorded while it was ahead, replayed
+    assert ingest.stats["verified"] == 2 and ingest.stats["replayed"] + ingest.stats["duplicates"] == 1
+
+
+def test_attack_4_a_vehicle_clock_stepped_a_whole_day_ahead_is_corrected_by_the_next_sync(
+    tmp_path: Path, monkeypatch
+) -> None:
+    clock = tmp_path / "agent.clock"
+    monkeypatch.setattr(time, "time", stepped(clock))  # the vehicle's wall clock (launch.stepped_clock)
+    agent, now = make_agent(tmp_path), time.time()
+    agent.link.clock = time.time  # its link took time.time at import; a stepped process patches first
+    agent.link._control(control(Command.SYNC, 1, now, echo=challenge(agent)[28:]))
+    clock.write_text(repr(float(DAY)))  # it steps a day ahead
+    wait_for(lambda: time.time() > now + DAY - 60, 1.0, every=0.01, what="the step")
+    agent.link._control(control(Command.SYNC, 2, now - 5))  # signed 5 s before it arrives
+    assert agent.link.receiver.sync.counter == 2 and agent.link.offset == pytest.approx(-DAY, abs=10)
+    agent.link._control(control(Command.HOLD, 1, now))
+    assert agent.fsm.status.last_command == 1
+
+
+def test_attack_4_a_shore_clock_stepped_back_an_hour_keeps_sending_syncs(
+    shore, tmp_path: Path, monkeypatch
+) -> None:
+    """SYNC intervals run on the monotonic clock: a wall clock stepped back must not stop them."""
+    ingest, heartbeat = shore()
+    heartbeat.settings = Settings(time_scale=1000.0)  # a SYNC every 60 ms
+    v = ingest.vehicles[ADDRESS]
+    sync(heartbeat, ingest)
+    assert not heartbeat.due(v)
+    clock = tmp_path / "shore.clock"
+    clock.write_text(repr(-float(HOUR)))
+    monkeypatch.setattr(time, "time", stepped(clock))  # the shore's wall clock steps (launch.stepped_clock)
+    wait_for(lambda: heartbeat.due(v), 2.0, every=0.01, what="the next SYNC due")
+
+
+def version_2(frame: bytes) -> bytes:
+    old = bytearray(frame)
     old[0] = (old[0] & 0x3F) | (2 << 6)
-    ingest.handle(IncomingFrame(ADDRESS, 1, bytes(old)))
-    assert (
-        ingest.stats["rejected"] == 1
-        and "protocol version 2" in caplog.text
-        and "update its agent" in caplog.text
+    return bytes(old)
+
+
+def test_a_version_2_vehicle_is_refused_with_a_clear_reason_logged_once_and_counted_on_the_link(
+    tmp_path: Path, caplog
+) -> None:
+    settings = Settings(
+        database_url=f"sqlite:///{tmp_path}/tacit.db", modem_url="", map_enabled=False, write_tokens=["op"]
     )
+    with TestClient(create_app(settings)) as client:
+        op = {"Authorization": "Bearer op"}
+        body = {"name": "rov1", "address": ADDRESS, "key": KEY.hex()}
+        client.post("/api/v1/vehicles", json=body, headers=op).raise_for_status()
+        ingest = client.app.state.shore.ingest  # type: ignore[attr-defined]
+        ingest.load_vehicles()
+        for k in range(5):  # an old agent keeps talking
+            ingest.handle(IncomingFrame(ADDRESS, 1, version_2(checkpoint(time.time() + k))))
+        link = client.get("/api/v1/link", headers=op).json()
+    assert caplog.text.count("protocol version 2") == 1 and "update its agent" in caplog.text
+    assert link["vehicles"]["rov1"]["old_protocol"] == 5
+    assert link["ingest"]["old_protocol"] == 5 and link["ingest"]["rejected"] == 5
     agent = make_agent(tmp_path)
-    command = bytearray(control(Command.HOLD, 1, time.time()))
-    command[0] = (command[0] & 0x3F) | (2 << 6)
-    agent.link._control(bytes(command))
+    agent.link._control(version_2(control(Command.HOLD, 1, time.time())))
     assert agent.link.counters["rejected"] == 1
 
 

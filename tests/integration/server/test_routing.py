@@ -33,7 +33,7 @@ from tacit import modem as mm
 from tacit.packets import CheckpointPacket, Command, MissionState
 from tacit.streams import default_streams
 from tests.conftest import postgres_database
-from tests.support.nats import NATS_SERVER, Broker
+from tests.support.nats import NATS_SERVER, NatsServer
 
 pytestmark = pytest.mark.skipif(not Path(NATS_SERVER).exists(), reason="nats-server is not installed")
 
@@ -107,6 +107,7 @@ def settings(url: str, **changes: Any) -> Settings:
         "tdma_slot": 0.8,
         "tdma_guard": 0.05,
         "command_attempts": 2,
+        "metrics_port": 0,
     }
     return Settings(**{**base, **changes})
 
@@ -140,7 +141,7 @@ class Air:
 class Layout(Air):
     """The center's app on a client, and the two gateways on stand-in modems in its event loop."""
 
-    def __init__(self, client: TestClient, broker: Broker, tmp_path: Path) -> None:
+    def __init__(self, client: TestClient, broker: NatsServer, tmp_path: Path) -> None:
         super().__init__(tmp_path)
         self.client = client
         self.gateways = {
@@ -178,8 +179,8 @@ class Layout(Air):
 
 
 @pytest.fixture
-def broker(tmp_path: Path) -> Iterator[Broker]:
-    b = Broker(tmp_path / "jetstream")
+def broker(tmp_path: Path) -> Iterator[NatsServer]:
+    b = NatsServer(tmp_path)
     b.start()
     try:
         yield b
@@ -189,7 +190,7 @@ def broker(tmp_path: Path) -> Iterator[Broker]:
 
 @pytest.fixture
 def center(
-    broker: Broker, tmp_path: Path, postgres_server: str, request: pytest.FixtureRequest
+    broker: NatsServer, tmp_path: Path, postgres_server: str, request: pytest.FixtureRequest
 ) -> Iterator[Layout]:
     """The layout on a fresh PostgreSQL database; ``settings`` changes through the test's parameters."""
     changes = getattr(request, "param", {})
@@ -281,7 +282,7 @@ def test_an_operator_pins_a_vehicle_to_a_gateway(center: Layout) -> None:
 
 
 def test_the_vehicle_moves_to_the_gateway_that_hears_it_better_with_hysteresis(
-    broker: Broker, tmp_path: Path, postgres_server: str
+    broker: NatsServer, tmp_path: Path, postgres_server: str
 ) -> None:
     """Frames through two gateways and the broker into the center's store; the assignment applied every
     10 s (of the frames' own clock): within the 3 dB margin the vehicle stays wherever the SNRs wobble,
@@ -347,7 +348,9 @@ async def until_async(condition: Callable[[], bool], step: Callable[[], Awaitabl
         await step()
 
 
-def test_two_gateways_on_one_band_never_collide(broker: Broker, tmp_path: Path, postgres_server: str) -> None:
+def test_two_gateways_on_one_band_never_collide(
+    broker: NatsServer, tmp_path: Path, postgres_server: str
+) -> None:
     """Two gateways on simulated Micro-Modems 1.2 km apart on one channel, each with a vehicle near it;
     commands to both vehicles at once go down in the slots the center hands out: every one is
     acknowledged and no two transmissions overlap at any receiver. The same two sends without slots

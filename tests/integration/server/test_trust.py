@@ -18,11 +18,13 @@ from server.core.db import make_engine, migrate
 from server.core.events import Bus as EventBus
 from server.core.events import PacketHeard, PacketsSettled, TelemetryDecoded
 from server.link.ingest import Ingest
+from server.link.models import LinkEvent
 from server.link.state import IncomingFrame
 from server.telemetry.models import Packet, Telemetry
 from server.vehicles.models import Vehicle
 from tacit import auth
 from tacit.packets import (
+    COVER_BITS,
     CheckpointPacket,
     CommandStatus,
     MissionState,
@@ -36,6 +38,7 @@ from vehicle_agent.compressor import Compressor
 
 KEY = bytes(range(32))
 STRANGER = bytes(32)
+OTHER = bytes(range(32, 64))  # another registered vehicle's key
 ADDRESS = 2
 ENV = default_streams()[Stream.ENVIRONMENTAL]
 
@@ -169,6 +172,27 @@ def test_forged_checkpoints_change_nothing(shore) -> None:
     older = CheckpointPacket(seq=99, time=int(time.time()) - 60, state=MissionState.PREPROGRAMMED, north=-1.0)
     send(ingest, auth.sign_checkpoint(older, KEY, 1, ADDRESS, []))
     assert ingest.vehicles[ADDRESS].link.checkpoint["north"] == 30.0 and ingest.stats["replayed"] == 1
+
+
+def test_a_checkpoint_signed_with_another_vehicles_key_says_whose(shore) -> None:
+    """Two agents' keys swapped by mistake: refused as forged like any bad MAC, applying nothing, and the
+    link event names the vehicle whose key signed it; a stranger's key is named nowhere."""
+    db, start = shore
+    with Session(db) as s:
+        s.add(Vehicle(name="rov2", address=ADDRESS + 1, key_hex=OTHER.hex()))
+        s.commit()
+    ingest, vehicle = start(), Vehicle_()
+    send(ingest, vehicle.checkpoint(north=10.0))
+    send(ingest, vehicle.checkpoint(key=OTHER, north=-3000.0, last_command=7))
+    send(ingest, vehicle.checkpoint(key=STRANGER, north=-3000.0))
+    assert ingest.vehicles[ADDRESS].link.checkpoint["north"] == 10.0
+    assert {c.status for c in rows(db, Command)} == {"acknowledged"}
+    assert [p.auth for p in rows(db, Packet)] == ["verified", "forged", "forged"]
+    mixed_up, forged = (e.detail["error"] for e in rows(db, LinkEvent, kind="forged_checkpoint"))
+    assert mixed_up.endswith(
+        "signed with rov2's key, not rov1's: is rov1's agent configured with rov2's key?"
+    ), mixed_up
+    assert forged.endswith("check-point MAC does not match") and "rov2" not in forged, forged
 
 
 def test_forged_priority_packet_with_a_genuine_seq_is_marked_forged(shore) -> None:
@@ -360,3 +384,27 @@ def test_a_checkpoint_publishes_which_packets_it_settled(shore) -> None:
     # the stranger's twin failed its tag on arrival: forged then, so the check-point has none left to refuse
     assert settled.forged == [] and list(by_id.values()).count("forged") == 1
     assert settled.as_dict()["kind"] == "settled"
+
+
+def test_a_packet_no_checkpoint_can_reach_any_more_is_unverifiable(shore) -> None:
+    """The vehicle covers only packets whose ACK it heard: one the shore heard but whose ACK was lost is
+    never vouched for. Once a verified check-point is COVER_BITS past it, it is unverifiable, not pending
+    for ever (the screens would promise a verification that will never come)."""
+    db, start = shore
+    ingest, vehicle = start(), Vehicle_()
+    vehicle.measure(10)
+    send(ingest, vehicle.priority(delivered=False))  # heard here, its ACK lost at the vehicle
+    [missed] = rows(db, Packet, type="priority")
+
+    def settle_after(packets: int) -> PacketsSettled:
+        for _ in range(packets):
+            vehicle.measure(10)
+            send(ingest, vehicle.priority())
+        [settled] = [e for e in send(ingest, vehicle.checkpoint()) if isinstance(e, PacketsSettled)]
+        return settled
+
+    first = settle_after(3)  # still within the reach of a later check-point
+    assert missed.id not in first.unverifiable and rows(db, Packet, id=missed.id)[0].auth == "pending"
+    later = settle_after(COVER_BITS)
+    assert later.unverifiable == [missed.id] and rows(db, Packet, id=missed.id)[0].auth == "unverifiable"
+    assert {p.auth for p in rows(db, Packet, type="priority") if p.id != missed.id} == {"verified"}

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from pymavlink import mavutil
 
+from simulators.run import MODEM_LOSS
 from tacit.modem import DriverSettings, LinkState, ModemDriver
 from tests.conftest import tacit_process
 
@@ -86,3 +87,32 @@ def test_bad_config_is_a_clear_error(tmp_path: Path) -> None:
         timeout=30,
     )
     assert result.returncode == 2 and "unknown channel parameters ['noise']" in result.stderr
+
+
+def test_a_vehicle_modem_taken_out_of_range_over_mavlink_and_back(tmp_path: Path) -> None:
+    """``SIM_MODEM_LOSS`` set on a vehicle (PARAM_SET over its MAVLink) silences the modem riding it, and
+    only that one, until it is set back to 0."""
+    path = tmp_path / "sim.toml"
+    path.write_text(CONFIG)
+    with tacit_process("sim", "--config", str(path)) as (_proc, info):
+        beta = mavutil.mavlink_connection(info["vehicles"][1]["mavlink"][0], source_system=250)
+
+        def set_loss(loss: float) -> None:
+            beta.mav.param_set_send(1, 1, MODEM_LOSS.encode(), loss, mavutil.mavlink.MAV_PARAM_TYPE_REAL32)
+            echo = beta.recv_match(type="PARAM_VALUE", blocking=True, timeout=10)
+            assert echo is not None and echo.param_id == MODEM_LOSS and echo.param_value == loss
+
+        async def pings() -> tuple[float | None, float | None]:
+            driver = ModemDriver(DriverSettings(url=info["modems"][0]["tcp"], address=1, echo_timeout=2))
+            await driver.start()
+            travel = await driver.ping(3, timeout=5), await driver.ping(2, timeout=10)
+            await driver.stop()
+            return travel
+
+        set_loss(1.0)
+        to_beta, to_alpha = asyncio.run(pings())
+        assert to_beta is None and to_alpha is not None
+        set_loss(0.0)
+        to_beta, _ = asyncio.run(pings())
+        assert to_beta is not None
+        beta.close()

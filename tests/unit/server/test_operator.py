@@ -87,6 +87,16 @@ def test_prediction_moves_toward_the_target_and_grows_uncertain() -> None:
     assert estimate.target_of(commanded, None, move) == pytest.approx((0.0, 10.0, 3.0))
 
 
+def test_a_fleet_vehicles_targets_are_in_the_fleets_frame_around_its_own_home() -> None:
+    """A plan's waypoints and a return home are relative to the vehicle's home; check-points and the
+    screens are in the fleet's one frame."""
+    home = (0.0, 30.0)
+    cp = {"north": 5.0, "east": 30.0, "depth": 2.0, "heading": 0.0, "state": "preprogrammed", "waypoint": 1}
+    square = [{"north": 0, "east": 0, "depth": 2}, {"north": 20, "east": 0, "depth": 2}]
+    assert estimate.target_of(cp, square, None, home) == (20.0, 30.0, 2)
+    assert estimate.target_of({**cp, "state": "returning"}, square, None, home) == (0.0, 30.0, 2.0)
+
+
 def test_link_shares_add_up() -> None:
     shares = airtime.link_shares(commands_sent=2, polls=10, checkpoints=3, priority=5, samples=3000)
     assert sum(shares["shares"].values()) == pytest.approx(1.0, abs=1e-3)

@@ -77,6 +77,37 @@ def test_extra_loss_drops_the_configured_fraction() -> None:
     assert 0.25 < lost < 0.35
 
 
+def test_a_node_taken_out_of_range_and_back() -> None:
+    """A node's own loss (read at each arrival) drops every frame to and from it while it is 1 (it is out
+    of range of every node), and no frame between the others; back at 0 it is heard again."""
+    sched = VirtualScheduler()
+    channel = Channel(sched, ChannelParameters(fading_sigma_db=0))
+    heard: dict[str, list[bool]] = {"shore": [], "far": [], "near": []}
+    cut = [0.0]
+    for name, east in (("shore", 0.0), ("far", 100.0), ("near", 200.0)):
+        channel.add_node(
+            name,
+            lambda e=east: (0.0, e, 1.0),
+            lambda rec, n=name: heard[n].append(rec.frames_ok[0]),
+            loss=(lambda: cut[0]) if name == "far" else lambda: 0.0,
+        )
+
+    def exchange() -> None:
+        channel.transmit("shore", data(1, 2))
+        sched.run()
+        channel.transmit("far", data(2, 1))
+        sched.run()
+
+    exchange()
+    cut[0] = 1.0
+    exchange()
+    cut[0] = 0.0
+    exchange()
+    assert heard["far"] == [True, False, True]  # from the shore
+    assert heard["shore"] == [True, False, True]  # from "far"
+    assert heard["near"] == [True, True, True, False, True, True]  # the shore always, "far" when in range
+
+
 def run_log(seed: int) -> list[dict[str, object]]:
     sched, channel, _ = channel_with({"a": (0, 0, 0), "b": (3200, 0, 0)}, seed=seed)
     for i in range(50):
@@ -196,3 +227,17 @@ def test_config_query_all_and_reboot() -> None:
     pair.host(1, nmea.Sleep(1, 1, 0))
     pair.sched.run()
     assert [s.ident for _, s in pair.of(1, nmea.Revision)] == ["INIT", "AUV"]
+
+
+def test_a_recorder_reports_every_data_frame_and_acknowledges_none() -> None:
+    pair = Pair(100.0, noise_level_db=80.0)
+    recorder = MicroModemEmulator(
+        "recorder", 7, pair.channel, pair.sched, lambda: (50.0, 10.0, 1.0), hears_all=True
+    )
+    heard: list[nmea.Sentence] = []
+    recorder.output = lambda line: heard.append(nmea.parse(line))
+    pair.send_frame(1, 2, True, bytes(range(32)))
+    pair.sched.run()
+    (rxd,) = [s for s in heard if isinstance(s, nmea.RxData)]
+    assert rxd.data == bytes(range(32)) and (rxd.src, rxd.dest) == (1, 2)
+    assert [ack.src for _, ack in pair.of(1, nmea.Ack)] == [2]  # the vehicle's ACK alone: no collision

@@ -1,8 +1,8 @@
 """routing: the gateways the center knows, each vehicle's gateway (assignment, pins), and each
 command's dispatches through the gateways
 
-Revision ID: 0010
-Revises: 0008
+Revision ID: 0013
+Revises: 0012
 """
 
 from collections.abc import Sequence
@@ -11,8 +11,8 @@ import sqlalchemy as sa
 import sqlmodel
 from alembic import op
 
-revision: str = "0010"
-down_revision: str | None = "0008"
+revision: str = "0013"
+down_revision: str | None = "0012"
 branch_labels: str | Sequence[str] | None = None
 depends_on: str | Sequence[str] | None = None
 

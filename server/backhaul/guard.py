@@ -1,0 +1,104 @@
+"""What the center takes from the broker: every message checked before it reaches the store or the
+gateways' table, and a message that fails is a logged, counted refusal, never an exception.
+
+* A frame must decode (``subjects.FrameMessage``), come on its own gateway's subject with an id of that
+  gateway (the broker's permissions keep a gateway to its own subject; the id check catches a message
+  passed off inside it), and carry a finite time and a statistics object.
+* An event must decode and come on its own gateway's subject.
+* A gateway announcing itself twice: heartbeats under one name from two outbox incarnations (two
+  processes sharing a name or a credentials file, or a gateway restarted on a new outbox while the old
+  one still runs). The first keeps the name until it has been silent for ``STALE_BEATS`` heartbeats;
+  the other's heartbeats are refused and logged. Its frames are not: their ids differ (the incarnation
+  is part of them), so they are stored, none lost.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import Counter
+from dataclasses import dataclass
+
+from server.backhaul import subjects
+from server.backhaul.subjects import EventMessage, FrameMessage, PayloadError
+
+log = logging.getLogger("tacit.backhaul.guard")
+
+STALE_BEATS = 3  # heartbeats missed before another incarnation may take a gateway's name
+MAX_ID = 128  # characters: the store's column
+
+
+@dataclass
+class Announced:
+    """A gateway's heartbeats: its outbox's incarnation, since when it beats without a gap, the last."""
+
+    incarnation: str
+    since: float
+    last: float
+
+
+class Guard:
+    def __init__(self, heartbeat: float = subjects.HEARTBEAT) -> None:
+        self.heartbeat = heartbeat
+        self.refused: Counter[str] = Counter()  # by reason: malformed, foreign, twice
+        self.announced: dict[str, Announced] = {}  # by gateway name
+
+    def frame(self, subject: str, data: bytes) -> FrameMessage | None:
+        """The frame in a message from ``subject``, or None (refused, logged)."""
+        try:
+            frame = FrameMessage.decode(data)
+            subjects.gateway_name(frame.gateway)
+        except (PayloadError, ValueError) as exc:
+            self._refuse("malformed", f"malformed frame message on {subject} dropped: {exc}")
+            return None
+        if subject != subjects.frames(frame.gateway) or not _own(frame.gateway, frame.id):
+            self._refuse(
+                "foreign", f"frame {frame.id[:MAX_ID]!r} of gateway {frame.gateway!r} on {subject} dropped"
+            )
+            return None
+        if not math.isfinite(frame.at) or not isinstance(frame.stats, dict | None):
+            self._refuse("malformed", f"frame {frame.id} on {subject} dropped: bad time or statistics")
+            return None
+        return frame
+
+    def event(self, subject: str, data: bytes, now: float) -> EventMessage | None:
+        """The event in a message from ``subject``, or None (refused, logged)."""
+        try:
+            event = EventMessage.decode(data)
+        except PayloadError as exc:
+            self._refuse("malformed", f"malformed event on {subject} dropped: {exc}")
+            return None
+        if subject != subjects.events(event.gateway):
+            self._refuse("foreign", f"event of gateway {event.gateway!r} on {subject} dropped")
+            return None
+        if event.kind == "heartbeat" and not self._one_incarnation(event, now):
+            return None
+        return event
+
+    def up(self, gateway: str, now: float) -> bool:
+        """Its last heartbeat came less than ``STALE_BEATS`` heartbeats ago."""
+        held = self.announced.get(gateway)
+        return held is not None and now - held.last < STALE_BEATS * self.heartbeat
+
+    def _one_incarnation(self, event: EventMessage, now: float) -> bool:
+        incarnation = str(event.detail.get("incarnation", ""))
+        held = self.announced.get(event.gateway)
+        up = self.up(event.gateway, now)
+        if held is not None and up and held.incarnation != incarnation:
+            self._refuse(
+                "twice",
+                f"gateway {event.gateway!r} announced twice (outboxes {held.incarnation!r} and "
+                f"{incarnation!r}): two gateways share a name or credentials; {held.incarnation!r} keeps it",
+            )
+            return False
+        since = held.since if held is not None and up else now
+        self.announced[event.gateway] = Announced(incarnation, since, now)
+        return True
+
+    def _refuse(self, reason: str, message: str) -> None:
+        self.refused[reason] += 1
+        log.error("backhaul: %s", message)
+
+
+def _own(gateway: str, message_id: str) -> bool:
+    return message_id.startswith(f"{gateway}-") and len(message_id) <= MAX_ID

@@ -1,0 +1,1 @@
+"""The center's safety functions: separation between vehicles' planned paths, and warnings."""

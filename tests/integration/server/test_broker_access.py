@@ -1,0 +1,412 @@
+"""The broker is no back door (issue 24, item 8): a real nats-server with the configuration
+``tacit broker-config`` writes. A stranger is refused; a gateway publishes only its own frames and events,
+reads only its own commands and schedule, touches no stream; the center's guard refuses bad input, logged
+and counted, and goes on."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import shutil
+import stat
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import nats
+import pytest
+from nats.aio.client import Client
+from nats.errors import Error as NatsError
+
+from server.backhaul import access, subjects
+from server.backhaul.center import Center
+from server.backhaul.gateway import Gateway
+from server.backhaul.outbox import Outbox
+from server.backhaul.subjects import CommandMessage, EventMessage, FrameMessage, ScheduleMessage
+from server.core.db import migrate
+from tests.integration.server.test_backhaul import hear, ingest_on, stored, until
+from tests.support.nats import NATS_SERVER, NatsServer, Secured, certificates
+
+pytestmark = pytest.mark.skipif(not Path(NATS_SERVER).exists(), reason="nats-server is not installed")
+
+
+@pytest.fixture
+def secured(tmp_path: Path) -> Iterator[Secured]:
+    server = Secured(tmp_path / "broker", ["ship", "buoy"])
+    server.start()
+    try:
+        yield server
+    finally:
+        server.stop()
+
+
+@pytest.fixture
+def open_broker(tmp_path: Path) -> Iterator[NatsServer]:
+    server = NatsServer(tmp_path / "open")
+    server.start()
+    try:
+        yield server
+    finally:
+        server.stop()
+
+
+@pytest.fixture
+def sqlite_url(tmp_path: Path) -> str:
+    url = f"sqlite:///{tmp_path}/center.db"
+    migrate(url)
+    return url
+
+
+async def client(server: Secured, user: str, errors: list[str] | None = None) -> Client:
+    """A raw client as ``user`` (its permission errors collected in ``errors``)."""
+
+    async def error(exc: Exception) -> None:
+        if errors is not None:
+            errors.append(str(exc))
+
+    options = server.credentials(user).options()
+    return await nats.connect(server.url, error_cb=error, allow_reconnect=False, **options)
+
+
+def test_a_stranger_or_a_wrong_password_is_refused(secured: Secured) -> None:
+    async def main() -> None:
+        for options in ({}, {"user": "gateway-ship", "password": "guessed"}, {"user": "admin"}):
+            with pytest.raises(NatsError, match="Authorization Violation"):
+                await nats.connect(secured.url, allow_reconnect=False, connect_timeout=2, **options)
+
+    asyncio.run(main())
+
+
+def test_gateways_and_the_center_work_with_their_credentials(
+    secured: Secured, sqlite_url: str, tmp_path: Path
+) -> None:
+    """The gateway starts first and waits for the center to create the streams (it may not)."""
+
+    async def main() -> None:
+        outbox = Outbox(tmp_path / "ship.db", "ship")
+        gateway = Gateway(outbox, secured.url, heartbeat=0.2, auth=secured.credentials("gateway-ship"))
+        center = Center(ingest_on(sqlite_url), secured.url, auth=secured.credentials("center"))
+        await gateway.start()
+        heard = hear(outbox, 1, 5)
+        await center.connect()
+        try:
+            await until(lambda: len(stored(sqlite_url)) == 5, center.step)
+            assert [d for _, d, _ in stored(sqlite_url)] == heard
+            command = CommandMessage(
+                "cmd-1-1", "ship", address=1, data=b"signed", expires_at=time.time() + 60
+            )
+            assert await center.send_command(command)
+            await until(lambda: outbox.commands() == [command], lambda: asyncio.sleep(0.05))
+            await until(lambda: "ship" in center.gateways, center.step_events)
+            assert center.guard.refused == {}
+        finally:
+            await center.close()
+            await gateway.stop()
+
+    asyncio.run(main())
+
+
+def test_a_gateway_cannot_publish_as_another_or_send_commands(secured: Secured, sqlite_url: str) -> None:
+    async def main() -> None:
+        center = Center(ingest_on(sqlite_url), secured.url, auth=secured.credentials("center"))
+        await center.connect()
+        errors: list[str] = []
+        ship = await client(secured, "gateway-ship", errors)
+        js = ship.jetstream(timeout=0.5)
+        try:
+            own = FrameMessage("ship-0a0b0c0d-1", "ship", 3, 0, b"the ship's", at=time.time())
+            await js.publish(subjects.frames("ship"), own.encode(), headers={subjects.MSG_ID: own.id})
+            forged = FrameMessage("buoy-0a0b0c0d-1", "buoy", 3, 0, b"passed off", at=time.time())
+            command = CommandMessage("cmd-9-1", "ship", address=3, data=b"unsigned")
+            for subject, payload in (
+                (subjects.frames("buoy"), forged.encode()),
+                (subjects.events("buoy"), EventMessage("buoy-x-1", "buoy", "modem", time.time()).encode()),
+                (subjects.commands("ship"), command.encode()),
+                (subjects.commands("buoy"), command.encode()),
+            ):
+                with pytest.raises(NatsError):  # JetStream never answers: the broker dropped it
+                    await js.publish(subject, payload, timeout=0.5)
+            for stream in (subjects.FRAMES_STREAM, subjects.COMMANDS_STREAM):
+                with pytest.raises(NatsError):
+                    await js.delete_stream(stream)  # nor may it touch the streams
+            await until(lambda: len(stored(sqlite_url)) == 1, center.step)
+            for _ in range(3):
+                await center.step(timeout=0.2)
+            assert stored(sqlite_url) == [(3, b"the ship's", None)]
+            assert center.js is not None
+            assert (await center.js.stream_info(subjects.COMMANDS_STREAM)).state.messages == 0
+            assert sum("permissions violation for publish" in e for e in errors) == 6
+        finally:
+            await ship.close()
+            await center.close()
+
+    asyncio.run(main())
+
+
+def test_a_gateway_cannot_read_another_gateways_commands(
+    secured: Secured, sqlite_url: str, tmp_path: Path
+) -> None:
+    async def main() -> None:
+        center = Center(ingest_on(sqlite_url), secured.url, auth=secured.credentials("center"))
+        await center.connect()
+        errors: list[str] = []
+        ship = await client(secured, "gateway-ship", errors)
+        snooped: list[str] = []
+
+        async def snoop(msg: object) -> None:
+            snooped.append(str(msg))
+
+        for subject in (subjects.commands(">"), "_INBOX.>", "$JS.>", ">"):
+            await ship.subscribe(subject, cb=snoop)
+        js = ship.jetstream(timeout=0.5)
+        buoy = Gateway(
+            Outbox(tmp_path / "buoy.db", "buoy"), secured.url, auth=secured.credentials("gateway-buoy")
+        )
+        await buoy.start()
+        try:
+            command = CommandMessage("cmd-2-1", "buoy", address=4, data=b"for the buoy only")
+            assert await center.send_command(command)
+            await until(lambda: buoy.outbox.commands() == [command], lambda: asyncio.sleep(0.05))
+            with pytest.raises(NatsError):  # the buoy's consumer
+                await js.consumer_info(subjects.COMMANDS_STREAM, "gateway-buoy")
+            with pytest.raises(NatsError):  # its own consumer's name, the buoy's subject
+                await js.pull_subscribe(
+                    subjects.commands("buoy"), durable="gateway-ship", stream=subjects.COMMANDS_STREAM
+                )
+            with pytest.raises(NatsError):  # a consumer of another name
+                await js.pull_subscribe(
+                    subjects.commands("buoy"), durable="mine", stream=subjects.COMMANDS_STREAM
+                )
+            own = "$JS.API.CONSUMER.CREATE.TACIT_COMMANDS.gateway-ship.tacit.v1.commands.ship"
+            config = {
+                "name": "gateway-ship",
+                "filter_subject": subjects.commands("buoy"),
+                "ack_policy": "explicit",
+            }
+            request = {"stream_name": subjects.COMMANDS_STREAM, "config": config}
+            answer = await ship.request(
+                own, json.dumps(request).encode(), timeout=2
+            )  # its subject, the buoy's filter
+            assert json.loads(answer.data)["error"]["err_code"] == 10131  # "did not match filtered subject"
+            await asyncio.sleep(0.3)
+            assert snooped == []
+            assert sum("permissions violation for subscription" in e for e in errors) == 4
+        finally:
+            await buoy.stop()
+            await ship.close()
+            await center.close()
+
+    asyncio.run(main())
+
+
+def test_a_gateway_cannot_read_another_gateways_schedule(
+    secured: Secured, sqlite_url: str, tmp_path: Path
+) -> None:
+    """The center hands the buoy its slots; the ship gets them by no way, not even through a consumer of
+    its own name; the buoy gets its own, also after a restart (its consumer made anew at the last one)."""
+
+    async def main() -> None:
+        center = Center(ingest_on(sqlite_url), secured.url, auth=secured.credentials("center"))
+        await center.connect()
+        errors: list[str] = []
+        ship = await client(secured, "gateway-ship", errors)
+        snooped: list[str] = []
+
+        async def snoop(msg: object) -> None:
+            snooped.append(str(msg))
+
+        await ship.subscribe(subjects.schedule(">"), cb=snoop)
+        js = ship.jetstream(timeout=0.5)
+        auth = secured.credentials("gateway-buoy")
+        buoy = Gateway(Outbox(tmp_path / "buoy.db", "buoy"), secured.url, auth=auth)
+        schedule = ScheduleMessage("schedule-1-buoy", "buoy", time.time(), 2.0, 0.1, ("buoy", "ship"), (4,))
+        await center.publish(subjects.schedule("buoy"), schedule.encode(), schedule.id)
+        await buoy.start()
+        try:
+            await until(lambda: buoy.polls == (4,), lambda: asyncio.sleep(0.05))
+            await buoy.stop()
+            buoy = Gateway(Outbox(tmp_path / "buoy.db", "buoy"), secured.url, auth=auth)
+            await buoy.start()
+            await until(lambda: buoy.polls == (4,), lambda: asyncio.sleep(0.05))
+            for name in ("schedule-buoy", "schedule-ship"):
+                with pytest.raises(NatsError):  # the buoy's consumer; its own name on the buoy's subject
+                    await js.pull_subscribe(
+                        subjects.schedule("buoy"), durable=name, stream=subjects.SCHEDULE_STREAM
+                    )
+            with pytest.raises(NatsError):  # an ordered consumer (an ephemeral one, unfiltered subject)
+                await js.subscribe(
+                    subjects.schedule("buoy"), stream=subjects.SCHEDULE_STREAM, ordered_consumer=True
+                )
+            with pytest.raises(NatsError):  # nor may it delete the buoy's
+                await js.delete_consumer(subjects.SCHEDULE_STREAM, "schedule-buoy")
+            await asyncio.sleep(0.3)
+            assert snooped == []
+            assert sum("permissions violation for subscription" in e for e in errors) == 1
+        finally:
+            await buoy.stop()
+            await ship.close()
+            await center.close()
+
+    asyncio.run(main())
+
+
+def test_bad_input_across_the_broker_is_a_logged_refusal(
+    open_broker: NatsServer, sqlite_url: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Malformed messages, a frame on its own gateway's subject with a name no subject has, a stranger's
+    frame (stored, not decoded) and a frame the pipeline fails on (stored undecoded, alone: the rest of
+    its batch decoded): the center goes on, and every frame is stored, in order."""
+
+    async def main() -> None:
+        center = Center(ingest_on(sqlite_url), open_broker.url, batch=4)
+        await center.connect()
+        assert center.js is not None
+        good = [
+            FrameMessage(f"ship-0a0b0c0d-{i}", "ship", 2, 0, f"good {i}".encode(), at=time.time())
+            for i in range(3)
+        ]
+        bad = [
+            b"not json",
+            b'{"v": 2, "id": "ship-1-1"}',
+            b'{"v": 1, "id": "ship-1-2", "gateway": "ship", "src": 2, "dest": 0, "data": "zz", "at": 1}',
+            b'{"v": 1, "id": "ship-1-3", "gateway": "ship", "src": 2, "dest": 0, "data": "00", "at": NaN}',
+            b'{"v": 1, "id": "ship-1-4", "gateway": "ship", "src": 2, "dest": 0, "data": "00", "at": 1, "stats": [1]}',
+            FrameMessage("ship-" + "9" * 200, "ship", 2, 0, b"an id too long", at=time.time()).encode(),
+            FrameMessage("ship-1-5", "ship.x", 2, 0, b"a name no subject has", at=time.time()).encode(),
+        ]
+        stranger = FrameMessage("ship-0a0b0c0d-9", "ship", 77, 0, b"an unknown vehicle", at=time.time())
+        poison = FrameMessage("ship-0a0b0c0d-8", "ship", 2, 0, b"poison", at=time.time())
+        handle_batch = center.ingest.handle_batch
+
+        def picky(frames: list) -> list:  # a pipeline that fails on one frame, whatever the batch
+            if any(f.data == b"poison" for f in frames):
+                raise ValueError("the pipeline fails on this one")
+            return handle_batch(frames)
+
+        center.ingest.handle_batch = picky  # type: ignore[method-assign]
+        try:
+            await center.js.publish(subjects.frames("ship"), good[0].encode())
+            for i, payload in enumerate(bad):
+                await center.js.publish(
+                    subjects.frames("ship"), payload, headers={subjects.MSG_ID: f"bad-{i}"}
+                )
+            for frame in (stranger, poison, *good[1:]):
+                await center.js.publish(subjects.frames("ship"), frame.encode())
+            await until(lambda: center.counters["messages"] >= len(bad) + 5, center.step)
+            assert [d for _, d, _ in stored(sqlite_url)] == [
+                good[0].data,
+                stranger.data,
+                poison.data,
+                good[1].data,
+                good[2].data,
+            ]
+            assert center.guard.refused == {"malformed": 6, "foreign": 1}
+            assert center.counters["malformed"] == 7
+            assert center.ingest.stats["undecoded"] == 1
+            # no vehicle is known here: every frame stored, none decoded
+            assert center.ingest.stats["unknown_vehicle"] == 4
+        finally:
+            await center.close()
+
+    with caplog.at_level("WARNING"):
+        asyncio.run(main())
+    assert sum("dropped" in r.getMessage() for r in caplog.records) == 7
+    assert any("ship-0a0b0c0d-8 (stream seq 10) failed" in r.getMessage() for r in caplog.records)
+    assert any("unknown modem address 77" in r.getMessage() for r in caplog.records)
+
+
+def test_a_gateway_announcing_itself_twice_is_refused_but_its_frames_are_stored(
+    open_broker: NatsServer, sqlite_url: str, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    async def main() -> None:
+        first = Gateway(Outbox(tmp_path / "a.db", "ship"), open_broker.url, heartbeat=0.2)
+        second = Gateway(Outbox(tmp_path / "b.db", "ship"), open_broker.url, heartbeat=0.2)
+        center = Center(ingest_on(sqlite_url), open_broker.url)
+        center.guard.heartbeat = 0.2
+        await center.connect()
+        await first.start()
+        await until(lambda: "ship" in center.gateways, center.step_events)
+        await second.start()
+        try:
+            heard = hear(first.outbox, 1, 2) + hear(second.outbox, 1, 2, start=2)
+            await until(lambda: len(stored(sqlite_url)) == 4, center.step)
+            await until(lambda: center.guard.refused["twice"] >= 2, center.step_events)
+            assert sorted(d for _, d, _ in stored(sqlite_url)) == sorted(heard)
+            assert center.gateways["ship"]["incarnation"] == first.outbox.incarnation
+            await first.stop()  # gone: after three silent heartbeats the other takes the name
+            await until(
+                lambda: center.gateways["ship"]["incarnation"] == second.outbox.incarnation,
+                center.step_events,
+            )
+        finally:
+            await second.stop()
+            await center.close()
+
+    with caplog.at_level("ERROR"):
+        asyncio.run(main())
+    assert any("announced twice" in r.getMessage() for r in caplog.records)
+
+
+@pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl is not installed")
+def test_over_tls_the_broker_is_reached_with_its_ca_only(tmp_path: Path, sqlite_url: str) -> None:
+    ca, cert, key = certificates(tmp_path / "pki")
+    server = Secured(tmp_path / "broker", ["ship"], tls=(cert, key))
+    server.start()
+
+    async def main() -> None:
+        center = Center(ingest_on(sqlite_url), server.url, auth=server.credentials("center", ca))
+        await center.connect()  # verified against the CA, streams created
+        try:
+            gateway = server.credentials("gateway-ship").options()  # no CA: the certificate is not trusted
+            with pytest.raises((NatsError, OSError)):
+                await nats.connect(server.url, allow_reconnect=False, connect_timeout=2, **gateway)
+            plain = server.url.replace("tls://", "nats://")
+            with pytest.raises((NatsError, OSError)):
+                await nats.connect(plain, allow_reconnect=False, connect_timeout=2, **gateway)
+        finally:
+            await center.close()
+
+    try:
+        asyncio.run(main())
+    finally:
+        server.stop()
+
+
+def test_broker_config_writes_private_files_and_keeps_passwords(tmp_path: Path) -> None:
+    from tacit.cli import main
+
+    out = tmp_path / "broker"
+    assert main(["broker-config", "--gateway", "ship", "--out", str(out), "--store", "/srv/nats"]) == 0
+    before = access.BrokerAuth.load(out / "gateway-ship.toml")
+    assert main(["broker-config", "--gateway", "ship", "--gateway", "buoy", "--out", str(out)]) == 0
+    assert access.BrokerAuth.load(out / "gateway-ship.toml") == before
+    assert sorted(p.name for p in out.iterdir()) == [
+        "center.toml",
+        "gateway-buoy.toml",
+        "gateway-ship.toml",
+        "nats-server.conf",
+    ]
+    assert all(stat.S_IMODE(p.stat().st_mode) == 0o600 for p in out.iterdir())
+    assert (
+        before.user == "gateway-ship"
+        and before.password
+        and before.password in (out / "nats-server.conf").read_text()
+    )
+    with pytest.raises(SystemExit):
+        main(["broker-config", "--gateway", "a.b", "--out", str(out)])
+
+
+def test_broker_config_has_help(capsys: pytest.CaptureFixture[str]) -> None:
+    from tacit.cli import main
+
+    with pytest.raises(SystemExit) as stop:
+        main(["broker-config", "--help"])
+    assert stop.value.code == 0 and "--gateway" in capsys.readouterr().out
+
+
+def test_a_credentials_file_others_may_read_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "c.toml"
+    path.write_text(access.credentials_text("center", "secret"))
+    path.chmod(0o644)
+    with pytest.raises(access.CredentialsError, match="chmod 600"):
+        access.BrokerAuth.load(path)
