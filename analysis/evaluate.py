@@ -127,7 +127,10 @@ def run_codec(
         total=rows, desc="encoding", unit=" rows", disable=None if progress else True, leave=False, delay=2.0
     )
     for i, (t, x) in enumerate(zip(series.times, truth, strict=True)):
-        while (due := encoder.deadline()) is not None and due <= t and encoder.ready(due):
+        # packets due before this sample leave first; one due at its very time leaves after it is pushed
+        # (as the agent pushes a tick's samples, then sends, and as send-on-delta's packet takes a message
+        # that has waited exactly the bound)
+        while (due := encoder.deadline()) is not None and due < t and encoder.ready(due):
             send(due)
         start = time.perf_counter()
         if encoder.push(t, x):

@@ -12,8 +12,14 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from hypothesis import HealthCheck, settings
 
 from launch.processes import stop
+
+# Property tests check behaviour, not speed: no per-example deadline (on a loaded machine one made a
+# round-trip test fail on time alone). Every property test inherits this profile.
+settings.register_profile("tacit", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("tacit")
 
 # Real logs kept in the repository (tests/data/README.md says where from): no test reads outside it.
 DATA = Path(__file__).resolve().parent / "data"

@@ -191,7 +191,7 @@ def _reconstruct(
     predictor: Dual, prediction: np.ndarray, q: list[int | None], step: np.ndarray
 ) -> np.ndarray:
     """A sample's values from its q's (NaN: absent), fed back into the predictor as the vehicle did."""
-    n = len(q)
+    n, fine = len(q), predictor.fine()
     values, z, raw = np.full(n, np.nan), np.zeros(n), np.zeros(n, dtype=bool)
     for c, v in enumerate(q):
         if v is None:
@@ -200,8 +200,8 @@ def _reconstruct(
             values[c], raw[c] = v.value, True
         else:
             correction = predictor.correction(c, z)
-            values[c] = prediction[c] + (correction + v) * step[c]
-            z[c] = correction + v
+            values[c] = prediction[c] + (correction + v * fine[c]) * step[c]
+            z[c] = correction + v * fine[c]
     predictor.update(values, z, raw)
     return values
 

@@ -40,6 +40,7 @@ class _Sample:
     flagged: bool = False  # urgent because the caller said so (an event), not only by its size
     phase: int = 0  # the phase of the grid ``index`` is on
     q: list[int | None] = field(default_factory=list)
+    fine: np.ndarray | None = None  # per channel, the fraction of a step q counts (``Dual.fine``)
     state_before: object = None  # the predictor before this sample (for a packet that ends before it)
 
 
@@ -73,13 +74,19 @@ def _code_sample(
     return sample.index, sample.phase
 
 
+def _in_steps(sample: _Sample) -> list[int | None]:
+    """A sample's residuals in whole steps (a first value's q counts finer steps), for the policy."""
+    fine = np.ones(len(sample.q)) if sample.fine is None else sample.fine
+    return [None if v is None else int(v * f) for v, f in zip(sample.q, fine, strict=True)]
+
+
 def _quantise(
     predictor: Dual, prediction: np.ndarray, values: np.ndarray, step: np.ndarray
 ) -> list[int | None]:
     """A sample's q's (None: absent), its reconstruction fed back into the predictor as the shore will."""
     with np.errstate(over="ignore", invalid="ignore"):
         residual = (values - prediction) / step
-    n, absent = len(values), np.isnan(values)
+    n, absent, fine = len(values), np.isnan(values), predictor.fine()
     reconstruction, z, raw = np.full(n, np.nan), np.zeros(n), np.zeros(n, dtype=bool)
     out: list[int | None] = []
     for c in range(n):
@@ -87,9 +94,9 @@ def _quantise(
             out.append(None)
             continue
         correction = predictor.correction(c, z)
-        r = residual[c] - correction
+        r = (residual[c] - correction) / fine[c]
         q = int(np.round(r)) if abs(r) < RAW_Q - 1 else None
-        value = prediction[c] + (correction + q) * step[c] if q is not None else np.nan
+        value = prediction[c] + (correction + q * fine[c]) * step[c] if q is not None else np.nan
         # too far (or beyond floats) for a step count, or a prediction so large that rounding at its
         # magnitude would put the reconstruction off by more than eps: the value itself
         if q is None or not abs(value - values[c]) <= step[c] / (2 * MARGIN):
@@ -98,7 +105,7 @@ def _quantise(
         else:
             out.append(q)
             reconstruction[c] = value
-            z[c] = correction + q
+            z[c] = correction + q * fine[c]
     predictor.update(reconstruction, z, raw)
     return out
 
@@ -183,7 +190,7 @@ class PacketEncoder:
         self._process(stream, sample)
         self.last_q = sample.q
         self._settle()
-        if self.policy.urgent(sample.q):
+        if self.policy.urgent(_in_steps(sample)):
             sample.urgent = True
         return True
 
@@ -214,6 +221,7 @@ class PacketEncoder:
             prediction = predictor.predict()
         else:
             prediction = predictor.current()
+        sample.fine = predictor.fine()
         sample.q = _quantise(predictor, prediction, sample.values, spec.step)
         self._cursor[stream], self._phase[stream] = sample.index, sample.phase
         self._queues[stream].append(sample)

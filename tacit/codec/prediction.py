@@ -6,11 +6,15 @@ already coded in the same sample and on the previous sample's residuals, fitted 
 both ends hold the same coefficients), used by a channel only while it has lately cut its squared error
 by 10 %. Each channel predicts with a held value instead (hold: send-on-delta's predictor, the last
 reconstruction moved no further than it must) while that would lately have missed (|value - prediction|
-> eps) less than half as often as its own: a slow profiling sensor's drift and a quantised sensor's
+> eps) less than half as often as its own, or no more often while both have missed about once or never
+(a stream starts on hold, and a first surprise both missed does not leave it on a lagging Kalman filter
+for another; a channel's first value neither predicted is not counted): a slow profiling sensor's drift and a quantised sensor's
 dither are followed by hold, noise by the Kalman filter, and both ends choose alike from reconstructions,
 so the choice costs no bits. Both ends feed the reconstruction, not the raw value, back into the
 predictor; a single value sent raw (a glitch, ``tacit.codec.grammar.RawValue``) is not given to the
-predictor, a second one in a row is (a real jump).
+predictor, a second one in a row is (a real jump). A channel's first value is coded on steps
+``FIRST_FINE`` of the usual (``Dual.fine``), so what later values are predicted from is within eps / 16 of
+the truth, not up to eps.
 """
 
 from __future__ import annotations
@@ -32,6 +36,8 @@ CROSS_MIN_R2 = 0.1  # a channel whose fit explains less of its residual power is
 HOLD_FORGET = 1 - 1 / 32  # the predictor choice's memory: about 32 samples
 HOLD_USE = 0.5  # a channel holds while hold would lately have missed less than half as often as its own
 HOLD_MISS = 0.99  # a step (2 eps), less a margin for rounding: a prediction this far off certainly missed
+HOLD_SLACK = 0.75  # ... or missed at most as often while both have missed about once or never (a tie)
+FIRST_FINE = 1 / 16  # a channel's first value is coded on steps this much finer (within eps / 16)
 
 
 def _feed(values: np.ndarray) -> np.ndarray:
@@ -70,8 +76,15 @@ class Dual:
     def _choose(self) -> np.ndarray:
         """Per channel: the held value where hold has lately missed far less often (the Kalman filter,
         fed reconstructions, lags a drift; hold follows it a step at a time)."""
-        hold = (self.misses[1] < HOLD_USE * self.misses[0]) & ~np.isnan(self.held)
+        hold = (self.misses[1] < HOLD_USE * self.misses[0] + HOLD_SLACK) & ~np.isnan(self.held)
         return np.where(hold, self.held, self.own)
+
+    def fine(self) -> np.ndarray:
+        """Per channel, the fraction of a step its next q counts: ``FIRST_FINE`` for a channel that has no
+        value yet, else 1. A first value on the step grid may land up to eps from the truth, and every
+        value predicted from it starts that far off (a quantised sensor's whole unit costs a surprise);
+        on a finer grid it costs a few bits once (both ends know which channels have a value)."""
+        return np.where(np.isnan(self.held), FIRST_FINE, 1.0)
 
     def skip(self, ticks: int = 1) -> None:
         self.base.skip(ticks)  # the previous sample's residuals still predict (zeroing them cost 6 % on gaps)
@@ -116,7 +129,7 @@ class Dual:
         with np.errstate(over="ignore", invalid="ignore"):
             missed = np.abs(fed - np.array([self.own, self.held])) > HOLD_MISS * self.step
             kept = np.clip(self.held, fed - self.step / 4, fed + self.step / 4)
-        missed[1] |= np.isnan(self.held)
+        missed &= ~np.isnan(self.held)  # a channel's first value: neither predicted it
         self.misses = self.misses * HOLD_FORGET + np.where(seen, missed, 0.0)
         self.held = np.where(seen, np.where(np.isnan(self.held), fed, kept), self.held)
 

@@ -3,7 +3,8 @@
 Quantisation. For channel c with error bound eps_c, the vehicle sends q = round((x - p) / s) with p the
 dual prediction (``tacit.codec.prediction``) and s = 2 eps_c (1 - 1e-9); the shore reconstructs
 p + q s, so |reconstruction - x| <= eps_c for every present sample (the 1e-9 margin absorbs
-floating-point rounding). q = 0 is the paper's "predictable" verdict. A channel may be absent from a
+floating-point rounding). q = 0 is the paper's "predictable" verdict. A channel's first value is
+quantised on steps of s / 16 (``tacit.codec.prediction.FIRST_FINE``: within eps / 16). A channel may be absent from a
 sample (NaN, a blank cell): the shore stores it as absent (NaN / None), never as a made-up value, and
 the predictors skip it.
 """

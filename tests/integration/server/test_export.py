@@ -16,13 +16,12 @@ from scipy.io import netcdf_file
 from sqlalchemy import insert
 
 from server.app import create_app
-from server.core.config import Settings
 from server.core.db import writing
 from server.telemetry import repository
 from server.telemetry.models import PacketTrust, Telemetry
 from tacit.streams import ENV_PERIOD
+from tests.support.api import OP, offline_settings
 
-OP = {"Authorization": "Bearer operator-token"}
 OBS = {"Authorization": "Bearer observer-token"}
 T0 = 1_700_000_000.0
 HEADER = [
@@ -92,14 +91,7 @@ def add_packets(s, vehicle_id: int) -> dict[str | None, int | None]:
 
 @pytest.fixture
 def client(tmp_path: Path):
-    settings = Settings(
-        database_url=f"sqlite:///{tmp_path}/tacit.db",
-        modem_url="",
-        map_enabled=False,
-        write_tokens=["operator-token"],
-        read_tokens=["observer-token"],
-        ping_interval=3600,
-    )
+    settings = offline_settings(tmp_path, ping_interval=3600)
     with TestClient(create_app(settings)) as c:
         for name, address in (("rov1", 2), ("rov2", 3)):
             c.post("/api/v1/vehicles", json={"name": name, "address": address}, headers=OP)

@@ -19,9 +19,9 @@ from tacit import auth
 from tacit import modem as mm
 from tacit.packets import SYNC_RESTART_CHAINS, Stream, with_seq
 from tacit.streams import default_streams
+from tests.support.api import OP, offline_settings
 from vehicle_agent.compressor import Compressor
 
-OP = {"Authorization": "Bearer operator-token"}
 KEY = bytes.fromhex("11" * 32)
 
 
@@ -81,13 +81,7 @@ def test_polls_keep_their_share_while_many_commands_wait(tmp_path: Path) -> None
 
 
 def test_a_full_queue_answers_429_with_retry_after(tmp_path: Path) -> None:
-    settings = Settings(
-        database_url=f"sqlite:///{tmp_path}/tacit.db",
-        modem_url="",
-        map_enabled=False,
-        write_tokens=["operator-token"],
-        max_queued_commands=3,
-    )
+    settings = offline_settings(tmp_path, max_queued_commands=3)
     with TestClient(create_app(settings)) as client:
         vehicle = client.post("/api/v1/vehicles", json={"name": "rov1", "address": 2}, headers=OP).json()
         url = f"/api/v1/vehicles/{vehicle['id']}/commands"

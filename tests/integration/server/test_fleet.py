@@ -20,19 +20,14 @@ from server.vehicles.models import Vehicle
 from simulators.run import SimConfig
 from tacit import modem as mm
 from tacit.packets import Command
+from tests.support.api import OP, offline_settings
 
-OP = {"Authorization": "Bearer operator-token"}
 KEY = "ab" * 32
 
 
 @pytest.fixture
 def client(tmp_path: Path):
-    settings = Settings(
-        database_url=f"sqlite:///{tmp_path}/tacit.db",
-        modem_url="",
-        map_enabled=False,
-        write_tokens=["operator-token"],
-    )
+    settings = offline_settings(tmp_path)
     with TestClient(create_app(settings)) as c:
         assert (
             c.post(
@@ -165,13 +160,7 @@ def test_time_sensitive_data_is_polled_sooner(tmp_path: Path) -> None:
 
 
 def test_share_changes_through_the_api_and_is_kept(tmp_path: Path) -> None:
-    settings = Settings(
-        database_url=f"sqlite:///{tmp_path}/tacit.db",
-        modem_url="",
-        map_enabled=False,
-        write_tokens=["operator-token"],
-        read_tokens=["observer"],
-    )
+    settings = offline_settings(tmp_path, read_tokens=["observer"])
     with TestClient(create_app(settings)) as client:
         created = client.post("/api/v1/vehicles", json={"name": "rov1", "address": 2}, headers=OP).json()
         assert created["share"] == 1.0

@@ -10,21 +10,12 @@ import pytest
 from fastapi.testclient import TestClient
 
 from server.app import create_app
-from server.core.config import Settings
-
-OP = {"Authorization": "Bearer operator-token"}
-OBSERVER = {"Authorization": "Bearer observer-token"}
+from tests.support.api import OBSERVER, OP, offline_settings
 
 
 @pytest.fixture
 def client(tmp_path: Path):
-    settings = Settings(
-        database_url=f"sqlite:///{tmp_path}/tacit.db",
-        modem_url="",
-        map_enabled=False,
-        write_tokens=["operator-token"],
-        read_tokens=["observer-token"],
-    )
+    settings = offline_settings(tmp_path)
     with TestClient(create_app(settings)) as c:
         for name, address in (("rov1", 2), ("rov2", 3), ("rov3", 4)):
             created = c.post("/api/v1/vehicles", json={"name": name, "address": address}, headers=OP)
@@ -95,13 +86,7 @@ def test_observers_cannot_send_to_the_fleet(client: TestClient) -> None:
 
 
 def test_the_fleet_lists_every_vehicle_in_its_own_colour_with_the_one_origin(tmp_path: Path) -> None:
-    settings = Settings(
-        database_url=f"sqlite:///{tmp_path}/tacit.db",
-        modem_url="",
-        map_enabled=False,
-        write_tokens=["operator-token"],
-        origin=(40.0, -74.0),
-    )
+    settings = offline_settings(tmp_path, origin=(40.0, -74.0))
     with TestClient(create_app(settings)) as c:
         for name, address, east in (("rov1", 2, 0.0), ("rov2", 3, 15.0)):
             body = {"name": name, "address": address, "home": [0.0, east]}

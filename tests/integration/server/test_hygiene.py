@@ -31,6 +31,7 @@ from tacit.link import SeenWindow
 from tacit.modemlog import ModemLog
 from tacit.packets import CheckpointPacket, MissionState
 from tacit.streams import default_streams
+from tests.support.api import OBSERVER, offline_settings
 from vehicle_agent.mavlink_io import MavlinkLink
 
 KEY = bytes(range(32))
@@ -75,12 +76,7 @@ def test_a_checkpoint_replayed_after_the_duplicate_window_forgot_it_is_refused(d
 
 
 def test_frames_from_unknown_addresses_are_kept_to_the_newest_few(tmp_path: Path) -> None:
-    settings = Settings(
-        database_url=f"sqlite:///{tmp_path}/tacit.db",
-        modem_url="",
-        map_enabled=False,
-        stranger_frames_kept=20,
-    )
+    settings = offline_settings(tmp_path, stranger_frames_kept=20)
     with TestClient(create_app(settings)) as client:
         shore: Shore = client.app.state.shore
         for n in range(settings.stranger_frames_kept + 10):
@@ -90,17 +86,11 @@ def test_frames_from_unknown_addresses_are_kept_to_the_newest_few(tmp_path: Path
             events = s.exec(select(LinkEvent).where(LinkEvent.kind == "unknown_vehicle")).all()
         assert [f.data[0] for f in kept] == list(range(10, 30))  # the newest
         assert len(events) == 20
-        assert client.get("/api/v1/link").json()["strangers"] == {"kept": 20, "dropped": 10}
+        assert client.get("/api/v1/link", headers=OBSERVER).json()["strangers"] == {"kept": 20, "dropped": 10}
 
 
 def test_wrong_tokens_from_one_address_are_throttled_and_others_still_sign_in(tmp_path: Path) -> None:
-    settings = Settings(
-        database_url=f"sqlite:///{tmp_path}/tacit.db",
-        modem_url="",
-        map_enabled=False,
-        write_tokens=["operator-token"],
-        read_tokens=["observer-token"],
-    )
+    settings = offline_settings(tmp_path)
     app = create_app(settings)
     other = TestClient(app, client=("10.0.0.2", 4000))  # the app's lifespan runs in the one below
     with TestClient(app, client=("10.0.0.9", 4000)) as guesser:

@@ -13,7 +13,6 @@ import pytest
 from fastapi.testclient import TestClient
 
 from server.app import create_app
-from server.core.config import Settings
 from server.link.heartbeat import Heartbeat
 from server.link.state import IncomingFrame, VehicleState
 from server.link.store import LinkStore
@@ -22,10 +21,9 @@ from server.shore import Shore
 from tacit import auth
 from tacit import modem as mm
 from tacit.packets import CheckpointPacket, MissionState
+from tests.support.api import OP, offline_settings
 
 STAMPS = itertools.count()
-
-OP = {"Authorization": "Bearer operator-token"}
 
 
 class AckingModem:
@@ -58,13 +56,7 @@ def syncs(shore: Shore, n: int) -> list[bytes]:
 
 @pytest.fixture
 def client(tmp_path: Path):
-    settings = Settings(
-        database_url=f"sqlite:///{tmp_path}/tacit.db",
-        modem_url="",
-        map_enabled=False,
-        write_tokens=["operator-token"],
-        read_tokens=["observer-token"],
-    )
+    settings = offline_settings(tmp_path)
     with TestClient(create_app(settings)) as client:
         yield client
 

@@ -21,15 +21,13 @@ from launch.demo import SQUARE
 from server.app import create_app
 from server.commands.models import CommandRecord as Command
 from server.commands.schemas import CommandIn
-from server.core.config import Settings
 from server.core.events import CommandChanged, PacketsSettled, TelemetryDecoded
 from server.map.panel import LEGEND, OperatorPanel
 from server.map.scene import OperatorMap
 from server.operators.schemas import OperatorIn
 from server.screens.fleet import PALETTE, rgb
 from server.vehicles.schemas import VehicleIn
-
-OP = {"Authorization": "Bearer operator-token"}
+from tests.support.api import OP, offline_settings
 
 
 class Handle(SimpleNamespace):
@@ -105,14 +103,7 @@ def fake_server() -> SimpleNamespace:
 
 @pytest.fixture
 def shore_map(tmp_path: Path):
-    settings = Settings(
-        database_url=f"sqlite:///{tmp_path}/tacit.db",
-        modem_url="",
-        map_enabled=False,
-        modem_log=str(tmp_path / "modem.log"),
-        write_tokens=["operator-token"],
-        read_tokens=["observer-token"],
-    )
+    settings = offline_settings(tmp_path, modem_log=str(tmp_path / "modem.log"))
     with TestClient(create_app(settings)) as client:
         client.post("/api/v1/vehicles", json={"name": "rov1", "address": 2, "max_distance": 50}, headers=OP)
         shore = client.app.state.shore

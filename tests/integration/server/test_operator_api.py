@@ -15,20 +15,13 @@ from server.core.config import Settings
 from server.missions.models import Mission
 from server.screens import form as operator
 from server.telemetry.models import Frame, Packet, Telemetry
+from tests.support.api import OP, offline_settings
 
-OP = {"Authorization": "Bearer operator-token"}
 OBS = {"Authorization": "Bearer observer-token"}
 
 
 def settings(tmp_path: Path) -> Settings:
-    return Settings(
-        database_url=f"sqlite:///{tmp_path}/tacit.db",
-        modem_url="",
-        map_enabled=False,
-        modem_log=str(tmp_path / "modem.log"),
-        write_tokens=["operator-token"],
-        read_tokens=["observer-token"],
-    )
+    return offline_settings(tmp_path, modem_log=str(tmp_path / "modem.log"))
 
 
 def test_api_bearing_form_estimate_shares_and_state_after_restart(tmp_path: Path) -> None:

@@ -59,3 +59,34 @@ def test_codec_is_never_worse_than_send_on_delta_on_a_slow_jittered_profiling_se
         if not abs(x - last) <= 0.05:
             sent, last = sent + 1, x
     assert int(rec.sent.sum()) <= sent
+
+
+SMALL_TLOG = Path(__file__).resolve().parents[2] / "data" / "ardusub" / "small.tlog"
+
+
+def test_a_whole_unit_sensor_that_barely_moves_costs_no_more_than_send_on_delta() -> None:
+    # water temperature in whole centidegrees, 1245-1260 in 635 samples: send-on-delta sends 2-3 values
+    series = load(SMALL_TLOG, ["SCALED_PRESSURE2.temperature"])
+    for eps in (10.0, 5.0):
+        spec = make_spec(series, eps, False, "kalman", None)
+        for latency in (10.0, 60.0):
+            codec, _ = run_codec(series, spec, latency, max_silence=None)
+            assert codec.packets <= send_on_delta(series, spec, latency).packets + 1, (eps, latency)
+            assert codec.max_error_ratio <= 1.0 and codec.max_latency_s <= latency
+
+
+def test_a_channels_first_value_is_coded_within_a_sixteenth_of_eps() -> None:
+    series = one_channel([1245.0, 1245.0, 1250.0, 1245.0])
+    _, rec = run_codec(series, make_spec(series, 10.0, False, "kalman", 1.0), 10.0, max_silence=None)
+    assert abs(rec.shore[0, 0] - 1245.0) <= 10.0 / 16
+    assert not rec.sent[1:].any()  # 1250 is within eps of the first value: no surprise
+
+
+def test_a_sample_taken_at_the_deadline_rides_in_the_packet_that_leaves_then() -> None:
+    # a sample every 15 min, latency 1 h: send-on-delta's packet holds the values of t 0 and 3600 (its
+    # oldest has waited exactly the bound); the codec's, sent at the same instant, holds the same samples
+    series = one_channel([10.0, 10.0, 10.0, 10.0, 20.0], [0.0, 900.0, 1800.0, 2700.0, 3600.0])
+    spec = make_spec(series, 1.0, False, "kalman", 900.0)
+    assert send_on_delta(series, spec, 3600.0).packets == 1
+    codec, _ = run_codec(series, spec, 3600.0, max_silence=None)
+    assert codec.packets == 1 and codec.max_latency_s <= 3600.0
