@@ -12,15 +12,15 @@ from __future__ import annotations
 
 import hashlib
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields
+from typing import Any
 
 from sqlalchemy import Engine
 
 from server.backhaul import repository
-from server.backhaul.models import RelayedFrame
 from server.backhaul.subjects import FrameMessage
 from server.core.config import Settings
-from server.core.db import Tx, reading, writing
+from server.core.db import Tx, now, reading, writing
 from server.core.events import Bus, Event, LinkNotice
 from server.link.batch import Batch
 from server.link.ingest import Ingest, frame_row
@@ -67,7 +67,7 @@ class RelayIngest(Ingest):
             if repository.get(s, frame.id) is not None:
                 return False
             frame_id = telemetry.add_frame(s, frame_row(frame))
-            repository.add(s, self._row(frame, hashlib.sha256(frame.data).hexdigest(), frame_id, kept=True))
+            repository.add_rows(s, [self._row(frame, hashlib.sha256(frame.data).hexdigest(), frame_id, True)])
             s.commit()
         self.stats["undecoded"] += 1
         return True
@@ -76,57 +76,118 @@ class RelayIngest(Ingest):
         with reading(self.db) as s:
             return repository.heard_by(s, frame_id)
 
+    def _open(self, s: Tx, frames: list[IncomingFrame]) -> Batch:
+        """The pipeline's batch, with the message ids stored already and the kept copies of its frames'
+        bytes (two queries, whatever its length)."""
+        relayed = [f for f in frames if isinstance(f, RelayedIncoming)]
+        batch = RelayBatch.of(super()._open(s, frames))
+        batch.taken = repository.stored_ids(s, [f.id for f in relayed])
+        batch.relayed = repository.kept_copies(
+            s, [(f.src, hashlib.sha256(f.data).hexdigest()) for f in relayed]
+        )
+        return batch
+
     def _frame(self, s: Tx, batch: Batch, frame: IncomingFrame) -> list[Event]:
-        if not isinstance(frame, RelayedIncoming):
+        if not isinstance(frame, RelayedIncoming) or not isinstance(batch, RelayBatch):
             return super()._frame(s, batch, frame)
-        if repository.get(s, frame.id) is not None:
+        if frame.id in batch.taken:
             self.stats["relayed_duplicates"] += 1
             return []
         digest = hashlib.sha256(frame.data).hexdigest()
-        twin = repository.twin(s, frame.src, digest, frame.at, self.window)
-        if twin is not None and twin.frame_id is not None:
-            return self._copy(s, frame, twin.frame_id, digest, better=_snr(frame.snr_in) > _snr(twin.snr_in))
+        twin = batch.twin(s, frame.src, digest, frame.at, self.window)
+        if twin is not None:
+            frame_id, snr_in = twin
+            return self._copy(s, batch, frame, frame_id, digest, better=_snr(frame.snr_in) > _snr(snr_in))
         events = super()._frame(s, batch, frame)  # stores the frame: ``_stored`` records it
-        if repository.get(s, frame.id) is None:  # refused before storing: its id is still taken
-            repository.add(s, self._row(frame, digest, None, kept=False))
+        if frame.id not in batch.taken:  # refused before storing: its id is still taken
+            batch.record(self._row(frame, digest, None, kept=False))
         return events
 
-    def _stored(self, s: Tx, frame: IncomingFrame, frame_id: int) -> None:
-        if isinstance(frame, RelayedIncoming):
-            repository.add(s, self._row(frame, hashlib.sha256(frame.data).hexdigest(), frame_id, kept=True))
+    def _stored(self, s: Tx, batch: Batch, frame: IncomingFrame, frame_id: int) -> None:
+        if isinstance(frame, RelayedIncoming) and isinstance(batch, RelayBatch):
+            batch.record(self._row(frame, hashlib.sha256(frame.data).hexdigest(), frame_id, kept=True))
 
-    def _copy(self, s: Tx, frame: RelayedIncoming, frame_id: int, digest: str, better: bool) -> list[Event]:
+    def _copy(
+        self, s: Tx, batch: RelayBatch, frame: RelayedIncoming, frame_id: int, digest: str, better: bool
+    ) -> list[Event]:
         """Another gateway's copy of a stored frame: counted, and kept if its SNR is the best."""
         self.stats["diversity_copies"] += 1
-        repository.add(s, self._row(frame, digest, frame_id, kept=False))
         if better:
-            repository.keep(
-                s,
-                frame_id,
-                frame.id,
-                {"snr_in": frame.snr_in, "snr_out": frame.snr_out, "stats": frame.stats, "rate": frame.rate},
-            )
+            batch.keep(s, frame_id, {"snr_in": frame.snr_in, "snr_out": frame.snr_out, "stats": frame.stats,
+                                     "rate": frame.rate})  # fmt: skip
+        batch.record(self._row(frame, digest, frame_id, kept=better))
         detail = {
             "address": frame.src,
             "gateway": frame.gateway,
             "snr_in": frame.snr_in,
-            "heard_by": repository.heard_by(s, frame_id),
+            "heard_by": batch.heard_by(s, frame_id),
             "kept": better,
         }
         return [LinkNotice(event="heard_again", detail=detail)]
 
     @staticmethod
-    def _row(frame: RelayedIncoming, digest: str, frame_id: int | None, kept: bool) -> RelayedFrame:
-        return RelayedFrame(
-            id=frame.id,
-            frame_id=frame_id,
-            gateway=frame.gateway,
-            src=frame.src,
-            digest=digest,
-            snr_in=frame.snr_in,
-            at=frame.at,
-            kept=kept,
-        )
+    def _row(frame: RelayedIncoming, digest: str, frame_id: int | None, kept: bool) -> dict[str, Any]:
+        return {
+            "id": frame.id,
+            "frame_id": frame_id,
+            "gateway": frame.gateway,
+            "src": frame.src,
+            "digest": digest,
+            "snr_in": frame.snr_in,
+            "at": frame.at,
+            "received_at": now(),
+            "kept": kept,
+        }
+
+
+@dataclass
+class RelayBatch(Batch):
+    """A batch with the relayed frames' records: the message ids stored before it or taken in it, and the
+    records it adds, inserted after its frames."""
+
+    taken: set[str] = field(default_factory=set)
+    relayed: list[dict[str, Any]] = field(default_factory=list)  # stored kept copies, then those added
+    added: int = 0  # how many of ``relayed`` are this batch's (the last ones)
+
+    @classmethod
+    def of(cls, batch: Batch) -> RelayBatch:
+        return cls(**{f.name: getattr(batch, f.name) for f in fields(Batch)})
+
+    def record(self, row: dict[str, Any]) -> None:
+        self.taken.add(row["id"])
+        self.relayed.append(row)
+        self.added += 1
+
+    @property
+    def mine(self) -> list[dict[str, Any]]:
+        return self.relayed[len(self.relayed) - self.added :]
+
+    def twin(self, s: Tx, src: int, digest: str, at: float, window: float) -> tuple[int, float | None] | None:
+        """The kept copy of the same frame heard within ``window`` s of ``at``: its frame id and SNR."""
+        copies = [
+            r for r in self.relayed
+            if r["kept"] and r["frame_id"] is not None and r["src"] == src and r["digest"] == digest
+            and abs(r["at"] - at) <= window
+        ]  # fmt: skip
+        best = max(copies, key=lambda r: r["at"], default=None)
+        return None if best is None else (best["frame_id"], best["snr_in"])
+
+    def keep(self, s: Tx, frame_id: int, stats: dict[str, Any]) -> None:
+        """The copy recorded next is the frame's best: its receive statistics become the frame row's."""
+        for row in self.relayed:
+            if row["frame_id"] == frame_id:
+                row["kept"] = False
+        for row in self.frames:
+            if row["id"] == frame_id:
+                row.update(stats)
+        repository.keep(s, frame_id, stats)
+
+    def heard_by(self, s: Tx, frame_id: int) -> int:
+        return repository.heard_by(s, frame_id) + sum(r["frame_id"] == frame_id for r in self.mine)
+
+    def flush(self, s: Tx) -> None:
+        super().flush(s)
+        repository.add_rows(s, self.mine)
 
 
 def _snr(value: float | None) -> float:

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
-from sqlalchemy import func, update
+from sqlalchemy import func, insert, update
 from sqlmodel import Session, col, select
 
 from server.backhaul.models import RelayedFrame
@@ -15,28 +16,46 @@ def get(s: Session, message_id: str) -> RelayedFrame | None:
     return s.get(RelayedFrame, message_id)
 
 
-def add(s: Session, row: RelayedFrame) -> None:
-    s.add(row)
-    s.flush()
+def stored_ids(s: Session, message_ids: Sequence[str]) -> set[str]:
+    """Of the message ids, those stored already."""
+    if not message_ids:
+        return set()
+    return set(s.exec(select(RelayedFrame.id).where(col(RelayedFrame.id).in_(message_ids))).all())
 
 
-def twin(s: Session, src: int, digest: str, at: float, window: float) -> RelayedFrame | None:
-    """The kept copy of the same frame (same source, same bytes) heard within ``window`` s of ``at``."""
-    query = (
-        select(RelayedFrame)
-        .where(RelayedFrame.src == src, RelayedFrame.digest == digest, col(RelayedFrame.kept).is_(True),
-               col(RelayedFrame.frame_id).is_not(None), col(RelayedFrame.at) >= at - window,
-               col(RelayedFrame.at) <= at + window)
-        .order_by(col(RelayedFrame.at).desc())
-        .limit(1)
+def add_rows(s: Session, rows: list[dict[str, Any]]) -> None:
+    """Relayed frames' records, in one statement."""
+    if rows:
+        s.execute(insert(RelayedFrame), rows)
+
+
+def kept_copies(s: Session, frames: Sequence[tuple[int, str]]) -> list[dict[str, Any]]:
+    """The kept copies of frames (source, SHA-256 of their bytes) that became frame rows: their ``src``,
+    ``digest``, ``at``, ``frame_id``, ``snr_in`` and ``kept``."""
+    if not frames:
+        return []
+    query = select(RelayedFrame).where(
+        col(RelayedFrame.src).in_({src for src, _ in frames}),
+        col(RelayedFrame.digest).in_({digest for _, digest in frames}), col(RelayedFrame.kept).is_(True),
+        col(RelayedFrame.frame_id).is_not(None),
     )  # fmt: skip
-    return s.exec(query).first()
+    return [
+        {
+            "src": r.src,
+            "digest": r.digest,
+            "at": r.at,
+            "frame_id": r.frame_id,
+            "snr_in": r.snr_in,
+            "kept": True,
+        }
+        for r in s.exec(query).all()
+    ]
 
 
-def keep(s: Session, frame_id: int, message_id: str, stats: dict[str, Any]) -> None:
-    """The copy ``message_id`` is the frame's best: its receive statistics become the frame row's."""
+def keep(s: Session, frame_id: int, stats: dict[str, Any]) -> None:
+    """A new copy of the frame is its best (recorded kept): the stored copies are not, and its receive
+    statistics become the frame row's."""
     s.execute(update(RelayedFrame).where(col(RelayedFrame.frame_id) == frame_id).values(kept=False))
-    s.execute(update(RelayedFrame).where(col(RelayedFrame.id) == message_id).values(kept=True))
     s.execute(update(Frame).where(col(Frame.id) == frame_id).values(**stats))
 
 

@@ -62,6 +62,9 @@ class Settings(BaseSettings):
     max_queued_commands: int = Field(20, ge=1)  # per vehicle: more waiting for the link are refused (429)
     command_share: int = Field(3, ge=1)  # command slots in a row before the vehicle's next slot polls
     stranger_frames_kept: int = Field(1000, ge=0)  # frames from unknown modem addresses: the newest kept
+    state_save_interval: float = Field(
+        30.0, ge=0
+    )  # s between saves of a vehicle's link and decoder state (0: with every batch); server.link.ingest
     restart_min_interval: float = Field(
         60.0, gt=0
     )  # s: an unauthenticated packet asks for a chain restart at

@@ -100,6 +100,7 @@ class LinkEngine:
                     await task
         if self.driver:
             await self.driver.stop()
+        await asyncio.to_thread(self.ingest.save_states)  # a restart then has no frames to replay
 
     def wake(self) -> None:
         """Something was queued: start the next slot now instead of after the idle wait. Safe from any

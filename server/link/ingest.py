@@ -8,8 +8,14 @@ command status). Frames that arrive together are stored in one transaction (grou
 events published after it; if the transaction fails, every vehicle's link state is put back
 (``VehicleState.undo``). Nothing here raises on bad input from the water.
 
-Restarts: each vehicle's link record and decoder states are saved with every batch, in the same
-transaction as the packets they describe (``server.link.state``), and loaded at start.
+Restarts: each vehicle's link record and decoder states (``server.link.state``) are saved in a batch's
+transaction, naming the last stored frame they include (``LinkRecord.frame``); at start they are loaded
+and the vehicle's frames stored after that one are handed through the pipeline again (``replay``:
+stored ids, nothing written) to rebuild what the saved state does not hold. So the state need not be
+saved with every batch (serialising the decoder's chains was a fifth of the center's time): it is
+saved every ``state_save_interval`` s, with a vehicle's first batch (the frame its replay starts
+after), before a SYNC leaves (its counter only grows) and at shutdown (``save_states``). A crash loses
+no state, only replay time: at most ``state_save_interval`` s of frames.
 """
 
 from __future__ import annotations
@@ -17,21 +23,23 @@ from __future__ import annotations
 import logging
 import math
 import threading
+import time
 from typing import Any
 
 from sqlalchemy import Engine
+from sqlalchemy.exc import SQLAlchemyError
 
 from server.commands import service as commands
 from server.core.config import Settings
-from server.core.db import Tx, now, reading, writing
+from server.core.db import Tx, now, reading, saved_id, writing
 from server.core.events import Bus, Event, LinkNotice, PacketHeard, VehicleReported
 from server.link import repository as link_repo
-from server.link.batch import Batch
+from server.link.batch import Batch, Replay
 from server.link.decoding import decode
 from server.link.state import RECENT_SEQS, IncomingFrame, VehicleState
 from server.link.verify import Verifier
 from server.telemetry import repository as telemetry
-from server.telemetry.models import PacketTrust
+from server.telemetry.models import Frame, PacketTrust
 from server.vehicles import keys
 from server.vehicles import repository as vehicles
 from server.vehicles.models import Vehicle
@@ -73,6 +81,9 @@ class Ingest:
             "old_protocol": 0,
         }
         self.verifier = Verifier(self.stats, settings.max_skew)
+        self._unsaved: set[int] = set()  # addresses whose state changed since it was last saved
+        self._fresh: set[int] = set()  # addresses with no saved state naming its last frame
+        self._saved_at = time.monotonic()
 
     # --- the vehicles' link states ------------------------------------------------------------------
 
@@ -101,11 +112,62 @@ class Ingest:
         saved = link_repo.saved_state(s, state.id)
         if saved is not None:
             state.restore(saved)
+        if state.link.frame is None:  # never saved, or saved with every batch (before frames were named)
+            state.link.frame = telemetry.last_frame_id(s)
+            self._fresh.add(state.address)
+        else:
+            self._replay(s, state)
         last = telemetry.checkpoints(s, state.id)
         if last:
             state.last_heard = last[0].at
             state.link.checkpoint = state.link.checkpoint or last[0].body
         return state
+
+    def _replay(self, s: Tx, state: VehicleState) -> None:
+        """The vehicle's frames stored after its saved state, through the pipeline again: its memory as it
+        was after the last of them. A frame failing here is skipped, as it was when it came (it was
+        stored undecoded, memory left as it was); counters keep counting from this start."""
+        frames = telemetry.frames_from(s, state.address, state.link.frame or 0)
+        replay = Replay(kept=telemetry.packets_of_frames(s, [saved_id(f) for f in frames]))
+        stats = dict(self.stats)
+        for row in frames:
+            replay.current = saved_id(row)
+            point = state.undo_point()
+            try:
+                self._apply(s, replay, state, stored_frame(row), replay.current)
+            except Exception as exc:
+                state.undo(point)
+                log.warning("vehicle %s: stored frame %d not replayed: %s", state.name, replay.current, exc)
+        self.stats.update(stats)
+        state.frames = state.packets = state.duplicates = state.bytes_saved = state.forged = (
+            state.verified
+        ) = 0
+        log.info("vehicle %s: %d frames after its saved state replayed", state.name, len(frames))
+
+    def save_states(self) -> None:
+        """Every vehicle's state this process changed and did not save (at shutdown: a restart then
+        replays nothing). Only those: a process that only serves the API must not write its stale states
+        over a center's. A database that fails here is logged, not raised: the next start replays."""
+        if not self._unsaved:
+            return
+        try:
+            with self._lock, writing(self.db) as s:
+                due = set(self._unsaved)
+                self._save(s, due)
+                s.commit()
+                self._saved(due, set(), True)
+        except SQLAlchemyError as exc:
+            log.warning("link states not saved (%s): the next start replays their frames", exc)
+
+    def _save(self, s: Tx, addresses: set[int]) -> None:
+        saving = [self.vehicles[a] for a in addresses & set(self.vehicles)]
+        link_repo.save_states(s, {v.id: v.saved() for v in saving})
+
+    def _saved(self, due: set[int], touched: set[int], full: bool) -> None:
+        """After a commit: ``touched`` changed, ``due`` saved (all that changed when ``full``)."""
+        self._unsaved = (self._unsaved | touched) - due
+        self._fresh -= due
+        self._saved_at = time.monotonic() if full else self._saved_at
 
     def next_sync(self, v: VehicleState) -> int:
         """The vehicle's next SYNC counter, saved before the SYNC leaves (a vehicle refuses a counter it
@@ -152,16 +214,28 @@ class Ingest:
     def _commit(self, frames: list[IncomingFrame]) -> list[Event]:
         events: list[Event] = []
         with writing(self.db) as s:
-            batch = Batch()
+            batch = self._open(s, frames)
             for frame in frames:
                 events += self._frame(s, batch, frame)
             batch.flush(s)
             if self.strangers["kept"] > self.settings.stranger_frames_kept:
                 self._drop_strangers(s)
-            for v in {f.src: self.vehicles[f.src] for f in frames if f.src in self.vehicles}.values():
-                link_repo.save_state(s, v.id, v.saved())  # in the same transaction as its packets
+            touched = {f.src for f in frames if f.src in self.vehicles}
+            full = time.monotonic() - self._saved_at >= self.settings.state_save_interval
+            due = self._unsaved | touched if full else touched & self._fresh  # fresh: where replays start
+            self._save(s, due)  # in the same transaction as the packets it includes
             s.commit()
+        self._saved(due, touched, full)
         return events
+
+    def _open(self, s: Tx, frames: list[IncomingFrame]) -> Batch:
+        """The batch's rows, ids reserved for as many frames and packets as ``frames`` can hold; its
+        vehicles, and the states of the packets their check-points may vouch for, read in one query each."""
+        batch = Batch.open(s, len(frames), sum(len(from_frame(f.data)) for f in frames))
+        mine = {v.address: v for f in frames if (v := self.vehicles.get(f.src))}.values()
+        batch.vehicles = vehicles.many(s, [v.id for v in mine])
+        batch.read(s, sorted({i for v in mine for i in v.link.candidates()}))
+        return batch
 
     def _frame(self, s: Tx, batch: Batch, frame: IncomingFrame) -> list[Event]:
         self.stats["frames"] += 1
@@ -169,8 +243,8 @@ class Ingest:
             self.stats["rejected"] += 1  # the modem driver's parser bounds these; never trust it blindly
             log.warning("frame with impossible addresses or rate dropped")
             return []
-        frame_id = telemetry.add_frame(s, frame_row(frame))
-        self._stored(s, frame, frame_id)
+        frame_id = batch.add_frame(frame_row(frame))
+        self._stored(s, batch, frame, frame_id)
         v = self.vehicles.get(frame.src)
         if v is None:
             self.stats["unknown_vehicle"] += 1
@@ -185,7 +259,14 @@ class Ingest:
             )
             log.warning("frame from unknown modem address %d stored, not decoded", frame.src)
             return [LinkNotice(event="unknown_vehicle", detail={"address": frame.src})]
+        return self._apply(s, batch, v, frame, frame_id)
+
+    def _apply(
+        self, s: Tx, batch: Batch, v: VehicleState, frame: IncomingFrame, frame_id: int
+    ) -> list[Event]:
+        """A stored frame from a known vehicle: its packets, in order."""
         v.frames += 1
+        v.link.frame = frame_id
         v.last_heard = frame.at
         v.snr_in, v.snr_out = _finite(frame.snr_in), _finite(frame.snr_out)
         events: list[Event] = []
@@ -194,9 +275,9 @@ class Ingest:
         heard = {"address": v.address, "snr_in": frame.snr_in, "snr_out": frame.snr_out}
         return [*events, LinkNotice(event="heard", vehicle=v.name, detail=heard)]
 
-    def _stored(self, s: Tx, frame: IncomingFrame, frame_id: int) -> None:
-        """The frame's row exists, in the batch's transaction (a hook: the center records there which
-        backhaul message it came from, ``server.backhaul.relay``)."""
+    def _stored(self, s: Tx, batch: Batch, frame: IncomingFrame, frame_id: int) -> None:
+        """The frame's row is in the batch (a hook: the center records there which backhaul message it
+        came from, ``server.backhaul.relay``)."""
 
     def _packet(
         self, s: Tx, batch: Batch, v: VehicleState, frame_id: int, chunk: bytes, at: float
@@ -239,8 +320,8 @@ class Ingest:
         }
         if isinstance(packet, CheckpointPacket):
             trust, events = self._checkpoint(s, batch, v, packet, body)
-            packet_id = telemetry.add_packet(s, {**row, "auth": trust.value})
-        elif not self._tagged(s, v, chunk):
+            packet_id = batch.add_packet({**row, "auth": trust.value})
+        elif not self._tagged(s, batch, v, chunk):
             trust, (packet_id, events) = PacketTrust.FORGED, self._forged(s, batch, v, packet, row)
         else:
             trust, (packet_id, events) = PacketTrust.PENDING, self._priority(s, batch, v, packet, chunk, row)
@@ -289,8 +370,7 @@ class Ingest:
         self, s: Tx, batch: Batch, v: VehicleState, cp: CheckpointPacket, body: dict
     ) -> tuple[PacketTrust, list[Event]]:
         """Verify, then apply: the vehicle's state, its key's confirmation, its commands' statuses."""
-        vehicle = vehicles.get(s, v.id)
-        assert vehicle is not None, "a vehicle with link state is stored"
+        vehicle = batch.vehicle(s, v.id)
         verdict = self.verifier.checkpoint(batch, v, vehicle, cp, lambda: vehicles.every(s))
         if verdict.trust is not PacketTrust.VERIFIED:
             return verdict.trust, verdict.events
@@ -299,6 +379,8 @@ class Ingest:
             v.link.echo = cp.mac  # the heartbeat answers it at the vehicle's next slot
         events: list[Event] = [VehicleReported(vehicle=v.name, checkpoint=body)]
         events += self.verifier.vouch(s, batch, v, cp.seq, verdict.covered)
+        if not batch.live:  # a replay: the key and the commands were stored when it came
+            return PacketTrust.VERIFIED, events
         if vehicle.previous_key_hex and verdict.version == vehicle.key_version:
             events.append(self._key_confirmed(s, batch, v, vehicle.key_version))
         elif keys.pending(vehicle) and cp.holds_next_key != vehicle.next_key_held:
@@ -331,9 +413,8 @@ class Ingest:
         return LinkNotice(event="next_key_held", vehicle=v.name, detail=detail)
 
     @staticmethod
-    def _tagged(s: Tx, v: VehicleState, chunk: bytes) -> bool:
-        vehicle = vehicles.get(s, v.id)
-        assert vehicle is not None, "a vehicle with link state is stored"
+    def _tagged(s: Tx, batch: Batch, v: VehicleState, chunk: bytes) -> bool:
+        vehicle = batch.vehicle(s, v.id)
         return auth.tag_matches(chunk, keys.accepted(vehicle), v.address)
 
     def _forged(
@@ -341,7 +422,7 @@ class Ingest:
     ) -> tuple[int, list[Event]]:
         """A priority packet whose tag fails: stored as forged, never decoded (its state never enters the
         chain) and never a candidate for a check-point's MAC; its id and the events."""
-        packet_id = telemetry.add_packet(s, {**row, "auth": PacketTrust.FORGED.value})
+        packet_id = batch.add_packet({**row, "auth": PacketTrust.FORGED.value})
         v.forged += 1
         self.stats["forged"] += 1
         detail = {"error": f"priority packet seq {pp.seq}: its tag does not match"}
@@ -355,7 +436,7 @@ class Ingest:
         self, s: Tx, batch: Batch, v: VehicleState, pp: PriorityPacket, chunk: bytes, row: dict
     ) -> tuple[int, list[Event]]:
         """Store and decode a priority packet: its id and the events."""
-        packet_id = telemetry.add_packet(s, row)
+        packet_id = batch.add_packet(row)
         recent = v.link.recent.setdefault(pp.seq, [])
         recent[:] = [*recent[-3:], (auth.packet_hash(chunk), packet_id)]
         while len(v.link.recent) > RECENT_SEQS:  # drop the seq furthest behind this one
@@ -363,7 +444,7 @@ class Ingest:
         restart_every = self.settings.restart_min_interval / self.settings.time_scale
         decoded = decode(batch, v, pp, row["at"], packet_id, restart_every)
         row["body"].update(decoded.body)  # what decoding found (or why it could not)
-        telemetry.set_packet(s, packet_id, body=row["body"], origin=decoded.origin)
+        row["origin"] = decoded.origin
         return packet_id, decoded.events
 
 
@@ -380,6 +461,11 @@ def frame_row(frame: IncomingFrame) -> dict[str, Any]:
         "stats": frame.stats,
         "at": frame.at,
     }
+
+
+def stored_frame(row: Frame) -> IncomingFrame:
+    """A stored received frame as it came."""
+    return IncomingFrame(row.src, row.dest, row.data, row.rate, row.snr_in, row.snr_out, row.stats, row.at)
 
 
 def _finite(value: float | None) -> float | None:

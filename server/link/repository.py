@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from sqlalchemy import delete, insert
+from sqlalchemy.dialects import postgresql, sqlite
 from sqlmodel import Session, col, select
 
 from server.core.db import now
@@ -33,6 +34,20 @@ def add(s: Session, *rows: object) -> None:
 def saved_state(s: Session, vehicle_id: int) -> dict[str, Any] | None:
     row = s.get(SavedLinkState, vehicle_id)
     return None if row is None else row.state
+
+
+def save_states(s: Session, states: dict[int, dict[str, Any]]) -> None:
+    """Several vehicles' states (by vehicle id), inserted or replaced in one statement."""
+    if not states:
+        return
+    upsert = postgresql.insert if s.get_bind().dialect.name == "postgresql" else sqlite.insert
+    query = upsert(SavedLinkState)
+    query = query.on_conflict_do_update(
+        index_elements=[col(SavedLinkState.vehicle_id)],
+        set_={"state": query.excluded.state, "updated_at": query.excluded.updated_at},
+    )
+    at = now()
+    s.execute(query, [{"vehicle_id": i, "state": state, "updated_at": at} for i, state in states.items()])
 
 
 def save_state(s: Session, vehicle_id: int, state: dict[str, Any]) -> None:

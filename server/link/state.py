@@ -1,6 +1,7 @@
 """What the shore knows of each vehicle's link, as one typed record (``LinkRecord``) with one to/from
-JSON: saved with every batch of frames (``linkstate``, in the same transaction as the packets it
-describes) and taken as the undo point of a batch whose transaction does not commit.
+JSON: saved every ``state_save_interval`` s in a batch's transaction (``linkstate``), naming the last
+stored frame it includes (``frame``: a restart replays the frames after it, ``server.link.ingest``), and
+taken as the undo point of a batch whose transaction does not commit.
 
 ``VehicleState`` joins the record to what is only kept in memory: the stream decoder (its own cheap
 ``mark``/``undo``; its states are saved beside the record, base64), receive statistics and counters.
@@ -40,6 +41,7 @@ class LinkRecord:
     echo: bytes | None = None  # the MAC of an unsynced check-point the next SYNC answers
     producers: dict[int, int] = field(default_factory=dict)  # chain state id -> the packet row that left it
     recent: dict[int, list[tuple[bytes, int]]] = field(default_factory=dict)  # seq -> [(hash, packet id)]
+    frame: int | None = None  # the last stored frame this record includes (None: saved before it was kept)
 
     def to_json(self, seen: int | None = None) -> dict[str, Any]:
         """JSON of the record (the last ``seen`` entries of the duplicate window; all when None)."""
@@ -54,6 +56,7 @@ class LinkRecord:
             "echo": self.echo.hex() if self.echo else None,
             "producers": {str(k): v for k, v in self.producers.items()},
             "recent": {str(seq): [[h.hex(), pid] for h, pid in items] for seq, items in self.recent.items()},
+            "frame": self.frame,
         }
 
     def accept(self, checkpoint: dict[str, Any], floor: int, mac: bytes) -> None:
@@ -62,6 +65,10 @@ class LinkRecord:
         bytes, within the same second) is refused."""
         self.checkpoint, self.checkpoint_time = checkpoint, floor
         self.accepted_macs = [*self.accepted_macs[-(ACCEPTED_MACS - 1) :], mac]
+
+    def candidates(self) -> set[int]:
+        """The packets (ids) a check-point may vouch for next, and those their states came from."""
+        return {pid for items in self.recent.values() for _, pid in items} | set(self.producers.values())
 
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> LinkRecord:
@@ -77,6 +84,7 @@ class LinkRecord:
             producers={int(k): int(v) for k, v in data.get("producers", {}).items()},
             recent={int(seq): [(bytes.fromhex(h), int(pid)) for h, pid in items]
                     for seq, items in data.get("recent", {}).items()},
+            frame=None if data.get("frame") is None else int(data["frame"]),
         )  # fmt: skip
 
 

@@ -15,11 +15,10 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from server.core.db import Tx, now, saved_id
+from server.core.db import Tx, now
 from server.core.events import Event, LinkNotice, PacketsSettled
 from server.link.batch import Batch
 from server.link.state import VehicleState
-from server.telemetry import repository as telemetry
 from server.telemetry.models import PacketTrust
 from server.vehicles import keys
 from server.vehicles.models import Vehicle
@@ -158,11 +157,13 @@ class Verifier:
             v.link.recent[covered_seq] = [
                 (h, pid) for h, pid in v.link.recent.get(covered_seq, []) if h == digest
             ]
-        batch.flush(s)  # telemetry of packets in this batch is in the table before it is marked
-        telemetry.set_trust(s, good, PacketTrust.VERIFIED)
-        lost = telemetry.settle_pending(s, _out_of_reach(v, seq), PacketTrust.UNVERIFIABLE)
-        trusted = self._trusted(s, good)
-        telemetry.trust_data(s, trusted)
+        reach = _out_of_reach(v, seq)
+        states = batch.packet_states(s, [*good, *reach])  # one query for both
+        batch.set_trust(good, PacketTrust.VERIFIED)
+        lost = [i for i in reach if i not in good and states.get(i, {}).get("auth") == PacketTrust.PENDING]
+        batch.set_trust(lost, PacketTrust.UNVERIFIABLE)  # pending, and no check-point can reach them now
+        trusted = self._trusted(s, batch, {i: states[i] for i in good if i in states})
+        batch.trust_data(trusted)
         if len(trusted) < len(good) and not v.link.needs_restart:
             v.link.needs_restart = True  # its chain ran through a packet nobody vouched for: start clean
             log.warning(
@@ -173,7 +174,7 @@ class Verifier:
                 len(good) - len(trusted),
             )
         if bad:
-            telemetry.set_trust(s, bad, PacketTrust.FORGED)
+            batch.set_trust(bad, PacketTrust.FORGED)
             self.stats["forged"] += len(bad)
             log.warning(
                 "vehicle %s: %d priority packet(s) not the ones the check-point vouched for: forged",
@@ -183,21 +184,22 @@ class Verifier:
         return [PacketsSettled(vehicle=v.name, verified=good, forged=bad, trusted=trusted, unverifiable=lost)]
 
     @staticmethod
-    def _trusted(s: Tx, good: list[int]) -> list[int]:
+    def _trusted(s: Tx, batch: Batch, rows: dict[int, dict]) -> list[int]:
         """Of packets whose bytes a check-point just vouched for, those whose data can be trusted too: a
         packet's data are trusted only if the packet its state came from (its origin) was trusted as
         well. A forged packet slipped into the chain leaves what was decoded after it untrusted. A genuine
         packet that could not be decoded (its state was a forged one's, read as garbage) is not trusted
         either: the shore's chain is broken there, and the vehicle must restart it."""
-        rows = telemetry.packets(s, good)
+        origins = {row["origin"] for row in rows.values()} - set(rows) - {None}
+        earlier = batch.packet_states(s, sorted(i for i in origins if i is not None))
         trusted: list[int] = []
         for packet_id in sorted(rows):  # arrival order: an origin comes first
             row = rows[packet_id]
-            if row.body.get("error"):
+            if row["body"].get("error"):
                 continue
-            origin = row.origin
-            if origin is None or origin in trusted or _was_trusted(s, origin):
-                trusted.append(saved_id(row))
+            origin = row["origin"]
+            if origin is None or origin in trusted or _was_trusted(earlier.get(origin)):
+                trusted.append(packet_id)
         return trusted
 
 
@@ -210,6 +212,5 @@ def _out_of_reach(v: VehicleState, seq: int) -> list[int]:
     return [packet_id for q in behind for _, packet_id in v.link.recent.pop(q)]
 
 
-def _was_trusted(s: Tx, packet_id: int) -> bool:
-    row = telemetry.packet(s, packet_id)
-    return row is not None and row.auth == PacketTrust.VERIFIED and row.trusted
+def _was_trusted(state: dict | None) -> bool:
+    return state is not None and state["auth"] == PacketTrust.VERIFIED and bool(state["trusted"])

@@ -5,8 +5,9 @@ from __future__ import annotations
 from collections.abc import Iterator, Sequence
 from typing import Any
 
-from sqlalchemy import ColumnElement, delete, func, insert, update
-from sqlmodel import Session, col, select
+from sqlalchemy import ColumnElement, delete, func, insert, text, update
+from sqlalchemy import select as sa_select
+from sqlmodel import Session, SQLModel, col, select
 from sqlmodel.sql.expression import SelectOfScalar
 
 from server.telemetry.models import Frame, Packet, PacketTrust, Telemetry
@@ -16,6 +17,67 @@ EXPORT_ROWS = 5000  # rows per database fetch of an export
 
 def add_frame(s: Session, row: dict[str, Any]) -> int:
     return int(s.execute(insert(Frame).returning(col(Frame.id)), [row]).scalar_one())
+
+
+def reserve_ids(s: Session, table: type[SQLModel], n: int) -> list[int]:
+    """``n`` ids for rows of ``table`` this transaction inserts later with their ids. PostgreSQL: from the
+    id's sequence (never handed out twice; the unused ones are gaps, as a rollback leaves). SQLite: after
+    the largest id, which no one else can add to before this transaction ends (``writing`` begins
+    IMMEDIATE: it holds the database's write lock)."""
+    if n <= 0:
+        return []
+    name = str(table.__tablename__)
+    if s.get_bind().dialect.name == "postgresql":
+        query = text("SELECT nextval(pg_get_serial_sequence(:name, 'id')) FROM generate_series(1, :n)")
+        return [int(i) for i in s.execute(query, {"name": name, "n": n}).scalars()]
+    top = s.execute(text(f"SELECT coalesce(max(id), 0) FROM {name}")).scalar_one()
+    return list(range(int(top) + 1, int(top) + n + 1))
+
+
+def add_frame_rows(s: Session, rows: list[dict[str, Any]]) -> None:
+    """Frames with their ids (``reserve_ids``), in one statement."""
+    if rows:
+        s.execute(insert(Frame), rows)
+
+
+def add_packet_rows(s: Session, rows: list[dict[str, Any]]) -> None:
+    """Packets with their ids (``reserve_ids``), in one statement."""
+    if rows:
+        s.execute(insert(Packet), rows)
+
+
+def packet_states(s: Session, packet_ids: Sequence[int]) -> dict[int, dict[str, Any]]:
+    """Each stored packet's ``body``, ``origin``, ``auth`` and ``trusted``, by id (columns, not objects:
+    a batch reads hundreds)."""
+    if not packet_ids:
+        return {}
+    columns = sa_select(col(Packet.id), col(Packet.body), col(Packet.origin), col(Packet.auth),
+                        col(Packet.trusted))  # fmt: skip
+    rows = s.execute(columns.where(col(Packet.id).in_(packet_ids))).all()
+    return {
+        int(i): {"body": body, "origin": origin, "auth": PacketTrust(auth), "trusted": bool(trusted)}
+        for i, body, origin, auth, trusted in rows
+    }
+
+
+def frames_from(s: Session, src: int, after: int) -> list[Frame]:
+    """The frames received from modem address ``src`` after frame id ``after``, oldest first."""
+    query = select(Frame).where(Frame.direction == "in", Frame.src == src, col(Frame.id) > after)
+    return list(s.exec(query.order_by(col(Frame.id))).all())
+
+
+def packets_of_frames(s: Session, frame_ids: Sequence[int]) -> dict[tuple[int, int, str], int]:
+    """The packets stored from the frames: (frame id, seq, type) -> packet id."""
+    if not frame_ids:
+        return {}
+    query = select(Packet.frame_id, Packet.seq, Packet.type, Packet.id).where(
+        col(Packet.frame_id).in_(frame_ids)
+    )
+    return {(int(f), int(seq), str(kind)): int(i) for f, seq, kind, i in s.exec(query).all() if i is not None}
+
+
+def last_frame_id(s: Session) -> int:
+    return int(s.exec(select(func.max(Frame.id))).one() or 0)
 
 
 def _strangers(known: Sequence[int]) -> SelectOfScalar[Any]:
@@ -45,10 +107,6 @@ def add_packet(s: Session, row: dict[str, Any]) -> int:
     return int(s.execute(insert(Packet).returning(col(Packet.id)), [row]).scalar_one())
 
 
-def set_packet(s: Session, packet_id: int, **values: Any) -> None:
-    s.execute(update(Packet).where(col(Packet.id) == packet_id).values(**values))
-
-
 def add_samples(s: Session, rows: list[dict[str, Any]]) -> None:
     if rows:
         s.execute(insert(Telemetry), rows)
@@ -59,33 +117,11 @@ def set_trust(s: Session, packet_ids: Sequence[int], trust: PacketTrust) -> None
         s.execute(update(Packet).where(col(Packet.id).in_(packet_ids)).values(auth=trust.value))
 
 
-def settle_pending(s: Session, packet_ids: Sequence[int], trust: PacketTrust) -> list[int]:
-    """Of the packets, those still pending get ``trust``: their ids."""
-    if not packet_ids:
-        return []
-    pending = col(Packet.id).in_(packet_ids) & (col(Packet.auth) == PacketTrust.PENDING.value)
-    ids = [int(i) for i in s.exec(select(Packet.id).where(pending)).all() if i is not None]
-    set_trust(s, ids, trust)
-    return ids
-
-
 def trust_data(s: Session, packet_ids: Sequence[int]) -> None:
     """The packets' data may be believed: they and their samples are marked so."""
     if packet_ids:
         s.execute(update(Packet).where(col(Packet.id).in_(packet_ids)).values(trusted=True))
         s.execute(update(Telemetry).where(col(Telemetry.packet_id).in_(packet_ids)).values(verified=True))
-
-
-def packets(s: Session, packet_ids: Sequence[int]) -> dict[int, Packet]:
-    return {
-        p.id: p
-        for p in s.exec(select(Packet).where(col(Packet.id).in_(packet_ids))).all()
-        if p.id is not None
-    }
-
-
-def packet(s: Session, packet_id: int) -> Packet | None:
-    return s.get(Packet, packet_id)
 
 
 def checkpoints(s: Session, vehicle_id: int, n: int = 1, until: float | None = None) -> list[Packet]:

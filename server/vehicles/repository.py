@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 from sqlalchemy import update
 from sqlmodel import Session, col, select
 
@@ -32,6 +34,14 @@ def using_key(s: Session, key_hex: str, other_than: int | None = None) -> Vehicl
 
 def every(s: Session) -> list[Vehicle]:
     return list(s.exec(select(Vehicle).order_by(col(Vehicle.id))))
+
+
+def many(s: Session, vehicle_ids: Sequence[int]) -> dict[int, Vehicle]:
+    """The vehicles, by id, in one query."""
+    if not vehicle_ids:
+        return {}
+    rows = s.exec(select(Vehicle).where(col(Vehicle.id).in_(vehicle_ids))).all()
+    return {v.id: v for v in rows if v.id is not None}
 
 
 def save(s: Session, vehicle: Vehicle) -> Vehicle:

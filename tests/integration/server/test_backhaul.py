@@ -347,6 +347,16 @@ def test_a_frame_two_gateways_heard_is_decoded_once(sqlite_url: str) -> None:
     assert ingest.heard_by(1) == 3
 
 
+def test_a_message_twice_in_one_batch_is_stored_once(sqlite_url: str) -> None:
+    """The batch's message ids are read once, before its first frame: the same message twice in one batch
+    (a gateway's retry beside the original) is still one frame, and the redelivery after it is dropped."""
+    ingest = ingest_on(sqlite_url)
+    message = RelayedIncoming.of(FrameMessage("ship-0a0b0c0d-1", "ship", 9, 0, bytes(range(1, 33)), at=1.0))
+    ingest.handle_batch([message, message])
+    ingest.handle_batch([message])
+    assert len(stored(sqlite_url)) == 1 and ingest.stats["relayed_duplicates"] == 2
+
+
 def test_a_gateway_on_a_modem_relays_what_it_hears_and_sends_what_it_is_given(
     broker: NatsServer, sqlite_url: str, tmp_path: Path
 ) -> None:

@@ -10,15 +10,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from sqlmodel import Session, select
+from sqlmodel import Session, delete, select
 
 from server.commands.models import CommandRecord as Command
 from server.core.config import Settings
 from server.core.db import make_engine, migrate
 from server.core.events import Bus as EventBus
 from server.core.events import PacketHeard, PacketsSettled, TelemetryDecoded
+from server.link import repository as link_repo
 from server.link.ingest import Ingest
-from server.link.models import LinkEvent
+from server.link.models import LinkEvent, SavedLinkState
 from server.link.state import IncomingFrame
 from server.telemetry.models import Packet, Telemetry
 from server.vehicles.models import Vehicle
@@ -99,8 +100,8 @@ def shore(tmp_path: Path):
             s.add(Command(vehicle_id=1, seq=seq, command="hold", frame=b"", status="acknowledged"))
         s.commit()
 
-    def start() -> Ingest:
-        ingest = Ingest(db, EventBus(), default_streams(), Settings())
+    def start(settings: Settings | None = None) -> Ingest:
+        ingest = Ingest(db, EventBus(), default_streams(), settings or Settings())
         ingest.load_vehicles()
         return ingest
 
@@ -316,6 +317,71 @@ def test_a_restarted_shore_decodes_again(shore) -> None:
     send(ingest, vehicle.checkpoint())  # the hashes of the packets before the restart were saved too
     assert {r.verified for r in rows(db, Telemetry)} == {True}
     assert ingest.vehicles[ADDRESS].link.seen.first_time(b"x" * 32)
+
+
+def saved_frame(db) -> int | None:
+    """The last frame the vehicle's saved state includes (None: no state saved)."""
+    with Session(db) as s:
+        state = link_repo.saved_state(s, 1)
+    return None if state is None else state["frame"]
+
+
+def test_a_crash_between_state_saves_replays_the_frames_stored_after_the_saved_state(shore) -> None:
+    """The state is saved with the vehicle's first batch, then every ``state_save_interval`` s: after a
+    crash the frames stored after the saved state are handed through the pipeline again (nothing is
+    stored twice), so a retransmission from before the crash is still a duplicate, the next packet
+    decodes on the chain and a check-point verifies the packets heard before the crash."""
+    db, start = shore
+    hourly = Settings(state_save_interval=3600)
+    ingest, vehicle = start(hourly), Vehicle_()
+    for _ in range(4):
+        vehicle.measure(10)
+        send(ingest, vehicle.priority())
+    assert saved_frame(db) == 1  # saved with its first batch only
+    ingest = start(hourly)  # SIGKILL and start again
+    assert ingest.vehicles[ADDRESS].link.frame == 4
+    send(ingest, vehicle.delivered[-1][1])  # its ACK was lost: sent again
+    assert len(rows(db, Packet, type="priority")) == 4
+    vehicle.measure(10)
+    send(ingest, vehicle.priority())
+    assert not ingest.vehicles[ADDRESS].link.needs_restart
+    assert decoded_matches_truth(db, vehicle) == 50 == len(rows(db, Telemetry))
+    send(ingest, vehicle.checkpoint())
+    assert {r.verified for r in rows(db, Telemetry)} == {True}
+    assert ingest.stats["packets"] == 2 and ingest.stats["duplicates"] == 1  # replays are not counted
+
+
+def test_the_state_is_saved_on_a_timer_and_at_shutdown(shore) -> None:
+    db, start = shore
+    ingest, vehicle = start(Settings(state_save_interval=0)), Vehicle_()
+    for n in range(1, 3):
+        vehicle.measure(10)
+        send(ingest, vehicle.priority())
+        assert saved_frame(db) == n  # an interval of 0: with every batch
+    ingest = start(Settings(state_save_interval=3600))
+    vehicle.measure(10)
+    send(ingest, vehicle.priority())
+    assert saved_frame(db) == 2
+    ingest.save_states()  # at shutdown: a restart replays nothing
+    assert saved_frame(db) == 3
+    start(Settings(state_save_interval=3600)).save_states()  # one that heard nothing overwrites nothing
+    with Session(db) as s:
+        s.exec(delete(SavedLinkState))
+        s.commit()
+    start().save_states()
+    assert saved_frame(db) is None
+
+
+def test_a_shutdown_save_with_the_database_away_is_logged_not_raised(shore, caplog) -> None:
+    db, start = shore
+    ingest, vehicle = start(Settings(state_save_interval=3600)), Vehicle_()
+    for _ in range(2):
+        vehicle.measure(10)
+        send(ingest, vehicle.priority())
+    with db.begin() as conn:
+        conn.exec_driver_sql("DROP TABLE linkstate")
+    ingest.save_states()
+    assert "the next start replays" in caplog.text
 
 
 def test_packets_the_shore_never_stored_are_recovered_by_one_restart_request(shore) -> None:
