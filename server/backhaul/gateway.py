@@ -8,7 +8,9 @@ The MAC: one exchange per slot of the TDMA frame the center hands the gateways s
 vehicle of the center's poll list (its answer, heard by this gateway's modem, goes up as frames; the
 center scores the gateways by them), taking turns when both wait. Without a plan a gateway alone on its band sends its commands at will and polls
 nobody. A command that reaches the gateway after its ``start_by`` is not sent: the center has sent it
-through another gateway by then. The SYNC budget is the next slice (docs/backhaul.md).
+through another gateway by then. A gateway transmits nothing before it has read the last schedule the
+stream keeps for it (a restart resumes its stored commands in its slots). The SYNC budget is the next
+slice (docs/backhaul.md).
 
 Imports the standard library, the core (``tacit.modem``) and nats-py only: ``tacit[gateway]`` has no web
 stack (tests/integration/server/test_backhaul.py checks that fastapi, sqlmodel and sqlalchemy are not loaded).
@@ -69,6 +71,7 @@ class Gateway:
         self._polled = 0
         self._commanded = False  # the last slot carried a command
         self._work = asyncio.Event()
+        self._planned = asyncio.Event()  # the schedule the stream keeps for it was read, or there is none
         self.transmissions: list[tuple[float, float]] = []  # (start, end) of each attempt, UNIX s
         self._tasks: list[asyncio.Task[None]] = []
         if driver is not None:
@@ -184,6 +187,7 @@ class Gateway:
     # --- the MAC: one exchange per slot ------------------------------------------------------------
 
     async def _mac(self) -> None:
+        await self._planned.wait()  # not a transmission at will before the slots it may already have
         while True:
             plan = self.schedule.current
             usable = plan.usable if plan is not None and self.name in plan.order else 0.0
@@ -275,6 +279,7 @@ class Gateway:
             try:
                 msgs = await sub.fetch(1, timeout=1.0)
             except TimeoutError:
+                self._planned.set()  # none kept: at will until the center hands one out
                 continue
             except NatsError:  # failed at once (closed, consumer gone): never spin without yielding
                 await asyncio.sleep(0.5)
@@ -282,6 +287,7 @@ class Gateway:
             for msg in msgs:
                 await msg.ack()
                 self._schedule(msg.data)
+            self._planned.set()
 
     def _schedule(self, data: bytes) -> None:
         """The center's TDMA frame for the gateways on this band."""
