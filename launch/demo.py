@@ -7,6 +7,9 @@ dashboard, 3D map, shore modem) runs in this process. Everything lives in ``--da
 database, the pty links, logs, the agents' state, and ``secrets.json`` (operator token and every vehicle's
 key, readable only by you). Ctrl-C or SIGTERM stops the agent, then the simulator, then the server, which
 closes the database cleanly.
+
+``--gateways N`` runs the split shore instead (``launch.split``): N simulated shore modems, a
+``tacit gateway`` on each, and the center in this process, on this machine's NATS and PostgreSQL.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import quote
 
+from launch import split
 from launch.stack import Member, Stack, StackConfig, StackError, write_private
 from tacit.private import open_private, private_dir
 
@@ -68,6 +72,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--mission", help="a mission JSON file (default: the paper's 20 m square at 2 m, 5 laps)"
     )
     parser.add_argument("--vehicles", type=int, default=1, help="simulated vehicles sharing the channel")
+    parser.add_argument(
+        "--gateways",
+        type=int,
+        default=0,
+        help="a split shore: this many shore modems, each with its gateway, and a center (needs NATS and "
+        "PostgreSQL; the last vehicle flies from the first gateway's water into the second's)",
+    )
+    parser.add_argument("--nats", default="nats://127.0.0.1:4222", help="with --gateways: the broker")
+    parser.add_argument(
+        "--postgres",
+        default="postgresql+psycopg://postgres@127.0.0.1:5432/test",
+        help=f"with --gateways: a PostgreSQL server and a database on it to create {split.DATABASE!r} from",
+    )
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--headless", action="store_true", help="do not open a browser")
     parser.add_argument(
@@ -106,6 +123,14 @@ def run(args: argparse.Namespace) -> int:
     if not 0 <= args.extra_loss <= 1 or args.time_scale <= 0 or not 1 <= args.vehicles <= 20:
         print("tacit demo: --extra-loss is 0..1, --time-scale positive and --vehicles 1..20", file=sys.stderr)
         return 2
+    if not 0 <= args.gateways <= 5:
+        print("tacit demo: --gateways is 0 (one shore) .. 5", file=sys.stderr)
+        return 2
+    if args.gateways:
+        absent = split_missing(args)
+        if absent:
+            print(f"tacit demo: {absent}", file=sys.stderr)
+            return 1
     try:
         mission = json.loads(Path(args.mission).read_text()) if args.mission else SQUARE
     except (OSError, ValueError) as exc:
@@ -122,6 +147,17 @@ class DemoError(RuntimeError):
     pass
 
 
+def split_missing(args: argparse.Namespace) -> str | None:
+    """What the split shore needs and does not have, in one line: the center's packages, the broker,
+    the database."""
+    from tacit.cli import missing_requirements
+
+    packages = missing_requirements("center")
+    if packages:
+        return f"--gateways needs {', '.join(packages)}: pip install 'tacit[center]'"
+    return split.missing(args.nats, args.postgres)
+
+
 async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
     import httpx
     import uvicorn
@@ -135,6 +171,7 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
     _log_to(data / "server.log")
     secret = _secrets(data, args.vehicles)
     (data / "missions" / "mission.json").write_text(json.dumps(mission))
+    (data / "missions" / "travel.json").write_text(json.dumps(split.TRAVEL))
     stack = Stack(
         StackConfig(
             data,
@@ -147,18 +184,31 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
             keys=secret["keys"][: args.vehicles],
             write_tokens=[secret["token"]],
             read_tokens=[secret["read_token"]],
+            gateways=args.gateways,
+            noise_db=split.NOISE_DB if args.gateways else None,
         )
     )
+    plans = {m.index: split.TRAVEL if _travels(m, args) else mission for m in stack.members}
     sim_info = await asyncio.to_thread(stack.start_sim)
+    for index in range(args.gateways):
+        stack.start_gateway(index, args.nats)
     for member in stack.members:  # up before the server: a mission started at once finds its agent listening
+        plan = "travel.json" if plans[member.index] is split.TRAVEL else "mission.json"
         stack.write_agent_config(
-            member.index, checkpoint_interval=20, missions=[{"file": "missions/mission.json"}]
+            member.index,
+            checkpoint_interval=20,
+            missions=[{"file": f"missions/{plan}"}],
+            **({"link_lost_timeout": 86400.0} if args.gateways else {}),  # no pre-signed SYNCs yet
+            **({"plume_threshold": 1e6} if plans[member.index] is split.TRAVEL else {}),  # no detours
         )
         stack.start_agent(member.index)
-    settings = Settings(
-        **stack.server_settings(host=args.host, port=args.port, map_port=args.map_port, poll_interval=2.0)
-    )
-    app = create_app(settings)
+    overrides = {"host": args.host, "port": args.port, "map_port": args.map_port, "poll_interval": 2.0}
+    if args.gateways:
+        database = await asyncio.to_thread(split.database, args.postgres)
+        values = split.center_settings(stack, database, args.time_scale)
+        app = split.center_app(Settings(**{**values, **overrides}), args.nats)
+    else:
+        app = create_app(Settings(**stack.server_settings(**overrides)))
     server = uvicorn.Server(uvicorn.Config(app, host=args.host, port=args.port, log_config=None))
     serving = asyncio.create_task(server.serve())
     try:
@@ -170,7 +220,7 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
         async with httpx.AsyncClient(
             base_url=api, headers={"Authorization": f"Bearer {secret['token']}"}
         ) as http:
-            missions = [await _mission(http, member, mission) for member in stack.members]
+            missions = [await _mission(http, member, plans[member.index]) for member in stack.members]
             info = {
                 "api_url": api + "/api/v1",
                 "dashboard_url": api + "/",
@@ -188,15 +238,50 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
             _announce(info, args)
             for mission_id in missions:
                 await http.post(f"/api/v1/missions/{mission_id}/start")
-        interrupted = asyncio.Event()
-        loop = asyncio.get_running_loop()
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            loop.add_signal_handler(sig, interrupted.set)
-        waiter = asyncio.create_task(interrupted.wait())
-        await asyncio.wait({waiter, serving}, return_when=asyncio.FIRST_COMPLETED)
+            watching = [asyncio.create_task(split.watch_routes(http, _say))] if args.gateways else []
+            interrupted = asyncio.Event()
+            loop = asyncio.get_running_loop()
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                loop.add_signal_handler(sig, interrupted.set)
+            waiter = asyncio.create_task(interrupted.wait())
+            await asyncio.wait({waiter, serving}, return_when=asyncio.FIRST_COMPLETED)
+            for task in watching:
+                task.cancel()
         return 0
     finally:
         await shutdown(stack, server, serving)
+        if args.gateways:
+            _channel(stack.sim_report())
+
+
+def _plans(args: argparse.Namespace) -> str:
+    if args.gateways > 1:
+        return (
+            f"{args.gateways} gateways (gw1 .. gw{args.gateways}, 900 m apart) and a center on NATS and "
+            f"PostgreSQL; rov{args.vehicles} flies 500 m east from gw1's water into gw2's, the others fly "
+            "the square around their homes. Each vehicle's gateway is printed as the center assigns it."
+        )
+    return "Each vehicle is starting the square mission around its home."
+
+
+def _channel(report: dict[str, Any]) -> None:
+    """The simulated channel's figures at exit; where collisions were, if any."""
+    channel = report.get("channel", {})
+    _say(
+        f"channel: {channel.get('transmissions', '?')} transmissions, "
+        f"{channel.get('collisions', '?')} collisions, {channel.get('lost', '?')} frames lost"
+    )
+    for entry in report.get("collided", [])[-5:]:
+        _say(f"  collided at {entry['to']}: {entry['kind']} from {entry['from']} (t={entry['time']:.1f} s)")
+
+
+def _say(line: str) -> None:
+    print(line, flush=True)
+
+
+def _travels(member: Member, args: argparse.Namespace) -> bool:
+    """The vehicle that flies from the first gateway's water into the second's: the last, with gateways."""
+    return args.gateways > 1 and member.index == args.vehicles - 1
 
 
 def free_port(host: str, port: int) -> None:
@@ -239,8 +324,8 @@ async def _register(http: Any, member: Member) -> int:
 
 async def _mission(http: Any, member: Member, mission: dict[str, Any]) -> int:
     """Register the vehicle and queue the mission for it; the mission's id. The plan's waypoints are
-    relative to each vehicle's home (``vehicle_agent.navigator``): every vehicle flies the same square
-    around its own start."""
+    relative to each vehicle's home (``vehicle_agent.navigator``): every vehicle flies its plan (the
+    square) around its own start."""
     vehicle_id = await _register(http, member)
     queued = await http.post(f"/api/v1/vehicles/{vehicle_id}/missions", json=mission)
     return int(queued.json()["id"])
@@ -277,7 +362,7 @@ def _announce(info: dict[str, Any], args: argparse.Namespace) -> None:
                 f"{v['home'][1]:g} m east, MAVLink {v['mavlink'][0]}\n"
                 for v in info["vehicles"]
             )
-            + f"{scale}Each vehicle is starting the square mission around its home. Ctrl-C stops everything.\n",
+            + f"{scale}{_plans(args)} Ctrl-C stops everything.\n",
             flush=True,
         )
     if not args.headless:

@@ -34,6 +34,7 @@ SHORE_ADDRESS = 1
 VEHICLE_ADDRESS = 2  # the first vehicle's; the others follow (3, 4, ...)
 SIM_ORIGIN = Origin()  # where the simulator's GPS puts the fleet's origin (simulators.mavlink_vehicle)
 SPACING_M = 30.0  # the fleet's homes, east of each other: the demo's 20 m squares do not overlap
+GATEWAY_SPACING_M = 900.0  # a split shore's modems, east of each other: each hears its end of the water
 
 
 @dataclass
@@ -53,6 +54,8 @@ class StackConfig:
     recorder: bool = False  # one more that reports every data frame it hears (a recorder on the channel)
     stepped_clocks: bool = False  # the server's and agents' wall clocks can be stepped (``step_clock``)
     vehicles: int = 1  # simulated BlueROV2s on the one channel, each with its own agent
+    gateways: int = 0  # a split shore's modems (a `tacit gateway` each), ``range_m`` west of home and
+    # then every GATEWAY_SPACING_M east; 0: the one shore modem of `tacit serve`
     keys: list[str] = field(default_factory=list)  # one per vehicle (hex); none: agents without keys
     addresses: list[int] = field(default_factory=list)  # one per vehicle; none: 2, 3, ...
     write_tokens: list[str] = field(default_factory=list)
@@ -66,8 +69,9 @@ class StackConfig:
         keys = self.keys or [""] * self.vehicles
         if len(addresses) != self.vehicles or len(keys) != self.vehicles:
             raise StackError(f"{self.vehicles} vehicle(s) need as many addresses and keys")
-        if SHORE_ADDRESS in addresses:
-            raise StackError(f"modem address {SHORE_ADDRESS} is the shore's, not a vehicle's")
+        shore = {SHORE_ADDRESS, *(gateway_address(i) for i in range(self.gateways))}
+        if shore & set(addresses):
+            raise StackError(f"modem addresses {sorted(shore)} are the shore's, not a vehicle's")
         _unique("modem address", addresses)
         _unique("key", [k.lower() for k in keys if k])
         return [Member(i, a, k) for i, (a, k) in enumerate(zip(addresses, keys, strict=True))]
@@ -109,6 +113,15 @@ class Member:
         }
 
 
+def gateway_address(index: int) -> int:
+    """The modem address of a split shore's gateway ``index`` (0: the shore's own, 1)."""
+    return SHORE_ADDRESS if index == 0 else 100 + index
+
+
+def gateway_name(index: int) -> str:
+    return f"gw{index + 1}"
+
+
 def _unique(what: str, values: list[Any]) -> None:
     repeated = sorted({str(v) for v in values if values.count(v) > 1})
     if repeated:
@@ -126,29 +139,41 @@ class Stack:
         self.sim_info: dict[str, Any] = {}
         self.agents: dict[int, subprocess.Popen[str]] = {}  # by vehicle index
         self.server: subprocess.Popen[str] | None = None
+        self.sim: subprocess.Popen[str] | None = None
 
     # the simulator -------------------------------------------------------------------------------
     def start_sim(self) -> dict[str, Any]:
         """Start ``tacit sim``; return what it announces (modem ptys, the vehicle's MAVLink URL)."""
         path = self.dir / "sim.json"
         path.write_text(json.dumps(self._sim_config()))
-        sim = self.spawn(["sim", "--config", str(path), "--json"], "sim.log", capture=True)
+        sim = self.sim = self.spawn(["sim", "--config", str(path), "--json"], "sim.log", capture=True)
         line = sim.stdout.readline() if sim.stdout else ""
         if not line:
             raise StackError(f"the simulator did not start; see {self.dir / 'sim.log'}")
         self.sim_info = json.loads(line)
         return self.sim_info
 
+    def sim_report(self) -> dict[str, Any]:
+        """What the simulator reported when it stopped (after ``close``): the channel's transmissions,
+        losses and collisions, each modem's counters; empty if it said nothing."""
+        out = self.sim.stdout.read() if self.sim is not None and self.sim.stdout else ""
+        last = next((line for line in reversed(out.splitlines()) if line.startswith("{")), "{}")
+        return dict(json.loads(last).get("report", {}))
+
+    def _shore_modems(self) -> list[dict[str, Any]]:
+        c = self.config
+        if not c.gateways:
+            return [{"address": SHORE_ADDRESS, "name": "shore", "position": [-c.range_m, 0.0, 1.0],
+                     "link": str(self.pty("shore"))}]  # fmt: skip
+        return [
+            {"address": gateway_address(i), "name": gateway_name(i),
+             "position": [0.0, -c.range_m + GATEWAY_SPACING_M * i, 1.0], "link": str(self.pty(gateway_name(i)))}
+            for i in range(c.gateways)
+        ]  # fmt: skip
+
     def _sim_config(self) -> dict[str, Any]:
         c = self.config
-        modems: list[dict[str, Any]] = [
-            {
-                "address": SHORE_ADDRESS,
-                "name": "shore",
-                "position": [-c.range_m, 0.0, 1.0],
-                "link": str(self.pty("shore")),
-            }
-        ]
+        modems = self._shore_modems()
         modems += [
             {
                 "address": m.address,
@@ -240,6 +265,17 @@ class Stack:
         self.server = self.spawn(["serve", "--port", str(port)], "serve.log", env=env, clock="shore")
         return self.server
 
+    # a split shore's gateways -----------------------------------------------------------------------
+    def start_gateway(self, index: int, nats_url: str) -> subprocess.Popen[str]:
+        """``tacit gateway`` on the simulated modem of gateway ``index``, its outbox in the stack's folder."""
+        name = gateway_name(index)
+        return self.spawn(
+            ["gateway", "--nats", nats_url, "--name", name, "--outbox", str(self.dir / f"gateway-{name}.db"),
+             "--modem-url", str(self.pty(name)), "--modem-address", str(gateway_address(index)),
+             "--modem-log", str(self.dir / f"gateway-{name}-modem.log")],
+            f"gateway-{name}.log",
+        )  # fmt: skip
+
     # the agent -------------------------------------------------------------------------------------
     def agent_config(self, vehicle: int = 0) -> Path:
         """Where a vehicle's agent configuration is written."""
@@ -253,6 +289,7 @@ class Stack:
             "address": m.address, "key": m.key, "modem_url": str(self.pty(m.file("vehicle"))),
             "mavlink_url": self.mavlink_of(vehicle), "state_file": str(self.dir / m.file("agent-state.json")),
             "tlog_dir": str(self.dir / m.file("tlogs")), "time_scale": self.config.time_scale,
+            "gateways": [gateway_address(i) for i in range(1, self.config.gateways)],
         }  # fmt: skip
         config.update(values)
         config["nav"] = {"home": list(m.home), **values.get("nav", {})}

@@ -11,7 +11,7 @@ import asyncio
 import logging
 import socket
 import sys
-from collections.abc import AsyncIterator, Awaitable, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 from contextlib import asynccontextmanager
 from pathlib import Path
 
@@ -27,8 +27,10 @@ from server.core import errors
 from server.core.config import Settings, SettingsError
 from server.core.db import make_engine, migrate
 from server.link import endpoints as link
+from server.link.ingest import Ingest
 from server.missions import endpoints as missions
 from server.operators import endpoints as operators
+from server.routing import endpoints as routing
 from server.safety import endpoints as safety
 from server.screens import endpoints as screens
 from server.shore import Shore
@@ -63,6 +65,7 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     shore.bus.bind(asyncio.get_running_loop())
     shore.watcher.start()
     await shore.link.start()
+    tasks = [asyncio.create_task(run(shore)) for run in app.state.background]
     operator_map = None
     if settings.map_enabled:
         from server.map.scene import OperatorMap  # viser is heavy: imported only when the map runs
@@ -77,6 +80,9 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     finally:
         if operator_map:
             operator_map.stop()
+        for task in tasks:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
         await shore.link.stop()
         await asyncio.to_thread(shore.watcher.stop)
 
@@ -93,11 +99,18 @@ class Pages(StaticFiles):
         await super().__call__(scope, receive, send)
 
 
-def create_app(settings: Settings) -> FastAPI:
+def create_app(
+    settings: Settings,
+    ingest_type: type[Ingest] = Ingest,
+    background: Sequence[Callable[[Shore], Awaitable[None]]] = (),
+) -> FastAPI:
+    """The API on a shore built from ``settings``; ``ingest_type`` and ``background`` (tasks run for the
+    app's life, e.g. the center's consumers and dispatcher) make it a center."""
     app = FastAPI(
         title="Tacit", version="1", description=DESCRIPTION, lifespan=lifespan, docs_url=None, redoc_url=None
     )
-    app.state.shore = Shore.build(settings, make_engine(settings.database_url))
+    app.state.shore = Shore.build(settings, make_engine(settings.database_url), ingest_type)
+    app.state.background = list(background)
     app.state.map = None
     if settings.cors_origins:
         app.add_middleware(
@@ -117,7 +130,18 @@ def create_app(settings: Settings) -> FastAPI:
             response.headers["Content-Security-Policy"] = DOCS_CSP
         return response
 
-    for module in (system, operators, vehicles, commands, missions, telemetry, link, screens, safety):
+    for module in (
+        system,
+        operators,
+        vehicles,
+        commands,
+        missions,
+        telemetry,
+        link,
+        screens,
+        safety,
+        routing,
+    ):
         app.include_router(module.router)
     errors.install(app)
     _offline_docs(app)

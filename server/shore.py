@@ -19,6 +19,7 @@ from server.link.ingest import Ingest
 from server.missions.service import Missions
 from server.missions.teams import Teams
 from server.operators.service import Operators
+from server.routing.service import Routing
 from server.safety.service import Separation
 from server.screens.service import Screens
 from server.telemetry.service import TelemetryReader
@@ -43,11 +44,13 @@ class Shore:
     safety: Separation
     teams: Teams
     watcher: Watcher  # runs the safety checks and the team missions' steps off the event loop
+    routing: Routing  # the center's gateways and each vehicle's (empty on a single shore)
 
     @classmethod
-    def build(cls, settings: Settings, db: Engine) -> Shore:
+    def build(cls, settings: Settings, db: Engine, ingest_type: type[Ingest] = Ingest) -> Shore:
+        """``ingest_type``: the center's ``RelayIngest`` (frames from the gateways), else the link's."""
         bus = Bus()
-        ingest = Ingest(db, bus, default_streams(), settings)
+        ingest = ingest_type(db, bus, default_streams(), settings)
         vehicles = Vehicles(db)
         commands = CommandDesk(db, bus, ingest.pose, settings.max_queued_commands)
         link = LinkEngine(settings, db, bus, ingest, commands, vehicles)
@@ -77,4 +80,5 @@ class Shore:
             safety,
             teams,
             watcher,
+            Routing(db, settings),
         )

@@ -5,10 +5,14 @@ from server.commands.models import CommandRecord, CommandStep
 from server.link.models import LinkEvent, SavedLinkState
 from server.missions.models import Mission, TeamMission, TeamProposal
 from server.operators.models import Operator
+from server.routing.models import Assignment, Dispatch, GatewayRecord
 from server.telemetry.models import Frame, Packet, Telemetry
 from server.vehicles.models import Vehicle
 
 __all__ = [
+    "Assignment",
+    "Dispatch",
+    "GatewayRecord",
     "CommandRecord",
     "CommandStep",
     "Frame",

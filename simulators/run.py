@@ -258,9 +258,11 @@ class SimWorld:
         }
 
     def report(self) -> dict[str, Any]:
-        """What crossed the channel, per modem and in total."""
+        """What crossed the channel, per modem and in total; the latest receptions that collided (when,
+        what, from which modem to which: where two transmissions overlapped)."""
         return {
             "channel": dict(self.channel.stats),
+            "collided": [entry for entry in self.channel.log if entry["collided"]][-50:],  # the latest
             "modems": {m.name: dict(m.counters) for m in self.modems.values()},
             "vehicles": {n: {**v.counters, **v.describe()} for n, v in self.vehicles.items()},
             "replays": {

@@ -70,6 +70,7 @@ CLOCK_DEADBAND = 30.0  # s: travel and airtime are seconds; a synced clock is co
 class AgentConfig:
     address: int = 2
     shore_address: int = 1
+    gateways: list[int] = field(default_factory=list)  # a split shore's other modems (docs/backhaul.md)
     key: str = ""
     key_version: int = 1
     next_key: str = ""  # the key of version key_version + 1, installed before a rotation at sea
@@ -173,7 +174,9 @@ class Agent:
             )
         )
         self.link = VehicleLink(
-            self.driver, auth.ControlReceiver(self.keys, config.address, window, sync), config.shore_address
+            self.driver,
+            auth.ControlReceiver(self.keys, config.address, window, sync),
+            [config.shore_address, *config.gateways],
         )
         self.link.offset = self.state.clock_offset
         for queued in self.state.outbox:  # what a SIGKILL interrupted goes out again, byte for byte

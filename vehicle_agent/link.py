@@ -20,7 +20,7 @@ from __future__ import annotations
 import itertools
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 
 from tacit import auth, modem, nmea
@@ -52,13 +52,15 @@ class VehicleLink:
         self,
         driver: modem.ModemDriver,
         receiver: auth.ControlReceiver,
-        shore_address: int = 1,
+        shore_address: int | Collection[int] = 1,
         attempts: int = 4,
         clock: Callable[[], float] = time.time,
     ) -> None:
         self.driver = driver
         self.receiver = receiver
-        self.shore_address = shore_address
+        # the shore's modem, or every gateway's of a split shore (docs/backhaul.md): polls, ACKs and
+        # control frames from these only
+        self.shore = frozenset([shore_address] if isinstance(shore_address, int) else shore_address)
         self.attempts = attempts
         self.clock = clock
         self.offset = 0.0
@@ -98,7 +100,7 @@ class VehicleLink:
         return len(self.queue) + sum(len(v) for v in self.in_flight.values())
 
     def _answer_poll(self, drq: nmea.DataRequest) -> bytes | None:
-        if drq.dest != self.shore_address:
+        if drq.dest not in self.shore:
             return None
         if drq.frame == 1:
             self.counters["polls"] += 1
@@ -128,12 +130,12 @@ class VehicleLink:
         self.queue.sort()
 
     def _on_event(self, event: modem.Event) -> None:
-        if isinstance(event, modem.AckReceived) and event.src == self.shore_address:
+        if isinstance(event, modem.AckReceived) and event.src in self.shore:
             for item in self.in_flight.pop(event.frame, []):
                 self.counters["delivered"] += 1
                 if item.on_result:
                     item.on_result(True)
-        elif isinstance(event, modem.ReceivedFrame) and event.src == self.shore_address:
+        elif isinstance(event, modem.ReceivedFrame) and event.src in self.shore:
             for chunk in from_frame(event.data):
                 self._control(chunk)
 

@@ -17,6 +17,7 @@ from server.link.engine import LinkEngine
 from server.missions.service import Missions
 from server.missions.teams import Teams
 from server.operators.service import Operators
+from server.routing.service import Routing
 from server.safety.service import Separation
 from server.screens.service import Screens
 from server.shore import Shore
@@ -78,6 +79,10 @@ def _operators(shore: ShoreDep) -> Operators:
     return shore.operators
 
 
+def _routing(shore: ShoreDep) -> Routing:
+    return shore.routing
+
+
 VehiclesDep = Annotated[Vehicles, Depends(_vehicles)]
 CommandsDep = Annotated[CommandDesk, Depends(_commands)]
 MissionsDep = Annotated[Missions, Depends(_missions)]
@@ -88,6 +93,7 @@ ScreensDep = Annotated[Screens, Depends(_screens)]
 LinkDep = Annotated[LinkEngine, Depends(_link)]
 BusDep = Annotated[Bus, Depends(_bus)]
 OperatorsDep = Annotated[Operators, Depends(_operators)]
+RoutingDep = Annotated[Routing, Depends(_routing)]
 
 bearer = HTTPBearer(
     auto_error=False,

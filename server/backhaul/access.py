@@ -3,10 +3,13 @@ connects with, and ``tacit broker-config``, which writes a nats-server configura
 gateways.
 
 One user per role: ``center``, and ``gateway-<name>`` per gateway. A gateway may publish only its own
-frames and events, create and read only its own command consumer (``gateway-<name>``, filtered on its own
-command subject), and receive replies only on its own inbox prefix (``_INBOX.gateway.<name>``), so it can
-neither pass frames off as another's nor see another's commands, even in a reply. It cannot create,
-change or delete a stream: the center does. A client without credentials is refused by the broker.
+frames and events (its command outcomes among them), create and read only its own command consumer
+(``gateway-<name>``, filtered on its own command subject) and its own schedule consumer
+(``schedule-<name>``, filtered on its own schedule subject; it deletes it at start to begin again at the
+last schedule kept), and receive replies only on its own inbox prefix (``_INBOX.gateway.<name>``), so it
+can neither pass frames off as another's nor see another's commands or schedule, even in a reply. It
+cannot create, change or delete a stream: the center does. A client without credentials is refused by
+the broker.
 
 Standard library only: the gateway imports it.
 """
@@ -29,6 +32,7 @@ from server.backhaul import subjects
 
 CENTER = "center"
 GATEWAY_CONSUMER = "gateway-{name}"  # the durable each gateway reads its commands through
+SCHEDULE_CONSUMER = "schedule-{name}"  # the durable each gateway reads its schedule through
 
 
 class CredentialsError(ValueError):
@@ -86,6 +90,7 @@ def gateway_permissions(name: str) -> dict[str, Any]:
     """What gateway ``name`` may publish and subscribe to (JetStream's API is a set of subjects)."""
     consumer = GATEWAY_CONSUMER.format(name=subjects.gateway_name(name))
     stream = subjects.COMMANDS_STREAM
+    schedule, plan = SCHEDULE_CONSUMER.format(name=name), subjects.SCHEDULE_STREAM
     return {
         "publish": {
             "allow": [
@@ -95,6 +100,11 @@ def gateway_permissions(name: str) -> dict[str, Any]:
                 f"$JS.API.CONSUMER.CREATE.{stream}.{consumer}.{subjects.commands(name)}",
                 f"$JS.API.CONSUMER.MSG.NEXT.{stream}.{consumer}",
                 f"$JS.ACK.{stream}.{consumer}.>",
+                f"$JS.API.CONSUMER.INFO.{plan}.{schedule}",
+                f"$JS.API.CONSUMER.DELETE.{plan}.{schedule}",
+                f"$JS.API.CONSUMER.CREATE.{plan}.{schedule}.{subjects.schedule(name)}",
+                f"$JS.API.CONSUMER.MSG.NEXT.{plan}.{schedule}",
+                f"$JS.ACK.{plan}.{schedule}.>",
             ]
         },
         "subscribe": {"allow": [inbox_prefix(gateway_user(name)) + ".>"]},
@@ -102,9 +112,10 @@ def gateway_permissions(name: str) -> dict[str, Any]:
 
 
 def center_permissions() -> dict[str, Any]:
-    """The center: every stream and consumer, the commands down; it publishes no frame or event."""
+    """The center: every stream and consumer (its frames' durable and ``<durable>-events``), the
+    commands and schedules down; it publishes no frame or event."""
     return {
-        "publish": {"allow": [subjects.commands(">"), "$JS.API.>", "$JS.ACK.>"]},
+        "publish": {"allow": [subjects.commands(">"), subjects.schedule(">"), "$JS.API.>", "$JS.ACK.>"]},
         "subscribe": {"allow": [subjects.frames(">"), subjects.events(">"), inbox_prefix(CENTER) + ".>"]},
     }
 

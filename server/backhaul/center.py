@@ -11,7 +11,12 @@ acks gets the messages again (the store drops them); at start, if messages were 
 consumer is set back to just after its ack floor, so they come again at once and in order instead of
 after ``ack_wait`` behind newer ones.
 
-``tacit center``: the consumer into ingest (PostgreSQL or SQLite). One center per broker.
+The gateways' events (attempt outcomes, heartbeats) come through a second durable consumer
+(``tacit-center-events``) to ``on_event`` (the command dispatcher, ``server.backhaul.dispatch``), acked
+after it returns; its reports are idempotent, so a redelivery does no harm.
+
+``tacit center``: the consumers into ingest and the dispatcher (PostgreSQL or SQLite), with the REST
+API, the dashboard and the map of ``tacit serve`` (no shore modem of its own). One center per broker.
 """
 
 from __future__ import annotations
@@ -23,7 +28,8 @@ import logging
 import sys
 import time
 from collections import Counter
-from typing import Any
+from collections.abc import Awaitable, Callable
+from typing import TYPE_CHECKING, Any
 
 from nats.aio.client import Client
 from nats.aio.msg import Msg
@@ -37,11 +43,14 @@ from server.backhaul import access, broker, subjects
 from server.backhaul.access import BrokerAuth
 from server.backhaul.guard import Guard
 from server.backhaul.relay import RelayedIncoming, RelayIngest
-from server.backhaul.subjects import CommandMessage
+from server.backhaul.subjects import CommandMessage, EventMessage
+
+if TYPE_CHECKING:
+    from server.shore import Shore
 
 log = logging.getLogger("tacit.backhaul.center")
 
-DURABLE = "tacit-center"
+DURABLE = "tacit-center"  # its events' durable is "<durable>-events"
 
 
 class Center:
@@ -66,6 +75,8 @@ class Center:
         self.js: JetStreamContext | None = None
         self.sub: JetStreamContext.PullSubscription | None = None
         self.gateways: dict[str, dict[str, Any]] = {}  # each gateway's last heartbeat
+        self.on_event: Callable[[EventMessage], Awaitable[None]] | None = None
+        self.events: JetStreamContext.PullSubscription | None = None
         self.counters = {"messages": 0, "batches": 0, "malformed": 0, "retries": 0}
         self.guard = Guard()
         self.frames: Counter[str] = Counter()  # frame messages consumed, by gateway
@@ -80,22 +91,39 @@ class Center:
         self.js = self.nc.jetstream()
         await broker.ensure_streams(self.js, self.duplicate_window)
         self.sub = await self._subscribe(self.js)
-        await self.nc.subscribe(subjects.events(), cb=self._event)
+        self.events = await self.js.pull_subscribe(
+            subjects.events(">"),
+            durable=f"{self.durable}-events",
+            stream=subjects.EVENTS_STREAM,
+            config=ConsumerConfig(ack_policy=AckPolicy.EXPLICIT, ack_wait=self.ack_wait),
+        )
 
     async def close(self) -> None:
         if self.nc is not None:
             with contextlib.suppress(NatsError, OSError):  # the backhaul may be down: closed all the same
                 await self.nc.close()
-        self.nc = self.js = self.sub = None
+        self.nc = self.js = self.sub = self.events = None
         self._state(False)
 
-    async def run(self) -> None:
+    async def run(self, *also: Awaitable[None]) -> None:
+        """Connect, then consume frames and events for ever, with ``also`` (the dispatcher)."""
         await self.connect()
         try:
-            while True:
-                await self.step()
+            await asyncio.gather(self._forever(self.step), self._forever(self.step_events), *also)
         finally:
             await self.close()
+
+    @staticmethod
+    async def _forever(step: Callable[[], Awaitable[int]]) -> None:
+        task = asyncio.current_task()
+        while task is None or not task.cancelling():  # a fetch may swallow the cancellation: not this
+            await step()
+        raise asyncio.CancelledError
+
+    async def publish(self, subject: str, payload: bytes, message_id: str) -> None:
+        """Publish to a stream with ``message_id`` as its ``Nats-Msg-Id`` (the dispatcher's way down)."""
+        assert self.js is not None, "connect() first"
+        await self.js.publish(subject, payload, headers={subjects.MSG_ID: message_id})
 
     async def _subscribe(self, js: JetStreamContext) -> JetStreamContext.PullSubscription:
         config = ConsumerConfig(
@@ -127,7 +155,8 @@ class Center:
         assert self.sub is not None, "connect() first"
         try:
             msgs = await self.sub.fetch(self.batch, timeout=timeout)
-        except (TimeoutError, NatsError):
+        except (TimeoutError, NatsError) as exc:
+            await _pause(exc)
             return 0
         batch: list[tuple[RelayedIncoming, Msg]] = []
         for msg in msgs:
@@ -184,14 +213,36 @@ class Center:
             return []
         return [msg]
 
+    async def step_events(self, timeout: float = 1.0) -> int:
+        """Fetch the gateways' events, hand each to ``on_event``, ack it; how many were fetched. An
+        event ``on_event`` failed on (the database away) is left for redelivery."""
+        assert self.events is not None, "connect() first"
+        try:
+            msgs = await self.events.fetch(self.batch, timeout=timeout)
+        except (TimeoutError, NatsError) as exc:
+            await _pause(exc)
+            return 0
+        for msg in msgs:
+            await self._event(msg)
+        return len(msgs)
+
     async def _event(self, msg: Msg) -> None:
         event = self.guard.event(msg.subject, msg.data, time.time())
         if event is None:
+            await msg.term()
             return
         if event.kind == "heartbeat":
             self.gateways[event.gateway] = {**event.detail, "at": event.at, "seen": time.time()}
-        else:
+        elif event.kind != "attempt":
             log.info("gateway %s: %s %s", event.gateway, event.kind, event.detail)
+        try:
+            if self.on_event is not None:
+                await self.on_event(event)
+        except Exception:
+            log.exception("backhaul: event %s not handled; it comes again", event.id)
+            await msg.nak(delay=1.0)
+            return
+        await msg.ack()
 
     async def send_command(self, command: CommandMessage) -> bool:
         """Publish a signed command frame to its gateway (its id the message id); False if JetStream
@@ -201,6 +252,35 @@ class Center:
             subjects.commands(command.gateway), command.encode(), headers={subjects.MSG_ID: command.id}
         )
         return not ack.duplicate
+
+
+async def _pause(exc: Exception) -> None:
+    """After a fetch that failed at once (the connection closed, the consumer gone): a pause, so that a
+    loop of fetches never spins without yielding to the event loop. A timeout has waited already."""
+    if not isinstance(exc, TimeoutError):
+        log.debug("backhaul: fetch failed: %s", exc)
+        await asyncio.sleep(0.5)
+
+
+async def serve(shore: Shore, url: str, durable: str = DURABLE, auth: BrokerAuth | None = None) -> None:
+    """The center's backhaul in a shore's app: the consumers into its ingest and the dispatcher of its
+    command desk (a queued command wakes it), with the retention and ``/metrics`` (``server.ops``)."""
+    from server.backhaul.dispatch import Dispatcher
+    from server.ops.process import operate
+
+    assert isinstance(shore.ingest, RelayIngest), "a center's shore is built with RelayIngest"
+    center = Center(shore.ingest, url, durable=durable, auth=auth)
+    dispatcher = Dispatcher(
+        shore.commands,
+        shore.routing,
+        shore.settings,
+        center.publish,
+        shore.link.heartbeat,
+        shore.ingest.states,
+    )
+    center.on_event = dispatcher.on_event
+    shore.commands.wake = dispatcher.wake
+    await operate(center, center.run(dispatcher.run()), shore.ingest.db, shore.settings)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -224,18 +304,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="serve /metrics (Prometheus) on this port of TACIT_METRICS_HOST; 0: none "
         "(default TACIT_METRICS_PORT or 9464)",
     )
+    parser.add_argument("--config", help="a TOML settings file (TACIT_* environment variables override it)")
+    parser.add_argument("--host", help="the API's bind address (default 127.0.0.1)")
+    parser.add_argument("--port", type=int, help="API and dashboard port (default 8000)")
+    parser.add_argument("--map-port", type=int, help="3D map port (default 8080)")
+    parser.add_argument("--no-map", action="store_true", help="do not start the 3D map")
+    parser.set_defaults(modem_url=None)  # the center has no modem: its gateways have
 
 
 def run(args: argparse.Namespace) -> int:
-    from server.core.config import Settings
-    from server.core.db import make_engine, migrate
-    from server.core.events import Bus
-    from server.ops.process import operate
-    from tacit.streams import default_streams
+    import uvicorn
 
-    settings = Settings()
+    from server.app import create_app, settings_from
+
+    settings = settings_from(args)
+    settings.modem_url = ""
     overrides = {
-        "database_url": args.database_url,
         "nats_url": args.nats,
         "nats_credentials": args.nats_credentials,
         "nats_ca": args.nats_ca,
@@ -249,16 +333,15 @@ def run(args: argparse.Namespace) -> int:
     except access.CredentialsError as exc:
         print(f"tacit center: {exc}", file=sys.stderr)
         return 2
-    migrate(settings.database_url)
-    ingest = RelayIngest(make_engine(settings.database_url), Bus(), default_streams(), settings)
-    ingest.load_vehicles()
+    app = create_app(
+        settings, RelayIngest, [lambda shore: serve(shore, settings.nats_url, args.durable, auth)]
+    )
     log.info(
-        "center: %d vehicles; consuming %s from %s",
-        len(ingest.vehicles),
+        "center: consuming %s from %s; API on %s:%d",
         subjects.frames(">"),
         settings.nats_url,
+        settings.host,
+        settings.port,
     )
-    center = Center(ingest, settings.nats_url, durable=args.durable, auth=auth)
-    asyncio.run(operate(center, center.run(), ingest.db, settings))
-    ingest.save_states()  # a restart then has no frames to replay
+    uvicorn.run(app, host=settings.host, port=settings.port, log_level="info")
     return 0

@@ -3,12 +3,17 @@ committed to the local outbox first (``server.backhaul.outbox``), then published
 backhaul in order; commands the center signed come down, are kept in the outbox file, and their attempt
 outcomes go up as events. It holds no vehicle key (docs/protocol.md).
 
-This slice: the gateway listens and relays (and sends the commands it is given); polling the vehicles
-(the MAC), the SYNC budget and the assignment of vehicles to gateways are the next slice
-(docs/backhaul.md).
+The MAC: one exchange per slot of the TDMA frame the center hands the gateways sharing the band
+(``server.backhaul.slots``): a command's next attempt (SYNCs are commands here) or a poll of the next
+vehicle of the center's poll list (its answer, heard by this gateway's modem, goes up as frames; the
+center scores the gateways by them), taking turns when both wait. Without a plan a gateway alone on its band sends its commands at will and polls
+nobody. A command that reaches the gateway after its ``start_by`` is not sent: the center has sent it
+through another gateway by then. A gateway transmits nothing before it has read the last schedule the
+stream keeps for it (a restart resumes its stored commands in its slots). The SYNC budget is the next
+slice (docs/backhaul.md).
 
 Imports the standard library, the core (``tacit.modem``) and nats-py only: ``tacit[gateway]`` has no web
-stack (tests/test_backhaul.py checks that fastapi, sqlmodel and sqlalchemy are not loaded).
+stack (tests/integration/server/test_backhaul.py checks that fastapi, sqlmodel and sqlalchemy are not loaded).
 """
 
 from __future__ import annotations
@@ -20,18 +25,21 @@ import logging
 import os
 import sys
 import time
+from collections import deque
 from pathlib import Path
 
 from nats.aio.client import Client
 from nats.aio.msg import Msg
 from nats.errors import Error as NatsError
 from nats.js import JetStreamContext
-from nats.js.api import AckPolicy, ConsumerConfig
+from nats.js.api import AckPolicy, ConsumerConfig, DeliverPolicy
+from nats.js.errors import NotFoundError
 
 from server.backhaul import access, broker, subjects
 from server.backhaul.access import BrokerAuth
 from server.backhaul.outbox import Outbox, Publisher
-from server.backhaul.subjects import CommandMessage, EventMessage, PayloadError
+from server.backhaul.slots import ATTEMPT_AIRTIME, Schedule, SlotPlan
+from server.backhaul.subjects import CommandMessage, EventMessage, PayloadError, ScheduleMessage
 from tacit import modem as mm
 
 log = logging.getLogger("tacit.backhaul.gateway")
@@ -57,6 +65,14 @@ class Gateway:
         self.nc: Client | None = None
         self.publisher: Publisher | None = None
         self.backhaul = False  # connected to the broker
+        self.schedule = Schedule()  # the center's TDMA frames; none: transmit at will
+        self.polls: tuple[int, ...] = ()  # the vehicles' addresses the center asks this gateway to poll
+        self.queue: deque[tuple[CommandMessage, int]] = deque()  # commands to send, attempts made
+        self._polled = 0
+        self._commanded = False  # the last slot carried a command
+        self._work = asyncio.Event()
+        self._planned = asyncio.Event()  # the schedule the stream keeps for it was read, or there is none
+        self.transmissions: list[tuple[float, float]] = []  # (start, end) of each attempt, UNIX s
         self._tasks: list[asyncio.Task[None]] = []
         if driver is not None:
             driver.add_listener(self.on_modem)
@@ -95,8 +111,12 @@ class Gateway:
         self._tasks = [
             asyncio.create_task(self.publisher.run()),
             asyncio.create_task(self._commands(js)),
+            asyncio.create_task(self._schedules(js)),
             asyncio.create_task(self._beat()),
         ]
+        if self.driver is not None:
+            self.queue.extend((c, 0) for c in self.outbox.commands("stored"))  # a restart resumes them
+            self._tasks.append(asyncio.create_task(self._mac()))
 
     async def stop(self) -> None:
         for task in self._tasks:
@@ -136,7 +156,10 @@ class Gateway:
         while True:
             try:
                 msgs = await sub.fetch(16, timeout=1.0)
-            except (TimeoutError, NatsError):
+            except TimeoutError:
+                continue
+            except NatsError:  # failed at once (closed, consumer gone): never spin without yielding
+                await asyncio.sleep(0.5)
                 continue
             for msg in msgs:
                 await self._command(msg)
@@ -153,35 +176,135 @@ class Gateway:
         await msg.ack()
         if not fresh:
             return
+        if command.start_by and time.time() > command.start_by:  # the center went through another
+            self._final(command, "expired")
+            return
         self.outbox.add_event("attempt", {"command": command.id, "outcome": "stored", "attempt": 0})
         if self.driver is not None:
-            self._tasks.append(asyncio.create_task(self._send(command)))
+            self.queue.append((command, 0))
+            self._work.set()
 
-    async def _send(self, command: CommandMessage) -> None:
-        """The attempts: each outcome goes up as an event (through the outbox: none is lost)."""
-        assert self.driver is not None
-        outcome = "failed"
-        for attempt in range(1, command.attempts + 1):
-            if command.expires_at and time.time() > command.expires_at:
-                outcome = "expired"
-                break
-            try:
-                result = await self.driver.send(
-                    command.address, [command.data], ack=True, ack_timeout=command.ack_timeout
-                )
-            except mm.ModemError as exc:
-                self.outbox.add_event(
-                    "attempt",
-                    {"command": command.id, "outcome": "failed", "attempt": attempt, "error": str(exc)},
-                )
+    # --- the MAC: one exchange per slot ------------------------------------------------------------
+
+    async def _mac(self) -> None:
+        await self._planned.wait()  # not a transmission at will before the slots it may already have
+        while True:
+            plan = self.schedule.current
+            usable = plan.usable if plan is not None and self.name in plan.order else 0.0
+            polling = bool(self.polls) and usable > 0  # polls only in slots: never at will
+            if not self.queue and not polling:
+                self._work.clear()
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(self._work.wait(), 1.0)
                 continue
-            outcome = "acked" if result.all_acked else "sent" if result.transmitted else "failed"
-            self.outbox.add_event("attempt", {"command": command.id, "outcome": outcome, "attempt": attempt})
-            if outcome == "acked":
-                break
+            start = self.schedule.start(self.name, time.time(), usable or ATTEMPT_AIRTIME)
+            await asyncio.sleep(max(0.0, start - time.time()))
+            if self.queue and not (polling and self._commanded):
+                await self._next_attempt()
+                self._commanded = True
+            else:  # polls and commands take turns: a vehicle's answers keep coming while commands wait
+                await self._poll()
+                self._commanded = False
+            await asyncio.sleep(max(0.0, start + usable - time.time()))  # the slot's answers still come
+
+    async def _next_attempt(self) -> None:
+        """The first waiting command's next attempt; it leaves the queue when acked, out of attempts or
+        expired (each outcome goes up as an event, through the outbox: none is lost)."""
+        command, made = self.queue.popleft()
+        if command.expires_at and time.time() > command.expires_at:
+            self._final(command, "expired")
+            return
+        outcome = await self._attempt(command, made + 1)
+        if outcome == "acked" or made + 1 >= command.attempts:
+            self._final(command, "acked" if outcome == "acked" else "failed")
+        else:
+            self.queue.appendleft((command, made + 1))
+
+    async def _poll(self) -> None:
+        """Ask the next vehicle of the poll list for its data (with ACK: its link counts on them)."""
+        assert self.driver is not None
+        address = self.polls[self._polled % len(self.polls)]
+        self._polled += 1
+        try:
+            await self.driver.poll(address, rate=0, ack=True)
+        except mm.ModemError as exc:
+            log.warning("poll of %d failed: %s", address, exc)
+
+    async def _attempt(self, command: CommandMessage, attempt: int) -> str:
+        """One data cycle with ACK: ``acked``, ``sent`` (no ACK) or ``failed`` (not transmitted)."""
+        assert self.driver is not None
+        started = time.time()
+        try:
+            result = await self.driver.send(
+                command.address, [command.data], ack=True, ack_timeout=command.ack_timeout
+            )
+        except mm.ModemError as exc:
+            self.outbox.add_event(
+                "attempt", {"command": command.id, "outcome": "failed", "attempt": attempt, "error": str(exc)}
+            )
+            return "failed"
+        self.transmissions.append((started, time.time()))
+        outcome = "acked" if result.all_acked else "sent" if result.transmitted else "failed"
+        self.outbox.add_event("attempt", {"command": command.id, "outcome": outcome, "attempt": attempt})
+        return outcome
+
+    def _final(self, command: CommandMessage, outcome: str) -> None:
         self.outbox.set_command(command.id, outcome)
-        if outcome == "expired":
-            self.outbox.add_event("attempt", {"command": command.id, "outcome": "expired"})
+        self.outbox.add_event("attempt", {"command": command.id, "outcome": outcome, "final": True})
+
+    async def _schedule_consumer(self, js: JetStreamContext) -> JetStreamContext.PullSubscription:
+        """The gateway's own schedule consumer, made anew so that it starts at the last schedule the
+        stream keeps for this gateway; retried while the stream does not exist yet (the center creates
+        it) or the broker does not answer."""
+        durable = access.SCHEDULE_CONSUMER.format(name=self.name)
+        while True:
+            try:
+                with contextlib.suppress(NotFoundError):
+                    await js.delete_consumer(subjects.SCHEDULE_STREAM, durable)
+                return await js.pull_subscribe(
+                    subjects.schedule(self.name),
+                    durable=durable,
+                    stream=subjects.SCHEDULE_STREAM,
+                    config=ConsumerConfig(
+                        ack_policy=AckPolicy.EXPLICIT, deliver_policy=DeliverPolicy.LAST_PER_SUBJECT
+                    ),
+                )
+            except (NatsError, TimeoutError) as exc:
+                log.info("backhaul: no schedule consumer yet (%s); retrying", type(exc).__name__)
+                await asyncio.sleep(0.5)
+
+    async def _schedules(self, js: JetStreamContext) -> None:
+        sub = await self._schedule_consumer(js)
+        while True:
+            try:
+                msgs = await sub.fetch(1, timeout=1.0)
+            except TimeoutError:
+                self._planned.set()  # none kept: at will until the center hands one out
+                continue
+            except NatsError:  # failed at once (closed, consumer gone): never spin without yielding
+                await asyncio.sleep(0.5)
+                continue
+            for msg in msgs:
+                await msg.ack()
+                self._schedule(msg.data)
+            self._planned.set()
+
+    def _schedule(self, data: bytes) -> None:
+        """The center's TDMA frame for the gateways on this band."""
+        try:
+            schedule = ScheduleMessage.decode(data)
+            self.schedule.receive(
+                SlotPlan(schedule.epoch, schedule.slot, schedule.guard, schedule.order), time.time()
+            )
+            self.polls = schedule.poll
+            self._work.set()
+        except (PayloadError, ValueError) as exc:
+            log.error("schedule refused: %s", exc)
+            return
+        log.info(
+            "schedule: slot %.1f s, guard %.1f s, order %s, polling %s",
+            *(schedule.slot, schedule.guard, schedule.order, schedule.poll),
+        )
 
     # --- heartbeat -------------------------------------------------------------------------------
 

@@ -5,7 +5,9 @@ Subjects (docs/backhaul.md has the table other tools subscribe by):
 * ``tacit.v1.frames.<gateway>``: up, a frame the gateway's modem received (``FrameMessage``);
 * ``tacit.v1.commands.<gateway>``: down, a signed command frame for the gateway to send (``CommandMessage``);
 * ``tacit.v1.events.<gateway>``: up, what the gateway reports: attempt outcomes, modem states, its
-  heartbeat (``EventMessage``).
+  heartbeat (``EventMessage``);
+* ``tacit.v1.schedule.<gateway>``: down, the gateway's transmit slots in the TDMA frame the center
+  hands the gateways sharing the band (``ScheduleMessage``; the stream keeps the last per gateway).
 
 Every message carries an ``id`` unique across the system, which is also its ``Nats-Msg-Id`` header
 (JetStream's de-duplication within the stream's ``duplicate_window``). Payloads are JSON objects with
@@ -26,6 +28,7 @@ PREFIX = f"tacit.v{VERSION}"
 FRAMES_STREAM = "TACIT_FRAMES"
 COMMANDS_STREAM = "TACIT_COMMANDS"
 EVENTS_STREAM = "TACIT_EVENTS"
+SCHEDULE_STREAM = "TACIT_SCHEDULE"
 DUPLICATE_WINDOW = 120.0  # s: JetStream drops a message whose id it stored this recently
 COMMAND_MAX_AGE = 600.0  # s: a signed command frame is acceptable to the vehicle for its max_age
 EVENTS_MAX_AGE = 86400.0  # s: events are kept a day for late subscribers
@@ -55,6 +58,10 @@ def commands(gateway: str = "*") -> str:
 
 def events(gateway: str = "*") -> str:
     return f"{PREFIX}.events.{gateway}"
+
+
+def schedule(gateway: str = "*") -> str:
+    return f"{PREFIX}.schedule.{gateway}"
 
 
 def _load(data: bytes) -> dict[str, Any]:
@@ -112,15 +119,18 @@ class FrameMessage:
 @dataclass(frozen=True)
 class CommandMessage:
     """A command frame the center signed, for the gateway to send to ``address``: ``attempts`` times at
-    most, each waiting ``ack_timeout`` s for the modem's ACK, not after ``expires_at`` (UNIX s)."""
+    most, each waiting ``ack_timeout`` s for the modem's ACK, not after ``expires_at`` (UNIX s), and not
+    at all if it reaches the gateway after ``start_by`` (the center has sent it through another gateway
+    by then; 0: no such limit)."""
 
-    id: str  # "cmd-<command id>-<round>": the center's
+    id: str  # "cmd-<command id>-<dispatch>": the center's, one per gateway it tries
     gateway: str
     address: int
     data: bytes
     attempts: int = 3
     ack_timeout: float = 20.0
     expires_at: float = 0.0
+    start_by: float = 0.0
 
     def encode(self) -> bytes:
         return _dump({**asdict(self), "data": self.data.hex()})
@@ -137,15 +147,52 @@ class CommandMessage:
                 attempts=int(body.get("attempts", 3)),
                 ack_timeout=float(body.get("ack_timeout", 20.0)),
                 expires_at=float(body.get("expires_at", 0.0)),
+                start_by=float(body.get("start_by", 0.0)),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise PayloadError(f"a command without {exc}") from exc
 
 
 @dataclass(frozen=True)
+class ScheduleMessage:
+    """The TDMA frame of the gateways sharing one band (``server.backhaul.slots.SlotPlan``): slot ``k``
+    begins at ``epoch + k * slot`` (UNIX s) and belongs to ``order[k % len(order)]``; a gateway starts a
+    transmission ``guard`` s after its slot begins at the earliest and has it answered ``guard`` s before
+    the slot ends. ``poll``: the vehicles' modem addresses the gateway polls in its slots, in turn."""
+
+    id: str
+    gateway: str
+    epoch: float
+    slot: float
+    guard: float
+    order: tuple[str, ...]
+    poll: tuple[int, ...] = ()
+
+    def encode(self) -> bytes:
+        return _dump({**asdict(self), "order": list(self.order), "poll": list(self.poll)})
+
+    @classmethod
+    def decode(cls, data: bytes) -> ScheduleMessage:
+        body = _load(data)
+        try:
+            return cls(
+                id=str(body["id"]),
+                gateway=str(body["gateway"]),
+                epoch=float(body["epoch"]),
+                slot=float(body["slot"]),
+                guard=float(body["guard"]),
+                order=tuple(str(name) for name in body["order"]),
+                poll=tuple(int(address) for address in body.get("poll", ())),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise PayloadError(f"a schedule without {exc}") from exc
+
+
+@dataclass(frozen=True)
 class EventMessage:
     """What a gateway reports. ``kind``: ``attempt`` (detail: command id, outcome ``stored``/``sent``/
-    ``acked``/``failed``/``expired``, attempt number), ``modem`` (detail: state), ``heartbeat`` (detail:
+    ``acked``/``failed``/``expired``, attempt number; the last one of a command has ``final``: true and
+    its outcome is ``acked``, ``failed`` (no ACK after its attempts) or ``expired``), ``modem`` (detail: state), ``heartbeat`` (detail:
     backhaul state, outbox depth: frames and events not yet published)."""
 
     id: str

@@ -87,6 +87,15 @@ class Settings(BaseSettings):
     restructure_vehicles: int = Field(2, ge=0)
     restructure_radius: float = Field(15.0, gt=0)  # m
     restructure_auto: bool = False  # apply the proposal at once; otherwise an operator confirms it
+    # --- the center and its gateways (docs/backhaul.md) ---
+    routing_window: float = Field(120.0, gt=0)  # s of frames a gateway's score for a vehicle is made of
+    routing_margin: float = Field(3.0, ge=0)  # dB another gateway must score better by to take a vehicle
+    routing_dwell: float = Field(60.0, ge=0)  # s a vehicle stays on its gateway before it may move again
+    gateway_timeout: float = Field(30.0, gt=0)  # s without a heartbeat or event: the gateway is down
+    dispatch_receipt: float = Field(10.0, gt=0)  # s a gateway has to report a command stored, else the
+    # center sends it through the next gateway (the first never sends it after that: ``start_by``)
+    tdma_slot: float = Field(12.0, gt=0)  # s: each gateway's slot in the frame of the gateways on a band
+    tdma_guard: float = Field(1.1, ge=0)  # s at each end of a slot: range / 2c + clock error (3 km, NTP)
 
     @field_validator("write_tokens", "read_tokens", "cors_origins", mode="before")
     @classmethod

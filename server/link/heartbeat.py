@@ -23,6 +23,7 @@ import logging
 import math
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 
 from server.core.config import Settings
 from server.link.state import VehicleState
@@ -36,6 +37,16 @@ from tacit.packets import CHECKPOINT_MAC_SIZE, SYNC_RESTART_CHAINS, ControlPacke
 from tacit.packets import Command as Kind
 
 log = logging.getLogger("tacit.server.link")
+
+
+@dataclass(frozen=True)
+class Sync:
+    """A signed SYNC frame and what it carries."""
+
+    frame: bytes
+    seq: int
+    echo: bytes | None  # the unsynced check-point's MAC it answers
+    restart: bool  # asks the vehicle to restart its sample chains
 
 
 class Heartbeat:
@@ -68,6 +79,23 @@ class Heartbeat:
     async def sync(self, driver: mm.ModemDriver, vehicle: VehicleState) -> bool:
         """One SYNC; answers a waiting unsynced check-point, asks for a chain restart if ingest needs one.
         False if our modem refused the cycle (the SYNC is due again)."""
+        sync = await self.signed(vehicle)
+        result = await driver.send(
+            vehicle.address, [sync.frame], rate=0, ack=True, ack_timeout=self.timing.ack_timeout(vehicle)
+        )
+        if not result.transmitted:  # our modem refused the cycle: due again at the next slot
+            log.info(
+                "vehicle %s: SYNC %d not transmitted (%s); next slot", vehicle.name, sync.seq, result.error
+            )
+            self._last[vehicle.address] = -math.inf
+            await asyncio.sleep(self.timing.busy_wait())
+            return False
+        self.sent(vehicle, sync, result.all_acked)
+        return True
+
+    async def signed(self, vehicle: VehicleState) -> Sync:
+        """The vehicle's next SYNC, signed now (its counter saved first); the heartbeat counts it as due
+        no more until ``sync_interval`` has passed."""
         self._last[vehicle.address] = time.monotonic()  # a wall clock stepped back must not stop SYNCs
         restart = vehicle.link.needs_restart
         echo = vehicle.link.echo
@@ -81,21 +109,15 @@ class Heartbeat:
             echo=echo or bytes(CHECKPOINT_MAC_SIZE),
             param_id=SYNC_RESTART_CHAINS if restart else 0,
         )
-        frame = auth.sign(packet, key, vehicle.address, epoch=version)
-        result = await driver.send(
-            vehicle.address, [frame], rate=0, ack=True, ack_timeout=self.timing.ack_timeout(vehicle)
-        )
-        if not result.transmitted:  # our modem refused the cycle: due again at the next slot
-            log.info("vehicle %s: SYNC %d not transmitted (%s); next slot", vehicle.name, seq, result.error)
-            self._last[vehicle.address] = -math.inf
-            await asyncio.sleep(self.timing.busy_wait())
-            return False
-        if vehicle.link.echo == echo:  # on the air: one answer per check-point (a newer one waits)
+        return Sync(auth.sign(packet, key, vehicle.address, epoch=version), seq, echo, restart)
+
+    def sent(self, vehicle: VehicleState, sync: Sync, acked: bool) -> None:
+        """``sync`` went on the air (``acked``: the vehicle's modem acknowledged it)."""
+        if vehicle.link.echo == sync.echo:  # on the air: one answer per check-point (a newer one waits)
             vehicle.link.echo = None
         self.syncs += 1
-        if restart:
-            self._restart_sent(vehicle, result.all_acked)
-        return True
+        if sync.restart:
+            self._restart_sent(vehicle, acked)
 
     def _restart_sent(self, vehicle: VehicleState, acked: bool) -> None:
         sent = self._restarts[vehicle.address] = self._restarts.get(vehicle.address, 0) + 1

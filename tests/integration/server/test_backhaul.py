@@ -8,10 +8,7 @@ a gateway's retry after JetStream's de-duplication window, and two gateways hear
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import json
-import shutil
-import socket
 import sqlite3
 import subprocess
 import sys
@@ -34,54 +31,15 @@ from server.core.db import make_engine, migrate
 from server.core.events import Bus
 from tacit.streams import default_streams
 from tests.conftest import postgres_database
+from tests.support.nats import NATS_SERVER, NatsServer
 
 ROOT = Path(__file__).resolve().parents[1]
-NATS_SERVER = shutil.which("nats-server") or "/usr/sbin/nats-server"
 pytestmark = pytest.mark.skipif(not Path(NATS_SERVER).exists(), reason="nats-server is not installed")
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-class Broker:
-    """A nats-server with JetStream on a free port, its store in a folder: stopped and started again on
-    the same port and store, as a backhaul outage."""
-
-    def __init__(self, store: Path) -> None:
-        self.port = _free_port()
-        self.store = store
-        self.url = f"nats://127.0.0.1:{self.port}"
-        self.proc: subprocess.Popen[bytes] | None = None
-
-    def start(self) -> None:
-        self.proc = subprocess.Popen(
-            [NATS_SERVER, "-js", "-a", "127.0.0.1", "-p", str(self.port), "-sd", str(self.store)],
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-        deadline = time.monotonic() + 10
-        while time.monotonic() < deadline:
-            with (
-                contextlib.suppress(OSError),
-                socket.create_connection(("127.0.0.1", self.port), timeout=0.2),
-            ):
-                return
-            time.sleep(0.05)
-        raise RuntimeError("nats-server did not start")
-
-    def stop(self) -> None:
-        if self.proc is not None:
-            self.proc.terminate()
-            self.proc.wait(timeout=10)
-            self.proc = None
-
-
 @pytest.fixture
-def broker(tmp_path: Path) -> Iterator[Broker]:
-    b = Broker(tmp_path / "jetstream")
+def broker(tmp_path: Path) -> Iterator[NatsServer]:
+    b = NatsServer(tmp_path)
     b.start()
     try:
         yield b
@@ -131,7 +89,9 @@ def per_vehicle(rows: list[tuple[int, bytes, float | None]], src: int) -> list[b
     return [data for s, data, _ in rows if s == src]
 
 
-def test_frames_reach_the_center_once_and_in_order(broker: Broker, sqlite_url: str, tmp_path: Path) -> None:
+def test_frames_reach_the_center_once_and_in_order(
+    broker: NatsServer, sqlite_url: str, tmp_path: Path
+) -> None:
     async def main() -> None:
         outbox = Outbox(tmp_path / "ship.db", "ship")
         gateway = Gateway(outbox, broker.url, heartbeat=0.2)
@@ -141,7 +101,7 @@ def test_frames_reach_the_center_once_and_in_order(broker: Broker, sqlite_url: s
         try:
             one, two = hear(outbox, 1, 12), hear(outbox, 2, 8)
             await until(lambda: len(stored(sqlite_url)) >= 20, center.step)
-            await until(lambda: "ship" in center.gateways, lambda: asyncio.sleep(0.1))
+            await until(lambda: "ship" in center.gateways, center.step_events)
             rows = stored(sqlite_url)
             assert len(rows) == 20
             assert per_vehicle(rows, 1) == one and per_vehicle(rows, 2) == two
@@ -155,7 +115,7 @@ def test_frames_reach_the_center_once_and_in_order(broker: Broker, sqlite_url: s
 
 
 def test_a_backhaul_outage_loses_nothing_and_doubles_nothing(
-    broker: Broker, sqlite_url: str, tmp_path: Path
+    broker: NatsServer, sqlite_url: str, tmp_path: Path
 ) -> None:
     async def main() -> None:
         outbox = Outbox(tmp_path / "buoy.db", "buoy")
@@ -188,7 +148,7 @@ def test_a_backhaul_outage_loses_nothing_and_doubles_nothing(
 
 
 def test_a_center_dying_before_its_acks_loses_and_doubles_nothing(
-    broker: Broker, sqlite_url: str, tmp_path: Path
+    broker: NatsServer, sqlite_url: str, tmp_path: Path
 ) -> None:
     async def main() -> None:
         outbox = Outbox(tmp_path / "pier.db", "pier")
@@ -219,7 +179,7 @@ def test_a_center_dying_before_its_acks_loses_and_doubles_nothing(
     asyncio.run(main())
 
 
-def test_a_retry_after_the_broker_window_is_still_stored_once(broker: Broker, sqlite_url: str) -> None:
+def test_a_retry_after_the_broker_window_is_still_stored_once(broker: NatsServer, sqlite_url: str) -> None:
     async def main() -> None:
         center = Center(ingest_on(sqlite_url), broker.url, duplicate_window=1.0)
         await center.connect()
@@ -248,7 +208,7 @@ def test_a_retry_after_the_broker_window_is_still_stored_once(broker: Broker, sq
 
 
 def test_two_gateways_hearing_one_frame_store_it_once_with_the_best_snr(
-    broker: Broker, tmp_path: Path, postgres_server: str
+    broker: NatsServer, tmp_path: Path, postgres_server: str
 ) -> None:
     """On PostgreSQL, as the center runs."""
     with postgres_database(postgres_server) as url:
@@ -299,7 +259,7 @@ def test_two_gateways_hearing_one_frame_store_it_once_with_the_best_snr(
 
 
 def test_commands_go_down_once_and_are_kept_by_the_gateway(
-    broker: Broker, sqlite_url: str, tmp_path: Path
+    broker: NatsServer, sqlite_url: str, tmp_path: Path
 ) -> None:
     async def main() -> None:
         outbox = Outbox(tmp_path / "ship.db", "ship")
@@ -398,7 +358,7 @@ def test_a_message_twice_in_one_batch_is_stored_once(sqlite_url: str) -> None:
 
 
 def test_a_gateway_on_a_modem_relays_what_it_hears_and_sends_what_it_is_given(
-    broker: Broker, sqlite_url: str, tmp_path: Path
+    broker: NatsServer, sqlite_url: str, tmp_path: Path
 ) -> None:
     """A scripted Micro-Modem on a pty: a frame it hears reaches the center with its statistics; a
     command from the center is sent in a data cycle and its ACK goes up as the attempt's outcome."""
@@ -454,11 +414,11 @@ def test_a_gateway_on_a_modem_relays_what_it_hears_and_sends_what_it_is_given(
             json.loads(p) for (p,) in db.execute("SELECT payload FROM outbox WHERE subject LIKE '%events%'")
         ]
     outcomes = [e["detail"]["outcome"] for e in events if e["kind"] == "attempt"]
-    assert outcomes == ["stored", "acked"]
+    assert outcomes == ["stored", "acked", "acked"]  # the attempt, then the final outcome
     assert any(e["kind"] == "modem" and e["detail"]["state"] == "ready" for e in events)
 
 
-def test_a_frame_on_another_gateways_subject_is_refused(broker: Broker, sqlite_url: str) -> None:
+def test_a_frame_on_another_gateways_subject_is_refused(broker: NatsServer, sqlite_url: str) -> None:
     async def main() -> None:
         center = Center(ingest_on(sqlite_url), broker.url)
         await center.connect()

@@ -1,7 +1,7 @@
 """The broker is no back door (issue 24, item 8): a real nats-server with the configuration
 ``tacit broker-config`` writes. A stranger is refused; a gateway publishes only its own frames and events,
-reads only its own commands, touches no stream; the center's guard refuses bad input, logged and counted,
-and goes on."""
+reads only its own commands and schedule, touches no stream; the center's guard refuses bad input, logged
+and counted, and goes on."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ from server.backhaul import access, subjects
 from server.backhaul.center import Center
 from server.backhaul.gateway import Gateway
 from server.backhaul.outbox import Outbox
-from server.backhaul.subjects import CommandMessage, EventMessage, FrameMessage
+from server.backhaul.subjects import CommandMessage, EventMessage, FrameMessage, ScheduleMessage
 from server.core.db import migrate
 from tests.integration.server.test_backhaul import hear, ingest_on, stored, until
 from tests.support.nats import NATS_SERVER, NatsServer, Secured, certificates
@@ -97,7 +97,7 @@ def test_gateways_and_the_center_work_with_their_credentials(
             )
             assert await center.send_command(command)
             await until(lambda: outbox.commands() == [command], lambda: asyncio.sleep(0.05))
-            await until(lambda: "ship" in center.gateways, lambda: asyncio.sleep(0.05))
+            await until(lambda: "ship" in center.gateways, center.step_events)
             assert center.guard.refused == {}
         finally:
             await center.close()
@@ -199,6 +199,57 @@ def test_a_gateway_cannot_read_another_gateways_commands(
     asyncio.run(main())
 
 
+def test_a_gateway_cannot_read_another_gateways_schedule(
+    secured: Secured, sqlite_url: str, tmp_path: Path
+) -> None:
+    """The center hands the buoy its slots; the ship gets them by no way, not even through a consumer of
+    its own name; the buoy gets its own, also after a restart (its consumer made anew at the last one)."""
+
+    async def main() -> None:
+        center = Center(ingest_on(sqlite_url), secured.url, auth=secured.credentials("center"))
+        await center.connect()
+        errors: list[str] = []
+        ship = await client(secured, "gateway-ship", errors)
+        snooped: list[str] = []
+
+        async def snoop(msg: object) -> None:
+            snooped.append(str(msg))
+
+        await ship.subscribe(subjects.schedule(">"), cb=snoop)
+        js = ship.jetstream(timeout=0.5)
+        auth = secured.credentials("gateway-buoy")
+        buoy = Gateway(Outbox(tmp_path / "buoy.db", "buoy"), secured.url, auth=auth)
+        schedule = ScheduleMessage("schedule-1-buoy", "buoy", time.time(), 2.0, 0.1, ("buoy", "ship"), (4,))
+        await center.publish(subjects.schedule("buoy"), schedule.encode(), schedule.id)
+        await buoy.start()
+        try:
+            await until(lambda: buoy.polls == (4,), lambda: asyncio.sleep(0.05))
+            await buoy.stop()
+            buoy = Gateway(Outbox(tmp_path / "buoy.db", "buoy"), secured.url, auth=auth)
+            await buoy.start()
+            await until(lambda: buoy.polls == (4,), lambda: asyncio.sleep(0.05))
+            for name in ("schedule-buoy", "schedule-ship"):
+                with pytest.raises(NatsError):  # the buoy's consumer; its own name on the buoy's subject
+                    await js.pull_subscribe(
+                        subjects.schedule("buoy"), durable=name, stream=subjects.SCHEDULE_STREAM
+                    )
+            with pytest.raises(NatsError):  # an ordered consumer (an ephemeral one, unfiltered subject)
+                await js.subscribe(
+                    subjects.schedule("buoy"), stream=subjects.SCHEDULE_STREAM, ordered_consumer=True
+                )
+            with pytest.raises(NatsError):  # nor may it delete the buoy's
+                await js.delete_consumer(subjects.SCHEDULE_STREAM, "schedule-buoy")
+            await asyncio.sleep(0.3)
+            assert snooped == []
+            assert sum("permissions violation for subscription" in e for e in errors) == 1
+        finally:
+            await buoy.stop()
+            await ship.close()
+            await center.close()
+
+    asyncio.run(main())
+
+
 def test_bad_input_across_the_broker_is_a_logged_refusal(
     open_broker: NatsServer, sqlite_url: str, caplog: pytest.LogCaptureFixture
 ) -> None:
@@ -274,18 +325,18 @@ def test_a_gateway_announcing_itself_twice_is_refused_but_its_frames_are_stored(
         center.guard.heartbeat = 0.2
         await center.connect()
         await first.start()
-        await until(lambda: "ship" in center.gateways, lambda: asyncio.sleep(0.05))
+        await until(lambda: "ship" in center.gateways, center.step_events)
         await second.start()
         try:
             heard = hear(first.outbox, 1, 2) + hear(second.outbox, 1, 2, start=2)
             await until(lambda: len(stored(sqlite_url)) == 4, center.step)
-            await until(lambda: center.guard.refused["twice"] >= 2, lambda: asyncio.sleep(0.05))
+            await until(lambda: center.guard.refused["twice"] >= 2, center.step_events)
             assert sorted(d for _, d, _ in stored(sqlite_url)) == sorted(heard)
             assert center.gateways["ship"]["incarnation"] == first.outbox.incarnation
             await first.stop()  # gone: after three silent heartbeats the other takes the name
             await until(
                 lambda: center.gateways["ship"]["incarnation"] == second.outbox.incarnation,
-                lambda: asyncio.sleep(0.05),
+                center.step_events,
             )
         finally:
             await second.stop()

@@ -22,6 +22,9 @@ TABLES = {
     "telemetry",
     "linkevent",
     "linkstate",
+    "gateway",
+    "assignment",
+    "dispatch",
 }
 
 

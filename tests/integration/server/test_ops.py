@@ -108,7 +108,9 @@ def test_metrics_in_prometheus_format(broker: NatsServer, sqlite_url: str, tmp_p
         try:
             hear(outbox, 1, 3)
             await until(lambda: len(stored(sqlite_url)) == 3, lambda: asyncio.sleep(0.05))
-            await until(lambda: "ship" in center.gateways, lambda: asyncio.sleep(0.05))
+            await until(  # its events come in order: a heartbeat from before the publisher caught up first
+                lambda: center.gateways.get("ship", {}).get("outbox") == 0, lambda: asyncio.sleep(0.05)
+            )
             m = await scrape()
             ship = (("gateway", "ship"),)
             assert m["tacit_gateway_frames_total"][ship] == 3

@@ -23,9 +23,9 @@ def report(seq: int) -> bytes:
     return CheckpointPacket(seq=seq, time=1_800_000_000 + seq, state=MissionState.HOLDING).encode()
 
 
-def poll(modem: ScriptedModem, maxbytes: int = 32, frame: int = 1) -> None:
+def poll(modem: ScriptedModem, maxbytes: int = 32, frame: int = 1, shore: int = SHORE) -> None:
     """The vehicle's modem heard the shore's poll: it asks its host for a frame."""
-    modem.send(nmea.DataRequest("000000", VEHICLE, SHORE, True, maxbytes, frame).line(nmea.MODEM))
+    modem.send(nmea.DataRequest("000000", VEHICLE, shore, True, maxbytes, frame).line(nmea.MODEM))
 
 
 def answers(modem: ScriptedModem) -> list[bytes]:
@@ -39,7 +39,11 @@ async def until(predicate: Callable[[], object], timeout: float = 5.0) -> None:
         await asyncio.sleep(0.01)
 
 
-def scenario(tmp_path: Path, body: Callable[[ScriptedModem, VehicleLink], Awaitable[None]]) -> None:
+def scenario(
+    tmp_path: Path,
+    body: Callable[[ScriptedModem, VehicleLink], Awaitable[None]],
+    shore: int | list[int] = SHORE,
+) -> None:
     modem = ScriptedModem(tmp_path / "modem")
 
     async def run() -> None:
@@ -47,7 +51,7 @@ def scenario(tmp_path: Path, body: Callable[[ScriptedModem, VehicleLink], Awaita
             DriverSettings(url=str(modem.path), address=VEHICLE, echo_timeout=0.5, keepalive=60)
         )
         await driver.start()
-        link = VehicleLink(driver, auth.ControlReceiver(KEY, VEHICLE), SHORE, attempts=2)
+        link = VehicleLink(driver, auth.ControlReceiver(KEY, VEHICLE), shore, attempts=2)
         try:
             await body(modem, link)
         finally:
@@ -70,6 +74,22 @@ def test_polls_take_urgent_packets_first_and_as_many_as_the_frame_holds(tmp_path
         assert [data for _, data in link.pending()] == [report(3), report(1), report(2)]  # none ACKed yet
 
     scenario(tmp_path, body)
+
+
+def test_a_split_shore_polls_and_acknowledges_from_any_of_its_gateways_and_no_one_else(
+    tmp_path: Path,
+) -> None:
+    async def body(modem: ScriptedModem, link: VehicleLink) -> None:
+        results: list[bool] = []
+        link.send(report(1), on_result=results.append)
+        poll(modem, shore=9)  # a modem that is not one of the shore's: an empty answer
+        poll(modem, shore=11)  # the second gateway's
+        await until(lambda: len(answers(modem)) == 2)
+        assert answers(modem) == [b"", report(1)]
+        modem.send(nmea.Ack(11, VEHICLE, 1).line(nmea.MODEM))
+        await until(lambda: results == [True])
+
+    scenario(tmp_path, body, shore=[SHORE, 11])
 
 
 def test_a_packet_is_resent_until_acked_then_reported_lost(tmp_path: Path) -> None:

@@ -1,0 +1,120 @@
+"""``tacit demo --gateways N``: the split shore on this machine's broker and PostgreSQL.
+
+N simulated shore modems 900 m apart on the one channel (``Stack``: the first ``--range`` m west of the
+fleet's homes), a ``tacit gateway`` on each (child processes), the center in the demo's process (the
+API, the dashboard and the map, on a PostgreSQL database ``tacit_demo`` it creates on the server), and
+the vehicles: the last one flies east out of the first gateway's reach into the second's, and the
+center moves it over (printed as it happens). Noise is raised to 137 dB so that a gateway hears
+about 600 m at rate 0: each end of the water has its own gateway.
+
+What it needs, checked first and named in one line if missing: NATS with JetStream (``--nats``) and
+PostgreSQL (``--postgres``, a server and a database to connect to for creating ``tacit_demo``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+from collections.abc import Callable
+from typing import Any
+from urllib.parse import urlsplit
+
+from launch.stack import Stack
+
+NOISE_DB = 137.0  # a busy harbour: rate 0 reaches about 600 m, so each gateway hears its end
+SLOT_S = 9.0  # simulated s: a rate-0 poll or command and its answer at 1 km (7.5 s), with the guards
+DATABASE = "tacit_demo"
+TRAVEL = {  # the last vehicle's: 500 m east of its home, from the first gateway's water to the second's
+    "name": "travel",
+    "number": 2,
+    "duration_s": 3600,
+    "waypoints": [{"north": 0, "east": 0, "depth": 2.0}, {"north": 0, "east": 500, "depth": 2.0}],
+}
+
+
+def missing(nats_url: str, postgres_url: str) -> str | None:
+    """One line naming what does not answer (the broker, the database, or both); None if both do."""
+    absent = []
+    nats = urlsplit(nats_url)
+    if not _answers(nats.hostname or "127.0.0.1", nats.port or 4222):
+        absent.append(f"NATS with JetStream at {nats.hostname}:{nats.port or 4222} (start: nats-server -js)")
+    if not _postgres_answers(postgres_url):
+        pg = urlsplit(postgres_url)
+        absent.append(f"PostgreSQL at {pg.hostname}:{pg.port or 5432} (database {pg.path.lstrip('/')!r})")
+    if not absent:
+        return None
+    return f"--gateways needs {' and '.join(absent)}: not answering"
+
+
+def _answers(host: str, port: int) -> bool:
+    try:
+        with socket.create_connection((host, port), timeout=2):
+            return True
+    except OSError:
+        return False
+
+
+def _postgres_answers(url: str) -> bool:
+    import psycopg
+
+    try:
+        with psycopg.connect(_libpq(url), connect_timeout=3):
+            return True
+    except psycopg.Error:
+        return False
+
+
+def _libpq(url: str) -> str:
+    return url.replace("postgresql+psycopg://", "postgresql://")
+
+
+def database(postgres_url: str) -> str:
+    """The demo's database on the server of ``postgres_url`` (created the first time); its URL."""
+    import psycopg
+
+    with psycopg.connect(_libpq(postgres_url), autocommit=True) as c:
+        if c.execute("SELECT 1 FROM pg_database WHERE datname = %s", (DATABASE,)).fetchone() is None:
+            c.execute(f'CREATE DATABASE "{DATABASE}"')
+    parts = urlsplit(postgres_url)
+    return parts._replace(path=f"/{DATABASE}").geturl()
+
+
+def center_settings(stack: Stack, database_url: str, time_scale: float) -> dict[str, Any]:
+    """The center's settings: no modem of its own; slots, guards and routing times at the simulation's
+    pace (a 1 km guard of travel and 50 ms of clock error: these gateways share this machine's clock)."""
+    from server.backhaul.slots import guard_for
+
+    return stack.server_settings(
+        database_url=database_url,
+        modem_url="",
+        tdma_slot=SLOT_S / time_scale,
+        tdma_guard=guard_for(1000.0, 0.05) / time_scale,
+        routing_window=240.0 / time_scale,  # a few polls by each gateway: one exchange per slot each
+        routing_dwell=120.0 / time_scale,  # each gateway polls a vehicle about once a minute here
+        sync_interval=240.0,  # the heartbeat divides it by the time scale: a SYNC a minute, not 4
+        metrics_port=0,  # no /metrics listener: nothing scrapes the demo
+    )
+
+
+def center_app(settings: Any, nats_url: str) -> Any:
+    """The center's FastAPI app: the shore's API with the backhaul's consumers and dispatcher."""
+    from server.app import create_app
+    from server.backhaul.center import serve
+    from server.backhaul.relay import RelayIngest
+
+    return create_app(settings, RelayIngest, [lambda shore: serve(shore, nats_url, durable="tacit-demo")])
+
+
+async def watch_routes(http: Any, say: Callable[[str], None], every: float = 2.0) -> None:
+    """Say each vehicle's gateway as the center assigns it, and every move after."""
+    known: dict[str, str | None] = {}
+    while True:
+        answer = await http.get("/api/v1/routing")
+        if answer.status_code == 200:
+            for route in answer.json():
+                name, gateway = route["vehicle"], route["gateway"]
+                if gateway is not None and known.get(name) != gateway:
+                    verb = "now through" if known.get(name) else "through"
+                    say(f"  {name}: {verb} {gateway} ({route['reason']})")
+                known[name] = gateway
+        await asyncio.sleep(every)

@@ -1,0 +1,106 @@
+"""TDMA across the gateways that share one acoustic band: a frame of slots, each gateway transmitting
+only in its own (goby's TDMA MAC, across shore modems instead of vehicles).
+
+Slot ``k`` begins at ``epoch + k * slot`` on the gateways' clocks and belongs to ``order[k % n]``. A
+gateway starts a transmission no earlier than ``guard`` s into its slot and has it over (its ACK back)
+``guard`` s before the slot ends. Why that is enough: with every clock within ``e`` of true time and
+every receiver within ``R`` of both gateways, the last sound of a slot (sent by its ends' ``slot - guard``,
+``e`` late at worst) has reached every receiver ``R / c`` later, and the next gateway starts no sooner
+than ``guard - e`` after the slot's end: nothing overlaps at any receiver while
+``2 * guard >= R / c + 2 * e``, that is ``guard >= R / (2c) + e`` (``guard_for``). Gateways at sea have
+GPS (a PPS-disciplined clock is within a microsecond) or NTP over the backhaul (tens of milliseconds);
+the acoustic term dominates: 1 s for 3 km.
+
+Standard library and the core: the gateway imports it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from tacit.rates import CYCLE_INIT_BITS, airtime_s, data_airtime_s
+
+#: A command attempt's time on the air before its ACK wait: the cycle-init and one rate-0 frame.
+ATTEMPT_AIRTIME = airtime_s(CYCLE_INIT_BITS, 0) + data_airtime_s(0, 1)
+
+
+def guard_for(max_range: float, clock_error: float, sound_speed: float = 1500.0) -> float:
+    """The guard time (s) that keeps slots apart at every receiver within ``max_range`` m of the
+    gateways, their clocks within ``clock_error`` s of true time."""
+    return max_range / (2.0 * sound_speed) + clock_error
+
+
+@dataclass(frozen=True)
+class SlotPlan:
+    epoch: float  # UNIX s: slot 0 begins
+    slot: float  # s
+    guard: float  # s at each end of a slot
+    order: tuple[str, ...]  # the gateways, one slot each per frame
+
+    def __post_init__(self) -> None:
+        if not self.order or self.slot <= 2 * self.guard or self.guard < 0:
+            raise ValueError("a slot plan needs gateways and slots longer than their two guards")
+
+    @property
+    def usable(self) -> float:
+        """The longest transmission (with its ACK) a slot holds."""
+        return self.slot - 2 * self.guard
+
+    def owner(self, t: float) -> str:
+        """The gateway whose slot ``t`` falls in."""
+        k = math.floor((t - self.epoch) / self.slot)
+        return self.order[k % len(self.order)]
+
+    def next_start(self, gateway: str, now: float, duration: float) -> float:
+        """The earliest time from ``now`` at which ``gateway`` may start a transmission that is over
+        (ACK included) ``duration`` s later, inside its own slot and guards."""
+        if gateway not in self.order:
+            raise ValueError(f"{gateway} has no slot in this plan")
+        if duration > self.usable:
+            raise ValueError(f"{duration:.1f} s does not fit a {self.slot:.1f} s slot and its guards")
+        n, mine = len(self.order), self.order.index(gateway)
+        k = math.floor((now - self.epoch) / self.slot)
+        for j in range(k, k + n + 1):
+            if j % n != mine:
+                continue
+            begins = self.epoch + j * self.slot
+            if now <= begins + self.slot - self.guard - duration:
+                return max(now, begins + self.guard)
+        raise AssertionError("unreachable: every frame holds one slot of each gateway")
+
+
+class Schedule:
+    """A gateway's plans: the one in force, and the one the center handed out for a later epoch (every
+    gateway changes plan at that same instant of its clock, none while another still follows the old)."""
+
+    def __init__(self) -> None:
+        self.current: SlotPlan | None = None
+        self.coming: SlotPlan | None = None
+
+    def receive(self, plan: SlotPlan, now: float) -> None:
+        self._promote(now)
+        if self.current is None or plan.epoch <= now:
+            self.current, self.coming = plan, None
+        else:
+            self.coming = plan
+
+    def _promote(self, now: float) -> None:
+        if self.coming is not None and now >= self.coming.epoch:
+            self.current, self.coming = self.coming, None
+
+    def start(self, gateway: str, now: float, duration: float) -> float:
+        """When ``gateway`` may start a transmission of ``duration`` s (clipped to a slot): in its slot of
+        the plan in force, or of the coming one if it would straddle the change; ``now`` when no plan
+        in force holds the gateway (alone on its band)."""
+        self._promote(now)
+        plan = self.current
+        if plan is None or gateway not in plan.order:
+            return now
+        start = plan.next_start(gateway, now, min(duration, plan.usable))
+        coming = self.coming
+        if coming is not None and start + min(duration, plan.usable) > coming.epoch:
+            if gateway not in coming.order:
+                return max(start, coming.epoch)
+            return coming.next_start(gateway, max(now, coming.epoch), min(duration, coming.usable))
+        return start

@@ -1,0 +1,78 @@
+"""The routing tables: the gateways the center knows, each vehicle's gateway, and each command's
+dispatches (one per gateway it was sent through)."""
+
+from __future__ import annotations
+
+import enum
+
+from sqlmodel import AutoString, Field, SQLModel
+
+from server.core.db import now
+
+
+class DispatchState(enum.StrEnum):
+    """Where one gateway's try of a command stands: ``published`` to the broker, ``stored`` by the
+    gateway (its receipt came), ``sent`` (an attempt went on the air), then final: ``acked``, ``failed``
+    (no ACK after its attempts), ``expired`` (it came after ``start_by``), ``unanswered`` (no receipt or
+    no outcome in time: the gateway is taken for down)."""
+
+    PUBLISHED = "published"
+    STORED = "stored"
+    SENT = "sent"
+    ACKED = "acked"
+    FAILED = "failed"
+    EXPIRED = "expired"
+    UNANSWERED = "unanswered"
+
+    @property
+    def final(self) -> bool:
+        return self in (
+            DispatchState.ACKED,
+            DispatchState.FAILED,
+            DispatchState.EXPIRED,
+            DispatchState.UNANSWERED,
+        )
+
+
+class GatewayRecord(SQLModel, table=True):
+    """A gateway the center has heard from (a heartbeat or any event), on the center's clock."""
+
+    __tablename__ = "gateway"
+
+    name: str = Field(primary_key=True, max_length=64)
+    first_seen: float = Field(default_factory=now)
+    last_seen: float = Field(default_factory=now)
+
+
+class Assignment(SQLModel, table=True):
+    """A vehicle's gateway: chosen by what the gateways hear, or pinned by an operator; and why."""
+
+    __tablename__ = "assignment"
+
+    vehicle_id: int = Field(primary_key=True, foreign_key="vehicle.id")
+    gateway: str = Field(max_length=64)
+    pinned: bool = False
+    since: float = Field(default_factory=now)  # when the vehicle came to this gateway
+    reason: str = Field(default="", max_length=256)
+
+
+class Dispatch(SQLModel, table=True):
+    """One gateway's try of a command: its message id is the command message's (``cmd-<command>-<n>``),
+    so a publish retried is the same message, kept once by the gateway's store."""
+
+    __tablename__ = "dispatch"
+
+    id: str = Field(primary_key=True, max_length=128)
+    command_id: int = Field(foreign_key="command.id", index=True)
+    gateway: str = Field(max_length=64)
+    state: DispatchState = Field(default=DispatchState.PUBLISHED, sa_type=AutoString(16))
+    start_by: float  # the gateway sends it only if it has it by then (its receipt is due by then)
+    deadline: float  # its final outcome is due by then (its frame's age), else the gateway is taken for down
+    attempts: int = 0  # the highest attempt number the gateway reported (a redelivered event counts once)
+
+    @property
+    def final(self) -> bool:
+        return DispatchState(self.state).final  # the column reads back as a plain string
+
+    created_at: float = Field(default_factory=now)
+    updated_at: float = Field(default_factory=now)

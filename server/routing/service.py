@@ -1,0 +1,220 @@
+"""Routing: the gateways the center knows, which gateway each vehicle is on and why, operators' pins,
+and the bookkeeping of each command's dispatches through the gateways.
+
+The center calls ``seen`` for every gateway event and ``update`` after each batch of frames and on its
+dispatcher's tick; ``update`` applies ``server.routing.choice`` to what every gateway heard of every
+vehicle in the last ``routing_window`` s and saves what changed, with the reason.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+from sqlalchemy import Engine
+
+from server.core.config import Settings
+from server.core.db import Tx, reading, saved_id, writing
+from server.core.errors import NotFound
+from server.routing import repository as repo
+from server.routing.choice import Current, Decision, Quality, choose
+from server.routing.models import Assignment, Dispatch, DispatchState, GatewayRecord
+from server.vehicles import repository as vehicle_repo
+from server.vehicles.models import Vehicle
+
+log = logging.getLogger("tacit.server.routing")
+
+
+@dataclass(frozen=True)
+class Route:
+    """A vehicle's gateway, why, and how every gateway heard it."""
+
+    vehicle: Vehicle
+    gateway: str | None
+    pinned: bool
+    since: float | None
+    reason: str
+    heard: dict[str, Quality] = field(default_factory=dict)
+
+
+class Routing:
+    def __init__(self, db: Engine, settings: Settings) -> None:
+        self.db = db
+        self.settings = settings
+
+    # --- gateways -------------------------------------------------------------------------------
+
+    def seen(self, gateway: str, at: float | None = None) -> None:
+        """``gateway`` was heard from (a heartbeat, an event) at ``at`` (the center's clock, default now)."""
+        with writing(self.db) as s:
+            repo.touch_gateway(s, gateway, time.time() if at is None else at)
+            s.commit()
+
+    def gateways(self) -> list[GatewayRecord]:
+        with reading(self.db) as s:
+            return repo.gateways(s)
+
+    def alive(self, now: float | None = None) -> set[str]:
+        """The gateways heard from within ``gateway_timeout`` s."""
+        limit = (time.time() if now is None else now) - self.settings.gateway_timeout
+        return {g.name for g in self.gateways() if g.last_seen >= limit}
+
+    # --- assignment ------------------------------------------------------------------------------
+
+    def _heard(self, s: Tx, now: float) -> dict[int, dict[str, Quality]]:
+        """By vehicle address, by gateway: how it heard the vehicle in the window."""
+        since = now - self.settings.routing_window
+        totals = repo.frames_sent(s, since)
+        heard: dict[int, dict[str, Quality]] = {}
+        for src, gateway, n, snr in repo.hearing(s, since):
+            share = n / max(1, totals.get(src, n))
+            heard.setdefault(src, {})[gateway] = Quality(n, snr if snr is not None else 0.0, min(1.0, share))
+        return heard
+
+    def update(self, now: float | None = None) -> list[Route]:
+        """Apply the rule to every vehicle; the routes that moved."""
+        now = time.time() if now is None else now
+        alive = self.alive(now)
+        moved: list[Route] = []
+        with writing(self.db) as s:
+            heard, current = self._heard(s, now), repo.assignments(s)
+            for vehicle in vehicle_repo.every(s):
+                row = current.get(saved_id(vehicle))
+                was = Current(row.gateway, row.since, row.pinned) if row else None
+                decision = choose(
+                    was, heard.get(vehicle.address, {}), alive, now,
+                    self.settings.routing_margin, self.settings.routing_dwell,
+                )  # fmt: skip
+                if self._apply(s, vehicle, row, decision, now):
+                    moved.append(Route(vehicle, decision.gateway, False, now, decision.reason))
+            s.commit()
+        for route in moved:
+            log.info("vehicle %s now on gateway %s: %s", route.vehicle.name, route.gateway, route.reason)
+        return moved
+
+    @staticmethod
+    def _apply(s: Tx, vehicle: Vehicle, row: Assignment | None, decision: Decision, now: float) -> bool:
+        """Save the decision (its reason even when nothing moved); whether the vehicle moved."""
+        if decision.gateway is None:
+            return False
+        if decision.moved or row is None:
+            repo.save_assignment(
+                s,
+                Assignment(
+                    vehicle_id=saved_id(vehicle), gateway=decision.gateway, since=now, reason=decision.reason
+                ),
+            )
+            return True
+        if row.reason != decision.reason:
+            row.reason = decision.reason
+            repo.save_assignment(s, row)
+        return False
+
+    def routes(self, now: float | None = None) -> list[Route]:
+        """Every vehicle's gateway, why, and how each gateway heard it."""
+        now = time.time() if now is None else now
+        with reading(self.db) as s:
+            heard, current = self._heard(s, now), repo.assignments(s)
+            vehicles = vehicle_repo.every(s)
+        routes = []
+        for vehicle in vehicles:
+            row = current.get(saved_id(vehicle))
+            routes.append(
+                Route(
+                    vehicle,
+                    row.gateway if row else None,
+                    row.pinned if row else False,
+                    row.since if row else None,
+                    row.reason if row else "no gateway has heard it",
+                    heard.get(vehicle.address, {}),
+                )
+            )
+        return routes
+
+    def pin(self, vehicle_id: int, gateway: str | None) -> Route:
+        """Pin the vehicle to ``gateway`` (an operator's choice, kept whatever the scores), or unpin it
+        (``None``: the rule chooses again from the next update). NotFound for an unknown vehicle or
+        gateway."""
+        with writing(self.db) as s:
+            vehicle = vehicle_repo.get(s, vehicle_id)
+            if vehicle is None:
+                raise NotFound(f"no vehicle {vehicle_id}", "vehicle_id")
+            row = repo.assignments(s).get(vehicle_id)
+            if gateway is None:
+                if row is not None:
+                    row.pinned, row.reason = False, "unpinned by an operator"
+                    repo.save_assignment(s, row)
+            else:
+                if repo.gateway(s, gateway) is None:
+                    raise NotFound(f"no gateway {gateway!r}", "gateway")
+                repo.save_assignment(
+                    s,
+                    Assignment(vehicle_id=vehicle_id, gateway=gateway, pinned=True, since=time.time(),
+                               reason="pinned by an operator"),
+                )  # fmt: skip
+            s.commit()
+        return next(r for r in self.routes() if saved_id(r.vehicle) == vehicle_id)
+
+    def candidates(self, vehicle: Vehicle, now: float | None = None) -> list[str]:
+        """The live gateways to send the vehicle's command through, in order: its own first, then the
+        others that heard it in the window, best first."""
+        now = time.time() if now is None else now
+        alive = self.alive(now)
+        route = next((r for r in self.routes(now) if saved_id(r.vehicle) == saved_id(vehicle)), None)
+        heard = route.heard if route else {}
+        ranked = sorted((g for g in heard if g in alive), key=lambda g: -heard[g].score)
+        own = [route.gateway] if route and route.gateway in alive else []
+        return own + [g for g in ranked if g not in own]
+
+    # --- dispatches ------------------------------------------------------------------------------
+
+    def dispatches(self, command_id: int) -> list[Dispatch]:
+        with reading(self.db) as s:
+            return repo.dispatches(s, command_id)
+
+    def add_dispatch(self, row: Dispatch) -> None:
+        with writing(self.db) as s:
+            repo.add_dispatch(s, row)
+            s.commit()
+
+    def set_dispatch(self, dispatch_id: str, state: DispatchState) -> Dispatch | None:
+        """A gateway's report of one dispatch: moved forward to ``state`` (never back, never out of a
+        final state); the dispatch if it moved."""
+        report = self.report(dispatch_id, state, 0)
+        return report.dispatch if report is not None and report.moved else None
+
+    def report(self, dispatch_id: str, state: DispatchState | None, attempt: int) -> Report | None:
+        """What a gateway said of a dispatch: its state moved forward, and whether attempt number
+        ``attempt`` is news (an event delivered twice is counted once). None for an unknown dispatch."""
+        with writing(self.db) as s:
+            row = repo.dispatch(s, dispatch_id)
+            if row is None:
+                return None
+            fresh = attempt > row.attempts
+            moved = state is not None and not row.final and _RANK[state] > _RANK[row.state]
+            if fresh:
+                row.attempts = attempt
+            if moved and state is not None:
+                repo.set_dispatch(s, row, state)
+            elif fresh:
+                repo.set_dispatch(s, row, row.state)
+            s.commit()
+            return Report(row, moved, fresh)
+
+
+@dataclass(frozen=True)
+class Report:
+    dispatch: Dispatch
+    moved: bool
+    fresh_attempt: bool
+
+
+_RANK = {
+    DispatchState.PUBLISHED: 0,
+    DispatchState.STORED: 1,
+    DispatchState.SENT: 2,
+    **dict.fromkeys(
+        (DispatchState.ACKED, DispatchState.FAILED, DispatchState.EXPIRED, DispatchState.UNANSWERED), 3
+    ),
+}

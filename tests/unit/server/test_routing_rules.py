@@ -1,0 +1,117 @@
+"""The assignment rule (``server.routing.choice``) and the gateways' TDMA frame (``server.backhaul.slots``)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from server.backhaul.slots import Schedule, SlotPlan, guard_for
+from server.routing.choice import Current, Quality, choose
+
+ALIVE = {"ship", "buoy"}
+
+
+def heard(**snr: float) -> dict[str, Quality]:
+    return {gateway: Quality(10, value, 1.0) for gateway, value in snr.items()}
+
+
+def test_a_gateway_that_misses_frames_scores_lower() -> None:
+    assert Quality(5, 20.0, 0.5).score == pytest.approx(20.0 - 10 * math.log10(2))
+    assert Quality(0, 20.0, 0.0).score == -math.inf
+
+
+def test_the_first_gateway_to_hear_a_vehicle_takes_it() -> None:
+    decision = choose(None, heard(ship=10.0, buoy=14.0), ALIVE, 0.0, 3.0, 60.0)
+    assert decision.gateway == "buoy" and decision.moved
+
+
+def test_a_better_gateway_takes_the_vehicle_only_by_the_margin_and_after_the_dwell() -> None:
+    on_ship = Current("ship", since=100.0)
+    within = choose(on_ship, heard(ship=10.0, buoy=12.9), ALIVE, 1000.0, 3.0, 60.0)
+    assert within.gateway == "ship" and not within.moved and "margin" in within.reason
+    early = choose(on_ship, heard(ship=10.0, buoy=20.0), ALIVE, 159.0, 3.0, 60.0)
+    assert early.gateway == "ship" and "dwell" in early.reason
+    late = choose(on_ship, heard(ship=10.0, buoy=20.0), ALIVE, 160.0, 3.0, 60.0)
+    assert late.gateway == "buoy" and late.moved
+
+
+def test_a_silent_gateway_loses_its_vehicle_at_once_a_deaf_one_after_the_dwell() -> None:
+    on_ship = Current("ship", since=100.0)
+    silent = choose(on_ship, heard(ship=30.0, buoy=5.0), {"buoy"}, 101.0, 3.0, 60.0)
+    assert silent.gateway == "buoy" and silent.moved and "silent" in silent.reason
+    early = choose(on_ship, heard(buoy=5.0), ALIVE, 101.0, 3.0, 60.0)  # frames lost, or out of reach
+    assert early.gateway == "ship" and not early.moved and "dwell" in early.reason
+    deaf = choose(on_ship, heard(buoy=5.0), ALIVE, 160.0, 3.0, 60.0)
+    assert deaf.gateway == "buoy" and deaf.moved
+
+
+def test_a_pin_holds_whatever_the_scores() -> None:
+    pinned = Current("ship", since=0.0, pinned=True)
+    decision = choose(pinned, heard(ship=1.0, buoy=40.0), {"buoy"}, 1e6, 3.0, 60.0)
+    assert decision.gateway == "ship" and not decision.moved
+
+
+def test_slots_go_round_the_gateways_within_their_guards() -> None:
+    plan = SlotPlan(epoch=1000.0, slot=10.0, guard=1.0, order=("buoy", "ship"))
+    assert plan.owner(1000.0) == "buoy" and plan.owner(1015.0) == "ship" and plan.owner(1020.0) == "buoy"
+    assert plan.next_start("ship", 1000.0, 5.0) == 1011.0  # its slot, after the guard
+    assert plan.next_start("ship", 1013.0, 5.0) == 1013.0  # inside its slot, with room left
+    assert plan.next_start("ship", 1014.5, 5.0) == 1031.0  # too late for this one: the next
+    with pytest.raises(ValueError):
+        plan.next_start("ship", 1000.0, 8.5)  # longer than the slot less its guards
+    with pytest.raises(ValueError):
+        plan.next_start("pier", 1000.0, 1.0)
+
+
+def test_the_guard_covers_half_the_travel_time_and_the_clock_error() -> None:
+    assert guard_for(3000.0, 0.1) == pytest.approx(1.1)
+    assert guard_for(3000.0, 1e-6, sound_speed=1500.0) == pytest.approx(1.0, abs=1e-5)
+
+
+def test_a_new_plan_applies_at_its_epoch_and_no_transmission_straddles_it() -> None:
+    schedule = Schedule()
+    assert schedule.start("ship", 5.0, 3.0) == 5.0  # no plan: at will
+    schedule.receive(SlotPlan(epoch=0.0, slot=10.0, guard=1.0, order=("ship", "buoy")), now=5.0)
+    schedule.receive(SlotPlan(epoch=40.0, slot=10.0, guard=1.0, order=("buoy", "pier", "ship")), now=6.0)
+    assert schedule.start("ship", 6.0, 3.0) == 6.0  # the plan in force until 40
+    assert schedule.start("ship", 21.0, 3.0) == 21.0
+    assert schedule.start("ship", 27.0, 3.0) == 61.0  # its next slot (40) is the new plan's buoy's
+    assert schedule.start("ship", 45.0, 3.0) == 61.0
+    assert schedule.current is not None and schedule.current.epoch == 40.0 and schedule.coming is None
+
+
+def test_a_second_plan_from_the_same_epoch_is_not_taken_for_a_duplicate() -> None:
+    """The broker drops a message whose id it has seen: each plan's messages have ids of their own (a
+    gateway joining a second after the first had its plan still reaches the first)."""
+    import asyncio
+
+    from server.backhaul.dispatch import Dispatcher
+    from server.backhaul.subjects import ScheduleMessage
+    from server.core.config import Settings
+
+    class Alive:
+        gateways: set[str] = {"ship"}
+
+        def alive(self, now: float) -> set[str]:
+            return self.gateways
+
+    sent: list[tuple[str, ScheduleMessage]] = []
+
+    async def publish(subject: str, payload: bytes, message_id: str) -> None:
+        message = ScheduleMessage.decode(payload)
+        assert message.id == message_id
+        sent.append((subject, message))
+
+    routing = Alive()
+    dispatcher = Dispatcher(None, routing, Settings(tdma_slot=10.0), publish)  # type: ignore[arg-type]
+    asyncio.run(dispatcher._schedule(1000.2, (2,)))
+    routing.gateways = {"ship", "buoy"}
+    asyncio.run(dispatcher._schedule(1000.7, (2,)))  # the same epoch
+    asyncio.run(dispatcher._schedule(1000.9, (2,)))  # nothing changed: nothing sent
+    assert [(s, m.order, m.epoch) for s, m in sent] == [
+        ("tacit.v1.schedule.ship", ("ship",), 1020.0),
+        ("tacit.v1.schedule.buoy", ("buoy", "ship"), 1020.0),
+        ("tacit.v1.schedule.ship", ("buoy", "ship"), 1020.0),
+    ]
+    assert len({m.id for _, m in sent}) == 3
