@@ -235,14 +235,14 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
                 "vehicles": [_described(m, sim_info) for m in stack.members],
                 "data_dir": str(data),
             }
+            interrupted = asyncio.Event()  # before anything is announced or started: a SIGTERM then is a stop
+            loop = asyncio.get_running_loop()
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                loop.add_signal_handler(sig, interrupted.set)
             _announce(info, args)
             for mission_id in missions:
                 await http.post(f"/api/v1/missions/{mission_id}/start")
             watching = [asyncio.create_task(split.watch_routes(http, _say))] if args.gateways else []
-            interrupted = asyncio.Event()
-            loop = asyncio.get_running_loop()
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                loop.add_signal_handler(sig, interrupted.set)
             waiter = asyncio.create_task(interrupted.wait())
             await asyncio.wait({waiter, serving}, return_when=asyncio.FIRST_COMPLETED)
             for task in watching:
