@@ -70,8 +70,9 @@ class StackConfig:
         if len(addresses) != self.vehicles or len(keys) != self.vehicles:
             raise StackError(f"{self.vehicles} vehicle(s) need as many addresses and keys")
         shore = {SHORE_ADDRESS, *(gateway_address(i) for i in range(self.gateways))}
-        if shore & set(addresses):
-            raise StackError(f"modem addresses {sorted(shore)} are the shore's, not a vehicle's")
+        if taken := sorted(shore & set(addresses)):
+            what = f"address {taken[0]} is" if len(taken) == 1 else f"addresses {taken} are"
+            raise StackError(f"modem {what} the shore's (its modems use {sorted(shore)}), not a vehicle's")
         _unique("modem address", addresses)
         _unique("key", [k.lower() for k in keys if k])
         return [Member(i, a, k) for i, (a, k) in enumerate(zip(addresses, keys, strict=True))]
