@@ -37,18 +37,17 @@ import subprocess
 import tempfile
 import threading
 import time
-import uuid
 from collections.abc import Iterator
 from multiprocessing.queues import Queue
 from multiprocessing.synchronize import Event as Flag
 from pathlib import Path
 
-import psycopg
 import uvicorn
 from bench_server import TOKEN, check_measured, client_process, frames
 from sqlalchemy import create_engine, text
 from tqdm import tqdm
 
+from launch.split import throwaway_database
 from server.app import create_app
 from server.backhaul import access, subjects
 from server.backhaul.broker import connect
@@ -90,20 +89,6 @@ def broker(folder: Path, gateways: list[str]) -> Iterator[str]:
     finally:
         proc.terminate()
         proc.wait(timeout=10)
-
-
-@contextlib.contextmanager
-def database(server: str) -> Iterator[str]:
-    """A fresh PostgreSQL database on ``server``, dropped afterwards."""
-    name = f"tacit_bench_{uuid.uuid4().hex[:8]}"
-    admin = server.replace("postgresql+psycopg://", "postgresql://")
-    with psycopg.connect(admin, autocommit=True) as conn:
-        conn.execute(f'CREATE DATABASE "{name}"')
-    try:
-        yield server.rsplit("/", 1)[0] + "/" + name
-    finally:
-        with psycopg.connect(admin, autocommit=True) as conn:
-            conn.execute(f'DROP DATABASE "{name}" WITH (FORCE)')
 
 
 def fleet(
@@ -321,7 +306,7 @@ def main() -> None:
     options = parser.parse_args()
     if not 1 <= options.vehicles <= 127:
         parser.error("--vehicles: 1 to 127 (the modems' addresses)")
-    with tempfile.TemporaryDirectory() as tmp, database(options.database_url) as url:
+    with tempfile.TemporaryDirectory() as tmp, throwaway_database(options.database_url, "tacit_bench") as url:
         run(options, url, Path(tmp))
 
 

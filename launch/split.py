@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import asyncio
 import socket
-from collections.abc import Callable
+import uuid
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 from urllib.parse import urlsplit
 
@@ -66,6 +68,22 @@ def _postgres_answers(url: str) -> bool:
 
 def _libpq(url: str) -> str:
     return url.replace("postgresql+psycopg://", "postgresql://")
+
+
+@contextmanager
+def throwaway_database(postgres_url: str, prefix: str = "tacit") -> Iterator[str]:
+    """A fresh, empty database on the server of ``postgres_url`` (tests, benchmarks), dropped afterwards;
+    its URL."""
+    import psycopg
+
+    name = f"{prefix}_{uuid.uuid4().hex[:12]}"
+    with psycopg.connect(_libpq(postgres_url), autocommit=True) as c:
+        c.execute(f'CREATE DATABASE "{name}"')
+    try:
+        yield urlsplit(postgres_url)._replace(path=f"/{name}").geturl()
+    finally:
+        with psycopg.connect(_libpq(postgres_url), autocommit=True) as c:
+            c.execute(f'DROP DATABASE "{name}" WITH (FORCE)')
 
 
 def database(postgres_url: str) -> str:

@@ -15,6 +15,7 @@ import pytest
 from hypothesis import HealthCheck, settings
 
 from launch.processes import stop
+from launch.split import throwaway_database as postgres_database
 
 # Property tests check behaviour, not speed: no per-example deadline (on a loaded machine one made a
 # round-trip test fail on time alone). Every property test inherits this profile.
@@ -64,24 +65,6 @@ def postgres_server() -> Iterator[str]:
                 os.environ.pop("TACIT_TEST_POSTGRES", None)
             else:
                 os.environ["TACIT_TEST_POSTGRES"] = before
-
-
-@contextmanager
-def postgres_database(server: str) -> Iterator[str]:
-    """A fresh, empty PostgreSQL database on the test server at ``server``, dropped afterwards."""
-    import uuid
-
-    import psycopg
-
-    name = f"tacit_{uuid.uuid4().hex[:12]}"
-    admin = server.replace("postgresql+psycopg://", "postgresql://")
-    with psycopg.connect(admin, autocommit=True) as conn:
-        conn.execute(f'CREATE DATABASE "{name}"')
-    try:
-        yield server.rsplit("/", 1)[0] + "/" + name
-    finally:
-        with psycopg.connect(admin, autocommit=True) as conn:
-            conn.execute(f'DROP DATABASE "{name}" WITH (FORCE)')
 
 
 TIERS = ("unit", "integration", "system")

@@ -82,17 +82,7 @@ class Gateway:
     def on_modem(self, event: mm.Event) -> None:
         """A modem event: a frame heard is committed to the outbox before this returns."""
         if isinstance(event, mm.ReceivedFrame):
-            stats = event.stats
-            self.outbox.add_frame(
-                event.src,
-                event.dest,
-                event.data,
-                stats.rate if stats else 0,
-                stats.snr_in if stats else None,
-                stats.snr_out if stats else None,
-                vars(stats) if stats else None,
-                event.time,
-            )
+            self.outbox.add_frame(event.src, event.dest, event.data, *event.reception(), event.time)
         elif isinstance(event, mm.StateChanged):
             self.outbox.add_event("modem", {"state": event.state.value, "detail": event.detail})
 

@@ -131,17 +131,7 @@ class LinkEngine:
     def _on_modem(self, event: mm.Event) -> None:
         if isinstance(event, mm.ReceivedFrame):
             self.counters["frames_in"] += 1
-            stats = event.stats
-            frame = IncomingFrame(
-                event.src,
-                event.dest,
-                event.data,
-                stats.rate if stats else 0,
-                stats.snr_in if stats else None,
-                stats.snr_out if stats else None,
-                vars(stats) if stats else None,
-                event.time,
-            )
+            frame = IncomingFrame(event.src, event.dest, event.data, *event.reception(), event.time)
             self._frames.put_nowait(frame)
         elif isinstance(event, mm.StateChanged):
             self.bus.publish(

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass, field
+from typing import Any
 
 from tacit import nmea
 
@@ -41,6 +42,14 @@ class ReceivedFrame:
     data: bytes
     stats: nmea.RxStats | None
     time: float
+
+    def reception(self) -> tuple[int, float | None, float | None, dict[str, Any] | None]:
+        """How it was heard, as the shore stores it: rate, SNR in and out, every statistic (0 and None
+        when the modem reported none)."""
+        stats = self.stats
+        if stats is None:
+            return 0, None, None, None
+        return stats.rate, stats.snr_in, stats.snr_out, vars(stats)
 
 
 @dataclass(frozen=True)

@@ -13,13 +13,14 @@ import sqlite3
 import subprocess
 import sys
 import time
-from collections.abc import Awaitable, Callable, Iterator
+from collections.abc import Awaitable, Callable
 from pathlib import Path
 
 import pytest
 from nats.js.api import PubAck
 from sqlalchemy import create_engine, text
 
+from launch.split import throwaway_database as postgres_database
 from server.backhaul import subjects
 from server.backhaul.center import Center
 from server.backhaul.gateway import Gateway
@@ -30,21 +31,10 @@ from server.core.config import Settings
 from server.core.db import make_engine, migrate
 from server.core.events import Bus
 from tacit.streams import default_streams
-from tests.conftest import postgres_database
 from tests.support.nats import NATS_SERVER, NatsServer
 
 ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.skipif(not Path(NATS_SERVER).exists(), reason="nats-server is not installed")
-
-
-@pytest.fixture
-def broker(tmp_path: Path) -> Iterator[NatsServer]:
-    b = NatsServer(tmp_path)
-    b.start()
-    try:
-        yield b
-    finally:
-        b.stop()
 
 
 @pytest.fixture

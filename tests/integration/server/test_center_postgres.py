@@ -9,6 +9,7 @@ import time
 import numpy as np
 from sqlalchemy import create_engine, text
 
+from launch.split import throwaway_database as postgres_database
 from server.backhaul.relay import RelayedIncoming
 from server.backhaul.subjects import FrameMessage
 from server.core.db import make_engine, migrate
@@ -18,7 +19,6 @@ from tacit import auth
 from tacit.codec import PacketEncoder
 from tacit.packets import CheckpointPacket, MissionState, cover_bitmap, with_seq
 from tacit.streams import default_streams
-from tests.conftest import postgres_database
 from tests.integration.server.test_backhaul import ingest_on
 
 ADDRESS = 2

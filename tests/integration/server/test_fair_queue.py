@@ -10,16 +10,13 @@ from fastapi.testclient import TestClient
 
 from server.app import create_app
 from server.commands.schemas import CommandIn
-from server.core.config import Settings
-from server.core.db import make_engine, migrate, writing
 from server.link.state import IncomingFrame
-from server.shore import Shore
-from server.vehicles.models import Vehicle
 from tacit import auth
 from tacit import modem as mm
 from tacit.packets import SYNC_RESTART_CHAINS, Stream, with_seq
 from tacit.streams import default_streams
 from tests.support.api import OP, offline_settings
+from tests.support.shore import scripted_shore
 from vehicle_agent.compressor import Compressor
 
 KEY = bytes.fromhex("11" * 32)
@@ -46,21 +43,8 @@ class AckingModem:
 
 
 def test_polls_keep_their_share_while_many_commands_wait(tmp_path: Path) -> None:
-    settings = Settings(
-        database_url=f"sqlite:///{tmp_path}/tacit.db",
-        modem_url="",
-        time_scale=1000.0,
-        sync_interval=1e6,
-        max_queued_commands=500,
-        command_share=3,
-    )
-    migrate(settings.database_url)
-    db = make_engine(settings.database_url)
-    with writing(db) as s:
-        s.add(Vehicle(name="rov1", address=2, key_hex="11" * 32))
-        s.commit()
-    shore = Shore.build(settings, db)
-    shore.ingest.load_vehicles()
+    shore = scripted_shore(tmp_path, [KEY.hex()], max_queued_commands=500, command_share=3)
+    settings = shore.settings
     for _ in range(100):
         shore.commands.submit(1, CommandIn(command="hold"), "tester")
     link, modem = shore.link, AckingModem()
@@ -123,21 +107,8 @@ def test_forged_packets_with_an_unknown_base_neither_stop_polling_nor_flood_rest
     slot of that SYNC did not poll, and the request stood until ACKed, which a second modem prevented:
     polling stopped. Now every slot polls, and the request goes out ``restart_sends`` times at most per
     ``restart_min_interval``."""
-    settings = Settings(
-        database_url=f"sqlite:///{tmp_path}/tacit.db",
-        modem_url="",
-        time_scale=1000.0,
-        sync_interval=1e6,
-        sync_retry=1e-6,
-        restart_min_interval=1e6,
-    )
-    migrate(settings.database_url)
-    db = make_engine(settings.database_url)
-    with writing(db) as s:
-        s.add(Vehicle(name="rov1", address=2, key_hex="11" * 32))
-        s.commit()
-    shore = Shore.build(settings, db)
-    shore.ingest.load_vehicles()
+    shore = scripted_shore(tmp_path, [KEY.hex()], sync_retry=1e-6, restart_min_interval=1e6)
+    settings = shore.settings
     link, modem = shore.link, CollidingModem()
     link.driver = modem  # type: ignore[assignment]
     (vehicle,) = shore.ingest.states()

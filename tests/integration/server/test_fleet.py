@@ -12,15 +12,13 @@ from fastapi.testclient import TestClient
 from launch.stack import SPACING_M, Stack, StackConfig, StackError
 from server.app import create_app
 from server.commands.schemas import CommandIn
-from server.core.config import Settings
-from server.core.db import make_engine, migrate, writing
 from server.link.schedule import SlotReason
 from server.shore import Shore
-from server.vehicles.models import Vehicle
 from simulators.run import SimConfig
 from tacit import modem as mm
 from tacit.packets import Command
 from tests.support.api import OP, offline_settings
+from tests.support.shore import scripted_shore
 
 KEY = "ab" * 32
 
@@ -95,23 +93,8 @@ class PollingModem:
 
 
 def _shore(tmp_path: Path, vehicles: int) -> Shore:
-    settings = Settings(
-        database_url=f"sqlite:///{tmp_path}/tacit.db",
-        modem_url="",
-        time_scale=1000.0,
-        sync_interval=1e6,
-        max_queued_commands=500,
-        command_share=3,
-    )
-    migrate(settings.database_url)
-    db = make_engine(settings.database_url)
-    with writing(db) as s:
-        for i in range(vehicles):
-            s.add(Vehicle(name=f"rov{i + 1}", address=2 + i, key_hex=f"{i + 1:02x}" * 32))
-        s.commit()
-    shore = Shore.build(settings, db)
-    shore.ingest.load_vehicles()
-    return shore
+    keys = [f"{i + 1:02x}" * 32 for i in range(vehicles)]
+    return scripted_shore(tmp_path, keys, max_queued_commands=500, command_share=3)
 
 
 def _run_slots(shore: Shore, modem: PollingModem, n: int) -> None:

@@ -17,6 +17,7 @@ import httpx
 import pytest
 from sqlalchemy import create_engine, text
 
+from launch.split import throwaway_database as postgres_database
 from server.backhaul.center import Center
 from server.backhaul.gateway import Gateway
 from server.backhaul.outbox import Outbox
@@ -32,7 +33,6 @@ from server.ops.service import DAY, Retention
 from server.vehicles.schemas import VehicleIn
 from server.vehicles.service import Vehicles
 from tacit.cli import main
-from tests.conftest import postgres_database
 from tests.integration.server.test_backhaul import hear, ingest_on, stored, until
 from tests.support.nats import NATS_SERVER, NatsServer, free_port
 

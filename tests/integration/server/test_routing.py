@@ -18,6 +18,7 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
+from launch.split import throwaway_database as postgres_database
 from server.app import create_app
 from server.backhaul.center import Center, serve
 from server.backhaul.gateway import Gateway
@@ -32,7 +33,6 @@ from tacit import auth
 from tacit import modem as mm
 from tacit.packets import CheckpointPacket, Command, MissionState
 from tacit.streams import default_streams
-from tests.conftest import postgres_database
 from tests.support.nats import NATS_SERVER, NatsServer
 
 pytestmark = pytest.mark.skipif(not Path(NATS_SERVER).exists(), reason="nats-server is not installed")
@@ -176,16 +176,6 @@ class Layout(Air):
 
     def status(self, command_id: int) -> str:
         return str(self.client.get(f"/api/v1/commands/{command_id}", headers=OP).json()["status"])
-
-
-@pytest.fixture
-def broker(tmp_path: Path) -> Iterator[NatsServer]:
-    b = NatsServer(tmp_path)
-    b.start()
-    try:
-        yield b
-    finally:
-        b.stop()
 
 
 @pytest.fixture
