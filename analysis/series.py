@@ -14,6 +14,7 @@ import numpy as np
 from tqdm import tqdm
 
 from analysis import tlog
+from tacit.sampletime import SampleClock, boot_seconds
 
 DEFAULT_TLOG_COLUMNS = tuple(
     f"RAW_IMU.{f}" for f in ("xacc", "yacc", "zacc", "xgyro", "ygyro", "zgyro", "xmag", "ymag", "zmag")
@@ -239,11 +240,14 @@ class Measured:
 
 
 def measured_samples(folder: Path, kind: str, fields: Sequence[str], scale: float = 1.0) -> Measured:
-    """Every sample of ``kind`` in the tlogs of ``folder`` (the codec keeps them all), fields times ``scale``."""
+    """Every sample of ``kind`` in the tlogs of ``folder`` (the codec keeps them all), fields times ``scale``,
+    each dated as the agent that logged it dated it (``tacit.sampletime``: one clock per agent run)."""
     times, rows = [], []
-    for msg in tlog.folder_messages(folder, kind):
-        times.append(msg._timestamp)
-        rows.append([float(getattr(msg, f)) * scale for f in fields])
+    for path in sorted(folder.glob("*.tlog")):
+        clock = SampleClock()
+        for msg in tlog.messages(path, kind):
+            times.append(clock.date(boot_seconds(msg), msg._timestamp))
+            rows.append([float(getattr(msg, f)) * scale for f in fields])
     order = np.argsort(np.array(times), kind="stable")
     return Measured(np.array(times)[order], np.array(rows).reshape(len(rows), len(fields))[order])
 

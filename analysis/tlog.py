@@ -22,9 +22,3 @@ def messages(path: str | Path, kind: str | None = None) -> Iterator[Any]:
                 yield msg
     finally:
         conn.close()
-
-
-def folder_messages(folder: Path, kind: str) -> Iterator[Any]:
-    """The messages of ``kind`` in every log of a folder (an agent's tlogs), log by log in name order."""
-    for tlog in sorted(folder.glob("*.tlog")):
-        yield from messages(tlog, kind)

@@ -1,5 +1,5 @@
-"""The split shore under load: scripted gateways feeding one center through NATS JetStream into
-PostgreSQL (issue 24, item 7).
+"""The split shore under load: scripted gateways feeding the center through NATS JetStream into
+PostgreSQL (issue 24, item 7), with one center process or several sharing the partitions.
 
 A nats-server of its own (the users and permissions of ``tacit broker-config``, on a free port), a fresh
 PostgreSQL database, N vehicles with their keys, spread over G gateways. Each vehicle's frames are real:
@@ -8,16 +8,22 @@ check-points signed and IMU priority packets from the codec, as the agent sends 
 
 1. *publish*: each gateway publishes its vehicles' frames (interleaved, in order per vehicle), one at a
    time and each acknowledged by JetStream before the next, as a gateway's outbox publisher does;
-2. *center*: ``tacit center``'s consumer takes the backlog from the stream, stores, de-duplicates,
-   decodes and verifies every frame in PostgreSQL, batch by batch, while R API readers (processes) read
-   the API of a server on the same database. Profiled (cProfile, the consumer's loop and its ingest
+2. *center*: C center processes (``--centers``, each ``tacit center``'s consumers: ``Center.run`` with
+   its leases, its share of the partitions, its live events relayed to the others) take the backlog from
+   the stream, store, de-duplicate, decode and verify every frame in PostgreSQL, batch by batch, while R
+   API readers (processes) read the API of a server on the same database. The clock runs from when every
+   center process is announced among the others (so that none takes a partition it would hand over)
+   until every frame is stored and decoded. Profiled (cProfile, the first process's loop and its ingest
    thread together): where the time goes.
 
 The figure is checked to be of accepted frames: every frame stored once, every check-point verified,
 no packet refused, every priority packet vouched for; otherwise the benchmark stops with the counts.
+``--centers 1 2`` runs both on the same frames (a fresh database and broker each) and prints what the
+second process added.
 
-Run: .venv/bin/python bench/bench_backhaul.py [--vehicles 100] [--gateways 10] [--frames 50]
-     [--readers 4] [--batch 64] [--database-url postgresql+psycopg://postgres@127.0.0.1:5432/test]
+Run (from bench/): ../.venv/bin/python bench_backhaul.py [--vehicles 100] [--gateways 10] [--frames 50]
+     [--readers 4] [--batch 64] [--centers 1 2] [--no-profile]
+     [--database-url postgresql+psycopg://postgres@127.0.0.1:5432/test]
 """
 
 from __future__ import annotations
@@ -27,9 +33,11 @@ import asyncio
 import contextlib
 import cProfile
 import io
+import math
 import multiprocessing
 import os
 import pstats
+import secrets
 import shutil
 import socket
 import statistics
@@ -37,21 +45,24 @@ import subprocess
 import tempfile
 import threading
 import time
+from collections import Counter
 from collections.abc import Iterator
+from dataclasses import dataclass
 from multiprocessing.queues import Queue
 from multiprocessing.synchronize import Event as Flag
 from pathlib import Path
 
 import uvicorn
 from bench_server import TOKEN, check_measured, client_process, frames
-from sqlalchemy import create_engine, text
+from sqlalchemy import Engine, create_engine, text
 from tqdm import tqdm
 
 from launch.split import throwaway_database
 from server.app import create_app
 from server.backhaul import access, subjects
-from server.backhaul.broker import connect
-from server.backhaul.center import Center
+from server.backhaul.broker import connect, ensure_streams
+from server.backhaul.center import DURABLE, Center
+from server.backhaul.leases import Leases
 from server.backhaul.relay import RelayIngest
 from server.backhaul.subjects import FrameMessage
 from server.core.config import Settings
@@ -63,6 +74,7 @@ from server.vehicles.service import Vehicles
 from tacit.streams import default_streams
 
 POSTGRES = os.environ.get("TACIT_TEST_POSTGRES", "postgresql+psycopg://postgres@127.0.0.1:5432/test")
+LEASE = 5.0  # s: the center processes' leases (the setting's default)
 
 
 def free_port() -> int:
@@ -92,16 +104,16 @@ def broker(folder: Path, gateways: list[str]) -> Iterator[str]:
 
 
 def fleet(
-    url: str, vehicles: int, per_vehicle: int, gateways: int
-) -> tuple[dict[str, list[FrameMessage]], int]:
-    """The vehicles in the store and their frames, by gateway (vehicle ``a`` on gateway ``a % G``, its
-    frames interleaved with the others' in order); and how many check-points they hold."""
-    service = Vehicles(make_engine(url))
+    vehicles: int, per_vehicle: int, gateways: int
+) -> tuple[dict[int, bytes], dict[str, list[FrameMessage]], int]:
+    """The vehicles' keys by modem address and their frames, by gateway (vehicle ``a`` on gateway
+    ``a % G``, its frames interleaved with the others' in order); and how many check-points they hold.
+    Made once for every run of ``--centers``."""
+    keys = {address: secrets.token_bytes(32) for address in range(1, vehicles + 1)}
     by_gateway: dict[str, list[list[bytes]]] = {f"gw{g}": [] for g in range(gateways)}
     addresses: dict[str, list[int]] = {name: [] for name in by_gateway}
     checkpoints = 0
-    for address in tqdm(range(1, vehicles + 1), desc="vehicles' frames", unit="vehicle"):
-        key = bytes.fromhex(service.create(VehicleIn(name=f"auv{address}", address=address)).key_hex)
+    for address, key in tqdm(keys.items(), desc="vehicles' frames", unit="vehicle"):
         made, cps = frames(per_vehicle, 0.5, key, address, progress=False)
         gateway = f"gw{address % gateways}"
         by_gateway[gateway].append(made)
@@ -120,7 +132,13 @@ def fleet(
                 if r < len(s)
             )
         ]
-    return out, checkpoints
+    return keys, out, checkpoints
+
+
+def register(url: str, keys: dict[int, bytes]) -> None:
+    service = Vehicles(make_engine(url))
+    for address, key in keys.items():
+        service.create(VehicleIn(name=f"auv{address}", address=address, key=key.hex()))
 
 
 async def publish(url: str, folder: Path, name: str, messages: list[FrameMessage]) -> None:
@@ -128,8 +146,19 @@ async def publish(url: str, folder: Path, name: str, messages: list[FrameMessage
     nc = await connect(url, f"bench-{name}", auth=access.BrokerAuth.load(folder / f"gateway-{name}.toml"))
     js = nc.jetstream()
     for m in messages:
-        await js.publish(subjects.frames(name), m.encode(), headers={subjects.MSG_ID: m.id})
+        subject = subjects.frames(name, subjects.partition(m.src))
+        await js.publish(subject, m.encode(), headers={subjects.MSG_ID: m.id})
     await nc.close()
+
+
+async def publish_all(url: str, folder: Path, messages: dict[str, list[FrameMessage]]) -> float:
+    """The streams made (as a center makes them), then every gateway's frames; the seconds it took."""
+    nc = await connect(url, "bench-center", auth=access.BrokerAuth.load(folder / "center.toml"))
+    await ensure_streams(nc.jetstream())
+    await nc.close()
+    start = time.perf_counter()
+    await asyncio.gather(*(publish(url, folder, n, m) for n, m in messages.items()))
+    return time.perf_counter() - start
 
 
 def serve_api(url: str, port: int) -> None:
@@ -184,6 +213,8 @@ class Profiled:
     def top(self, n: int) -> str:
         """The ingest threads' functions by own time, then the pipeline's own functions by cumulative
         time (its stages), then the event loop's (the consumer: fetch, acks; ``poll`` is its waiting)."""
+        if not self.workers:
+            return ""
         out = io.StringIO()
         ingest = pstats.Stats(self.workers[0], stream=out)
         for prof in self.workers[1:]:
@@ -197,23 +228,103 @@ class Profiled:
         return out.getvalue()
 
 
-async def consume(center: Center, total: int, profile: Profiled) -> float:
-    """The center takes the whole backlog; the seconds it took."""
-    await center.connect()
-    bar = tqdm(total=total, desc="center", unit="frame")
-    start = time.perf_counter()
-    if profile.enabled:
-        profile.main.enable()
-    try:
-        while center.counters["messages"] < total:
-            bar.update(await center.step())
-    finally:
+@dataclass(frozen=True)
+class CenterJob:
+    """What a center process of the benchmark needs (picklable: it is spawned)."""
+
+    url: str
+    nats_url: str
+    credentials: Path
+    name: str
+    count: int  # center processes in all
+    batch: int
+    profile: bool
+    top: int
+
+
+async def announce(job: CenterJob, auth: access.BrokerAuth) -> None:
+    """This process among the center's members, and all ``count`` of them there: each process's first
+    share of the partitions is then its final one (no hand-over while the clock runs)."""
+    nc = await connect(job.nats_url, f"bench-{job.name}", auth=auth)
+    leases = Leases(nc.jetstream(), DURABLE, job.name, LEASE)
+    await leases.open()
+    await leases.renew()
+    while len(await leases.members()) < job.count:
+        await asyncio.sleep(0.05)
+        await leases.renew()
+    await nc.close()
+
+
+def center_process(
+    job: CenterJob, ready: Queue[str], stop: Flag, results: Queue[tuple[dict[str, int], str]]
+) -> None:
+    """One ``tacit center`` process's consumers (``Center.run``: leases, its partitions, its live events
+    relayed), until ``stop``; then its ingest's counters and, profiled, where its time went."""
+    auth = access.BrokerAuth.load(job.credentials)
+    ingest = RelayIngest(make_engine(job.url), Bus(), default_streams(), Settings(database_url=job.url))
+    center = Center(ingest, job.nats_url, batch=job.batch, auth=auth, instance=job.name, lease=LEASE)
+    profile = Profiled(job.profile)
+    profile.wrap(ingest)
+
+    async def main() -> None:
+        ingest.bus.bind(asyncio.get_running_loop())  # its events relayed to the other processes, as live
+        await announce(job, auth)
+        ready.put(job.name)
+        task = asyncio.create_task(center.run())
+        if profile.enabled:
+            profile.main.enable()
+        while not stop.is_set():
+            await asyncio.sleep(0.1)
         if profile.enabled:
             profile.main.disable()
-        bar.close()
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+
+    asyncio.run(main())
+    results.put((dict(ingest.stats), profile.top(job.top)))
+
+
+def decoded(db: Engine) -> int:
+    with db.connect() as c:
+        return int(c.execute(text("SELECT count(*) FROM packet")).scalar_one())
+
+
+def centers(
+    options: argparse.Namespace, count: int, url: str, nats_url: str, folder: Path, total: int
+) -> tuple[float, list[tuple[dict[str, int], str]]]:
+    """``count`` center processes take the backlog; the seconds from their start until every frame was
+    stored and decoded, and each one's counters and profile."""
+    spawn = multiprocessing.get_context("spawn")  # a fresh interpreter, as ``tacit center`` is
+    ready: Queue[str] = spawn.Queue()
+    results: Queue[tuple[dict[str, int], str]] = spawn.Queue()
+    stop: Flag = spawn.Event()
+    jobs = [
+        CenterJob(url, nats_url, folder / "center.toml", f"bench{i}", count, options.batch,
+                  options.profile, options.top)
+        for i in range(count)
+    ]  # fmt: skip
+    procs = [spawn.Process(target=center_process, args=(job, ready, stop, results)) for job in jobs]
+    for p in procs:
+        p.start()
+    for _ in procs:
+        ready.get(timeout=120)
+    db = create_engine(url)  # one connection, polled: not one started every 0.1 s
+    start = time.perf_counter()
+    bar = tqdm(total=total, desc=f"{count} center process(es)", unit="frame")
+    while (done := decoded(db)) < total:
+        bar.update(done - bar.n)
+        if not all(p.is_alive() for p in procs):
+            raise SystemExit("bench_backhaul: a center process died")
+        time.sleep(0.1)
     elapsed = time.perf_counter() - start
-    await center.close()
-    return elapsed
+    bar.update(done - bar.n)
+    bar.close()
+    stop.set()
+    out = [results.get(timeout=120) for _ in procs]
+    for p in procs:
+        p.join(timeout=30)
+    db.dispose()
+    return elapsed, out
 
 
 def stored(url: str) -> int:
@@ -221,45 +332,66 @@ def stored(url: str) -> int:
         return int(c.execute(text("SELECT count(*) FROM frame")).scalar_one())
 
 
-def run(options: argparse.Namespace, url: str, folder: Path) -> None:
+@dataclass
+class Figures:
+    centers: int
+    published: float  # s
+    consumed: float  # s
+    latencies: list[float]
+    stats: Counter[str]
+
+
+def run(
+    options: argparse.Namespace,
+    count: int,
+    keys: dict[int, bytes],
+    messages: dict[str, list[FrameMessage]],
+    checkpoints: int,
+    url: str,
+    folder: Path,
+) -> Figures:
     migrate(url)
-    names = [f"gw{g}" for g in range(options.gateways)]
-    messages, checkpoints = fleet(url, options.vehicles, options.frames, options.gateways)
+    register(url, keys)
     total = sum(len(m) for m in messages.values())
-    with broker(folder / "broker", names) as nats_url:
-        settings = Settings(database_url=url)
-        center = Center(RelayIngest(make_engine(url), Bus(), default_streams(), settings), nats_url,
-                        batch=options.batch, auth=access.BrokerAuth.load(folder / "broker" / "center.toml"))  # fmt: skip
-        center.ingest.load_vehicles()
-        profile, latencies = Profiled(options.profile), list[float]()
-        profile.wrap(center.ingest)
-
-        async def phases() -> tuple[float, float]:
-            await center.connect()  # the streams
-            await center.close()
-            start = time.perf_counter()
-            await asyncio.gather(*(publish(nats_url, folder / "broker", n, m) for n, m in messages.items()))
-            published = time.perf_counter() - start
-            procs, stop, results = readers(url, options.readers) if options.readers else ([], None, None)
-            try:
-                return published, await consume(center, total, profile)
-            finally:
-                if stop is not None and results is not None:
-                    stop.set()
-                    latencies.extend(x for _ in procs[1:] for x in results.get(timeout=30))
-                for p in procs:
-                    p.terminate()
-
-        published, consumed = asyncio.run(phases())
-    report(options, center, url, total, checkpoints, published, consumed, sorted(latencies))
+    latencies = list[float]()
+    with broker(folder / "broker", list(messages)) as nats_url:
+        published = asyncio.run(publish_all(nats_url, folder / "broker", messages))
+        procs, stop, results = readers(url, options.readers) if options.readers else ([], None, None)
+        try:
+            consumed, out = centers(options, count, url, nats_url, folder / "broker", total)
+        finally:
+            if stop is not None and results is not None:
+                stop.set()
+                latencies.extend(x for _ in procs[1:] for x in results.get(timeout=30))
+            for p in procs:
+                p.terminate()
+                p.join(timeout=10)  # before its database is dropped
+    stats: Counter[str] = Counter()
+    for each, _ in out:
+        stats.update(each)
+    figures = Figures(count, published, consumed, sorted(latencies), stats)
+    report(options, figures, [each for each, _ in out], url, total, checkpoints)
     if options.profile:
-        print(f"\nwhere the center's time goes (cProfile, top {options.top}; profiling slows it):")
-        print(profile.top(options.top))
+        print(
+            f"\nwhere the first center process's time goes (cProfile, top {options.top}; profiling slows it):"
+        )
+        print(out[0][1])
+    return figures
 
 
-def report(options: argparse.Namespace, center: Center, url: str, total: int, checkpoints: int,
-           published: float, consumed: float, latencies: list[float]) -> None:  # fmt: skip
-    stats = center.ingest.stats
+def p99(latencies: list[float]) -> float:
+    return statistics.quantiles(latencies, n=100)[98] * 1000 if len(latencies) >= 2 else math.nan
+
+
+def report(
+    options: argparse.Namespace,
+    figures: Figures,
+    each: list[dict[str, int]],
+    url: str,
+    total: int,
+    checkpoints: int,
+) -> None:
+    stats = figures.stats
     if stored(url) != total or stats["packets"] != total:
         raise SystemExit(
             f"bench_backhaul: {stored(url)} of {total} frames stored, {stats['packets']} decoded"
@@ -267,22 +399,35 @@ def report(options: argparse.Namespace, center: Center, url: str, total: int, ch
     check_measured(stats, checkpoints, url)
     print(
         f"\n{options.vehicles} vehicles on {options.gateways} gateways, {total} frames (half priority, "
-        f"{checkpoints} check-points), PostgreSQL, batches of {options.batch}; "
-        f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"
+        f"{checkpoints} check-points), PostgreSQL, batches of {options.batch}, {figures.centers} center "
+        f"process(es); load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"
     )
     print(
-        f"publish: {total / published:,.0f} frames/s into JetStream ({options.gateways} gateways, each acked)"
+        f"publish: {total / figures.published:,.0f} frames/s into JetStream ({options.gateways} gateways, "
+        "each acked)"
     )
+    shares = ", ".join(str(s["packets"]) for s in each)
     print(
-        f"center: {total / consumed:,.0f} frames/s consumed, stored, decoded and verified "
-        f"({stats['verified']} check-points verified, {stats['packets']} packets, {consumed:.1f} s)"
+        f"center: {total / figures.consumed:,.0f} frames/s consumed, stored, decoded and verified "
+        f"({stats['verified']} check-points verified, {stats['packets']} packets decoded: {shares} by "
+        f"process; {figures.consumed:.1f} s)"
     )
-    if len(latencies) >= 2:
-        q = statistics.quantiles(latencies, n=100)
+    if len(figures.latencies) >= 2:
+        q = statistics.quantiles(figures.latencies, n=100)
         print(
-            f"API meanwhile ({options.readers} readers, {len(latencies)} requests): p50 {q[49] * 1000:.1f} ms  "
-            f"p95 {q[94] * 1000:.1f} ms  p99 {q[98] * 1000:.1f} ms"
+            f"API meanwhile ({options.readers} readers, {len(figures.latencies)} requests): p50 "
+            f"{q[49] * 1000:.1f} ms  p95 {q[94] * 1000:.1f} ms  p99 {q[98] * 1000:.1f} ms"
         )
+
+
+def compare(runs: list[Figures], total: int) -> None:
+    """What each further center process added to the first run's."""
+    first = runs[0]
+    print("\ncenter processes: frames/s stored and decoded, API p99 (ms)")
+    for figures in runs:
+        rate = total / figures.consumed
+        gain = rate / (total / first.consumed) - 1
+        print(f"  {figures.centers}: {rate:,.0f} frames/s ({gain:+.0%}), p99 {p99(figures.latencies):.0f} ms")
 
 
 def main() -> None:
@@ -296,6 +441,14 @@ def main() -> None:
         "--readers", type=int, default=4, help="API readers (processes) while the center works"
     )
     parser.add_argument("--batch", type=int, default=64, help="frames per fetch and commit")
+    parser.add_argument(
+        "--centers",
+        type=int,
+        nargs="+",
+        default=[1],
+        help="center processes sharing the partitions; several values: a run with each, on the same "
+        "frames, then what each added (default 1)",
+    )
     parser.add_argument("--top", type=int, default=20, help="cProfile entries printed")
     parser.add_argument(
         "--no-profile", dest="profile", action="store_false", help="measure without cProfile (it costs time)"
@@ -306,8 +459,18 @@ def main() -> None:
     options = parser.parse_args()
     if not 1 <= options.vehicles <= 127:
         parser.error("--vehicles: 1 to 127 (the modems' addresses)")
-    with tempfile.TemporaryDirectory() as tmp, throwaway_database(options.database_url, "tacit_bench") as url:
-        run(options, url, Path(tmp))
+    if not all(1 <= n <= subjects.PARTITIONS for n in options.centers):
+        parser.error(f"--centers: 1 to {subjects.PARTITIONS} (the frames partitions)")
+    keys, messages, checkpoints = fleet(options.vehicles, options.frames, options.gateways)
+    runs = []
+    for count in options.centers:
+        with (
+            tempfile.TemporaryDirectory() as tmp,
+            throwaway_database(options.database_url, "tacit_bench") as url,
+        ):
+            runs.append(run(options, count, keys, messages, checkpoints, url, Path(tmp)))
+    if len(runs) > 1:
+        compare(runs, sum(len(m) for m in messages.values()))
 
 
 if __name__ == "__main__":

@@ -7,7 +7,7 @@ Every row has a test in the suite at a small budget (named in the last column); 
             forged, bit-flipped and replayed check-points and forged priority packets through the
             shore's ingest (accepted = applied, or telemetry marked verified)
   api       schemathesis over the server's OpenAPI (every operation, --api-examples each): 5xx = failure
-  rest      non-finite numbers, oversized keys and names, partial updates (tests/test_bad_input.py)
+  rest      non-finite numbers, oversized keys and names, partial updates (tests/integration/server/test_bad_input.py)
   faults    the running system (sim, serve, agent as processes): 50 % frame loss, the server SIGKILLed
             mid-mission, the agent SIGKILLed mid-mission: stored packets lost, commands executed twice,
             priority packets decoded after the restart
@@ -33,7 +33,7 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 from tqdm import tqdm
 
@@ -291,10 +291,13 @@ def shore_attacks(cases: int) -> None:
 
     genuine = checkpoint(0, key, t0)
     ingest.handle(IncomingFrame(address, 1, genuine))
+    heard = [checkpoint(i, key, t0 + 100 + i) for i in range(cases)]  # genuine, then replayed byte for byte
+    for frame in heard:
+        ingest.handle(IncomingFrame(address, 1, frame))
     kinds = {
         "check-point forged (a stranger's key)": lambda i: checkpoint(i, rng.randbytes(32), t0 + i),
         "check-point bit-flipped (1-3 bits)": lambda i: flip(rng, checkpoint(i, key, t0 + 1 + i)),
-        "check-point replayed (older than the last)": lambda i: checkpoint(i, key, t0 - 1 - i),
+        "check-point replayed (the same bytes again)": lambda i: heard[i],
         "priority packet forged (any 30 bytes)": lambda i: bytes([0xE0 | rng.randrange(16), i % 256]) + rng.randbytes(30),
     }  # fmt: skip
     for name, make in kinds.items():
@@ -310,12 +313,41 @@ def shore_attacks(cases: int) -> None:
         else:
             accepted = ingest.stats["verified"] - before
         row("attacks", name, f"{cases:,}", f"{accepted} accepted", "test_trust: forged_*")
+    late_checkpoints(ingest, cases, lambda i: checkpoint(i, key, t0 - 1 - i))
     db.dispose()
+
+
+def late_checkpoints(ingest: Any, cases: int, make: Callable[[int], bytes]) -> None:
+    """Genuine check-points never heard before, stamped before the last one applied (one that came late
+    through another gateway, or a recording of one the shore missed): verified as late, they may vouch
+    for packets but must not set the vehicle's state back."""
+    from server.link.state import IncomingFrame
+
+    (vehicle,) = ingest.states()
+    before, late = vehicle.link.checkpoint_time, ingest.stats["late"]
+    for i in range(cases):
+        ingest.handle(IncomingFrame(vehicle.address, 1, make(i)))
+    moved = int(vehicle.link.checkpoint_time != before)
+    row(
+        "attacks",
+        "check-point late (never heard, older than the last)",
+        f"{cases:,}",
+        f"{moved} set the state back ({ingest.stats['late'] - late} verified late)",
+        "test_trust: forged_checkpoints_change_nothing; test_backhaul_order",
+    )
 
 
 def api(examples: int) -> None:
     result = subprocess.run(
-        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "tests/test_schemathesis.py"],
+        [
+            sys.executable,
+            "-m",
+            "pytest",
+            "-q",
+            "-p",
+            "no:cacheprovider",
+            "tests/integration/server/test_schemathesis.py",
+        ],
         cwd=ROOT,
         capture_output=True,
         text=True,
@@ -331,7 +363,15 @@ def api(examples: int) -> None:
         "test_schemathesis",
     )
     result = subprocess.run(
-        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "tests/test_bad_input.py"],
+        [
+            sys.executable,
+            "-m",
+            "pytest",
+            "-q",
+            "-p",
+            "no:cacheprovider",
+            "tests/integration/server/test_bad_input.py",
+        ],
         cwd=ROOT,
         capture_output=True,
         text=True,
@@ -371,15 +411,17 @@ def faults() -> None:
     suite_row(
         "faults",
         "MAVLink link dropped and restored",
-        "tests/test_faults.py::test_mavlink_link_drops_and_the_agent_reconnects",
+        "tests/integration/vehicle_agent/test_mavlink_reconnect.py::test_mavlink_link_drops_and_the_agent_reconnects",
     )
     suite_row(
         "faults",
         "modem rebooted mid-cycle",
-        "tests/test_modem.py::test_modem_rebooting_mid_cycle_fails_the_cycle_then_recovers",
+        "tests/integration/tacit/test_modem.py::test_modem_rebooting_mid_cycle_fails_the_cycle_then_recovers",
     )
     suite_row(
-        "faults", "serial port vanished and returned", "tests/test_modem.py::test_vanished_port_comes_back"
+        "faults",
+        "serial port vanished and returned",
+        "tests/integration/tacit/test_modem.py::test_vanished_port_comes_back",
     )
 
 
@@ -402,8 +444,7 @@ def kill_mid_mission(victim: str) -> None:
     rig = Rig(200.0, scale=5.0, mission=True)
     try:
         http = rig.http
-        http.post("/vehicles/1/missions", json={"name": "square", "number": 1, "waypoints": []})
-        http.post("/missions/1/start")
+        rig.start_square()
         wait_for(lambda: http.get("/packets", params={"limit": 1}).json()["total"] >= 5, 60, what="packets")
         queued = http.post("/vehicles/1/commands", json={"command": "goto_depth", "depth": 3.0}).json()
         before = {p["id"] for p in http.get("/packets", params={"limit": 1000}).json()["items"]}

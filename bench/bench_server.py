@@ -3,14 +3,16 @@
 Frames (check-points and IMU priority packets, as a vehicle sends them) go through the link engine's
 ingest (store, de-duplicate, decode, reconstruct, publish), not through a modem, as fast as one worker
 can; meanwhile HTTP clients read the API of the real server (uvicorn, SQLite file) and we record the
-latency of every request.
+latency of every request. ``--profile`` runs the ingest under cProfile and prints where a frame's
+time goes (``bench/profiling.py``); its packets/s are then cProfile's, slower.
 
-Run: .venv/bin/python bench/bench_server.py [--frames 5000] [--clients 4] [--database-url URL]
+Run: .venv/bin/python bench/bench_server.py [--frames 5000] [--clients 4] [--database-url URL] [--profile]
 """
 
 from __future__ import annotations
 
 import argparse
+import cProfile
 import multiprocessing
 import statistics
 import tempfile
@@ -21,6 +23,7 @@ from multiprocessing.queues import Queue
 import httpx
 import numpy as np
 import uvicorn
+from profiling import summary
 from sqlmodel import Session, select
 from tqdm import tqdm
 
@@ -155,6 +158,7 @@ def main() -> None:
     parser.add_argument("--sse-clients", type=int, default=3, help="browsers on the live event stream")
     parser.add_argument("--database-url", help="default: a SQLite file in a temporary folder")
     parser.add_argument("--port", type=int, default=8765)
+    parser.add_argument("--profile", action="store_true", help="profile the ingest: where the time goes")
     options = parser.parse_args()
     url = options.database_url or f"sqlite:///{tempfile.mkdtemp()}/bench.db"
     app = create_app(Settings(database_url=url, map_enabled=False, write_tokens=[TOKEN]))
@@ -182,10 +186,14 @@ def main() -> None:
         c.start()
     time.sleep(1.0)
     ingest = app.state.shore.ingest
-    start = time.perf_counter()
+    profile = cProfile.Profile() if options.profile else None
+    start, cpu = time.perf_counter(), time.process_time()
     for i in tqdm(range(0, len(incoming), options.batch), desc="ingesting", unit="batch"):
-        ingest.handle_batch(incoming[i : i + options.batch])
-    elapsed = time.perf_counter() - start
+        if profile is None:
+            ingest.handle_batch(incoming[i : i + options.batch])
+        else:
+            profile.runcall(ingest.handle_batch, incoming[i : i + options.batch])
+    elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu
     stop.set()
     under_load = sorted(x for _ in clients for x in results.get(timeout=30))
     time.sleep(0.5)
@@ -201,7 +209,8 @@ def main() -> None:
     )
     print(
         f"ingest: {len(incoming) / elapsed:,.0f} packets/s decoded, stored and published "
-        f"({ingest.stats['packets']} stored, {ingest.stats['duplicates']} duplicates)"
+        f"({ingest.stats['packets']} stored, {ingest.stats['duplicates']} duplicates); "
+        f"{len(incoming) / cpu:,.0f} per second of this process's CPU time (all its threads)"
     )
     if received:
         print(
@@ -214,6 +223,9 @@ def main() -> None:
             f"API under that load ({options.clients} clients, {len(under_load)} requests): "
             f"p50 {q[49] * 1000:.1f} ms  p95 {q[94] * 1000:.1f} ms  p99 {q[98] * 1000:.1f} ms"
         )
+    if profile is not None:
+        print(f"\nthe ingest of {len(incoming)} frames under cProfile (which slows it):")
+        print(summary(profile, len(incoming)))
 
 
 if __name__ == "__main__":

@@ -141,8 +141,7 @@ def per_minute(rig: Rig, wall_s: float) -> tuple[float, float]:
 
 
 def start_mission(rig: Rig) -> None:
-    rig.http.post("/vehicles/1/missions", json={"name": "square", "number": 1, "waypoints": []})
-    rig.http.post("/missions/1/start")
+    rig.start_square()
     wait_for(lambda: link(rig)["vehicles"]["rov1"]["checkpoint"], 120, what="a first check-point")
 
 

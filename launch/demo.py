@@ -67,7 +67,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", default="127.0.0.1", help="bind address (default: this machine only)")
     parser.add_argument("--port", type=int, default=8000, help="API and dashboard port")
     parser.add_argument("--map-port", type=int, default=8080, help="3D map port")
-    parser.add_argument("--data-dir", default="data/demo", help="where the demo keeps its files")
+    parser.add_argument(
+        "--data-dir",
+        help="where the demo keeps its files (default data/demo; with --gateways data/demo-gateways)",
+    )
     parser.add_argument(
         "--mission", help="a mission JSON file (default: the paper's 20 m square at 2 m, 5 laps)"
     )
@@ -83,7 +86,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--postgres",
         default="postgresql+psycopg://postgres@127.0.0.1:5432/test",
-        help=f"with --gateways: a PostgreSQL server and a database on it to create {split.DATABASE!r} from",
+        help="with --gateways: a PostgreSQL server and a database on it to create the demo's database from",
     )
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--headless", action="store_true", help="do not open a browser")
@@ -125,6 +128,11 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if not 0 <= args.gateways <= 5:
         print("tacit demo: --gateways is 0 (one shore) .. 5", file=sys.stderr)
+        return 2
+    args.data_dir = args.data_dir or ("data/demo-gateways" if args.gateways else "data/demo")
+    mixed = split.other_layout(Path(args.data_dir), bool(args.gateways))
+    if mixed:
+        print(f"tacit demo: {mixed}", file=sys.stderr)
         return 2
     if args.gateways:
         absent = split_missing(args)
@@ -198,13 +206,13 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
             member.index,
             checkpoint_interval=20,
             missions=[{"file": f"missions/{plan}"}],
-            **({"link_lost_timeout": 86400.0} if args.gateways else {}),  # no pre-signed SYNCs yet
+            **({"link_lost_timeout": split.LINK_LOST_TIMEOUT} if args.gateways else {}),
             **({"plume_threshold": 1e6} if plans[member.index] is split.TRAVEL else {}),  # no detours
         )
         stack.start_agent(member.index)
     overrides = {"host": args.host, "port": args.port, "map_port": args.map_port, "poll_interval": 2.0}
     if args.gateways:
-        database = await asyncio.to_thread(split.database, args.postgres)
+        database = await asyncio.to_thread(split.database, args.postgres, data)
         values = split.center_settings(stack, database, args.time_scale)
         app = split.center_app(Settings(**{**values, **overrides}), args.nats)
     else:
@@ -252,6 +260,8 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
         await shutdown(stack, server, serving)
         if args.gateways:
             _channel(stack.sim_report())
+            for line in await asyncio.to_thread(split.audit, stack, database):
+                _say(line)
 
 
 def _plans(args: argparse.Namespace) -> str:

@@ -95,6 +95,11 @@ class Rig:
     def start_agent(self) -> None:
         self.stack.start_agent()
 
+    def start_square(self) -> None:
+        """Record the agent's built-in square (``mission=True``) as mission 1 and start it."""
+        self.http.post("/vehicles/1/missions", json={"name": "square", "number": 1, "waypoints": []})
+        self.http.post("/missions/1/start").raise_for_status()
+
     def restart_agent(self, **changes: object) -> None:
         """SIGKILL the agent and start it again on its configuration with ``changes``."""
         self.kill_agent()

@@ -2,22 +2,26 @@
 
 N simulated shore modems 900 m apart on the one channel (``Stack``: the first ``--range`` m west of the
 fleet's homes), a ``tacit gateway`` on each (child processes), the center in the demo's process (the
-API, the dashboard and the map, on a PostgreSQL database ``tacit_demo`` it creates on the server), and
+API, the dashboard and the map, on a PostgreSQL database ``tacit_demo_<hash>`` it creates on the server for
+its data folder), and
 the vehicles: the last one flies east out of the first gateway's reach into the second's, and the
-center moves it over (printed as it happens). Noise is raised to 137 dB so that a gateway hears
-about 600 m at rate 0: each end of the water has its own gateway.
+center moves it over (printed as it happens). At exit it prints each gateway's frames heard against
+those the center stored and decoded (``server.backhaul.audit``). Noise is raised to 137 dB so that a
+gateway hears about 600 m at rate 0: each end of the water has its own gateway.
 
 What it needs, checked first and named in one line if missing: NATS with JetStream (``--nats``) and
-PostgreSQL (``--postgres``, a server and a database to connect to for creating ``tacit_demo``).
+PostgreSQL (``--postgres``, a server and a database to connect to for creating the demo's).
 """
 
 from __future__ import annotations
 
 import asyncio
+import hashlib
 import socket
 import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
@@ -25,7 +29,10 @@ from launch.stack import Stack
 
 NOISE_DB = 137.0  # a busy harbour: rate 0 reaches about 600 m, so each gateway hears its end
 SLOT_S = 9.0  # simulated s: a rate-0 poll or command and its answer at 1 km (7.5 s), with the guards
-DATABASE = "tacit_demo"
+DATABASE = "tacit_demo"  # each data folder's database is this, then a hash of the folder's path
+MARKER = "center-database"  # in a split demo's folder: its database's URL
+SYNC_INTERVAL = 240.0  # simulated s between a vehicle's SYNCs: a slot's exchange each, on two gateways' slots
+LINK_LOST_TIMEOUT = 5 * SYNC_INTERVAL  # the agents': five SYNC intervals, as the defaults (60 s and 300 s)
 TRAVEL = {  # the last vehicle's: 500 m east of its home, from the first gateway's water to the second's
     "name": "travel",
     "number": 2,
@@ -86,15 +93,44 @@ def throwaway_database(postgres_url: str, prefix: str = "tacit") -> Iterator[str
             c.execute(f'DROP DATABASE "{name}" WITH (FORCE)')
 
 
-def database(postgres_url: str) -> str:
-    """The demo's database on the server of ``postgres_url`` (created the first time); its URL."""
+def database(postgres_url: str, data: Path) -> str:
+    """The database of the demo kept in ``data``, on the server of ``postgres_url``; its URL. The folder
+    and the database are one demo's state (the agents' counters and keys, the center's): each folder has
+    its own database, made empty with the folder (a database left by a deleted folder of that name is
+    dropped) and kept while the folder is."""
     import psycopg
 
+    name = f"{DATABASE}_{hashlib.sha256(str(data.resolve()).encode()).hexdigest()[:8]}"
+    marker = data / MARKER
     with psycopg.connect(_libpq(postgres_url), autocommit=True) as c:
-        if c.execute("SELECT 1 FROM pg_database WHERE datname = %s", (DATABASE,)).fetchone() is None:
-            c.execute(f'CREATE DATABASE "{DATABASE}"')
-    parts = urlsplit(postgres_url)
-    return parts._replace(path=f"/{DATABASE}").geturl()
+        if not marker.exists():
+            c.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+        if c.execute("SELECT 1 FROM pg_database WHERE datname = %s", (name,)).fetchone() is None:
+            c.execute(f'CREATE DATABASE "{name}"')
+    url = urlsplit(postgres_url)._replace(path=f"/{name}").geturl()
+    marker.write_text(url + "\n")
+    return url
+
+
+def other_layout(data: Path, split: bool) -> str | None:
+    """Why ``data`` cannot hold this demo, if it holds the other layout's: the agents' counters there
+    belong to another shore's database, which would refuse them and they its commands."""
+    if split and (data / "tacit.db").exists():
+        return f"{data} holds a one-shore demo; run the split shore in another --data-dir (default data/demo-gateways)"
+    if not split and (data / MARKER).exists():
+        return f"{data} holds a split-shore demo (--gateways); run this one in another --data-dir"
+    if split and not (data / MARKER).exists() and any(data.glob("agent-state*.json")):
+        return f"{data} holds agents' state from a shore whose database is not known; use another --data-dir"
+    return None
+
+
+def audit(stack: Stack, database_url: str) -> list[str]:
+    """At exit: each gateway's frames heard against those the center stored and decoded
+    (``tacit backhaul-audit``)."""
+    from server.backhaul.audit import audit as count
+
+    outboxes = sorted(stack.dir.glob("gateway-*.db"))
+    return ["frames:"] + [f"  {c.line()}" for c in count(outboxes, database_url)]
 
 
 def center_settings(stack: Stack, database_url: str, time_scale: float) -> dict[str, Any]:
@@ -109,7 +145,7 @@ def center_settings(stack: Stack, database_url: str, time_scale: float) -> dict[
         tdma_guard=guard_for(1000.0, 0.05) / time_scale,
         routing_window=240.0 / time_scale,  # a few polls by each gateway: one exchange per slot each
         routing_dwell=120.0 / time_scale,  # each gateway polls a vehicle about once a minute here
-        sync_interval=240.0,  # the heartbeat divides it by the time scale: a SYNC a minute, not 4
+        sync_interval=SYNC_INTERVAL,  # the heartbeat divides it by the time scale
         metrics_port=0,  # no /metrics listener: nothing scrapes the demo
     )
 

@@ -167,10 +167,15 @@ class Stack:
             return [{"address": SHORE_ADDRESS, "name": "shore", "position": [-c.range_m, 0.0, 1.0],
                      "link": str(self.pty("shore"))}]  # fmt: skip
         return [
-            {"address": gateway_address(i), "name": gateway_name(i),
-             "position": [0.0, -c.range_m + GATEWAY_SPACING_M * i, 1.0], "link": str(self.pty(gateway_name(i)))}
+            {"address": gateway_address(i), "name": gateway_name(i), "position": list(self.gateway_place(i)),
+             "link": str(self.pty(gateway_name(i)))}
             for i in range(c.gateways)
         ]  # fmt: skip
+
+    def gateway_place(self, index: int) -> tuple[float, float, float]:
+        """Where gateway ``index``'s simulated modem is: (north, east, depth) m in the fleet's frame, the
+        first ``range_m`` west of home, the others every ``GATEWAY_SPACING_M`` east of it."""
+        return 0.0, -self.config.range_m + GATEWAY_SPACING_M * index, 1.0
 
     def _sim_config(self) -> dict[str, Any]:
         c = self.config
@@ -268,12 +273,14 @@ class Stack:
 
     # a split shore's gateways -----------------------------------------------------------------------
     def start_gateway(self, index: int, nats_url: str) -> subprocess.Popen[str]:
-        """``tacit gateway`` on the simulated modem of gateway ``index``, its outbox in the stack's folder."""
+        """``tacit gateway`` on the simulated modem of gateway ``index`` (told where it is, for the screens),
+        its outbox in the stack's folder."""
         name = gateway_name(index)
         return self.spawn(
             ["gateway", "--nats", nats_url, "--name", name, "--outbox", str(self.dir / f"gateway-{name}.db"),
              "--modem-url", str(self.pty(name)), "--modem-address", str(gateway_address(index)),
-             "--modem-log", str(self.dir / f"gateway-{name}-modem.log")],
+             "--modem-log", str(self.dir / f"gateway-{name}-modem.log"),
+             "--position=" + ",".join(f"{x:g}" for x in self.gateway_place(index))],
             f"gateway-{name}.log",
         )  # fmt: skip
 

@@ -56,7 +56,8 @@ class Shore:
         link = LinkEngine(settings, db, bus, ingest, commands, vehicles)
         commands.wake = link.wake  # a queued command starts the next slot at once
         operators = Operators(settings, db)
-        screens = Screens(settings, db, link)
+        routing = Routing(db, settings, bus)
+        screens = Screens(settings, db, link, routing)
         safety = Separation(settings, screens, vehicles, commands, bus)
         commands.guard = safety.check  # every command's path, against the other vehicles'
         teams = Teams(settings, db, commands, vehicles, safety, bus)
@@ -80,5 +81,5 @@ class Shore:
             safety,
             teams,
             watcher,
-            Routing(db, settings),
+            routing,
         )

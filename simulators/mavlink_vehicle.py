@@ -176,8 +176,12 @@ class SimulatedVehicle:
         self.rov.step(1.0 / PHYSICS_HZ)
         now = self.scheduler.now()
         for mid, interval in self.intervals.items():
-            if interval > 0 and now >= self._next_due.get(mid, 0.0):
-                self._next_due[mid] = now + interval
+            due = self._next_due.get(mid, 0.0)
+            if interval > 0 and now >= due:
+                # an interval after it was due, not after this physics step: each wait would otherwise
+                # stretch to the next step (4 Hz asked, 3.85 Hz sent, beating against the agent's tick
+                # grid); after a stall, an interval from now (no burst to catch up)
+                self._next_due[mid] = (due if now - due < interval else now) + interval
                 self._send_telemetry(mid)
 
     # --- outgoing ---------------------------------------------------------------------------------

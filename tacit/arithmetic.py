@@ -13,37 +13,51 @@ _BITS = 32
 _TOP = (1 << _BITS) - 1
 _HALF = 1 << (_BITS - 1)
 _QUARTER = 1 << (_BITS - 2)
+_THREE_QUARTERS = 3 * _QUARTER
 MAX_TOTAL = 1 << 16
 
 
-@dataclass
+@dataclass(slots=True)
 class AdaptiveModel:
-    """Symbol frequencies that follow the data: +``increment`` per use, halved past ``limit``."""
+    """Symbol frequencies that follow the data: +``increment`` per use, halved past ``limit``. ``total``
+    is their sum, kept with them (summing them for every symbol took much of the coder's time)."""
 
     freqs: list[int]
     increment: int = 24
     limit: int = 4096
+    total: int = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        self.total = sum(self.freqs)
 
     def interval(self, symbol: int) -> tuple[int, int, int]:
         low = sum(self.freqs[:symbol])
-        return low, low + self.freqs[symbol], sum(self.freqs)
+        return low, low + self.freqs[symbol], self.total
 
     def find(self, target: int) -> tuple[int, int, int]:
         """The symbol whose interval holds ``target`` (a cumulative count), with its interval."""
         low = 0
-        for symbol, freq in enumerate(self.freqs):
-            if target < low + freq:
-                return symbol, low, low + freq
-            low += freq
+        symbol = 0
+        for freq in self.freqs:
+            high = low + freq
+            if target < high:
+                return symbol, low, high
+            low = high
+            symbol += 1
         raise ValueError("target beyond the model's total")
 
     def update(self, symbol: int) -> None:
-        self.freqs[symbol] += self.increment
-        if sum(self.freqs) > self.limit:
-            self.freqs = [max(1, f // 2) for f in self.freqs]
+        freqs = self.freqs
+        freqs[symbol] += self.increment
+        self.total += self.increment
+        if self.total > self.limit:
+            self.freqs = [max(1, f // 2) for f in freqs]
+            self.total = sum(self.freqs)
 
     def copy(self) -> AdaptiveModel:
-        return AdaptiveModel(list(self.freqs), self.increment, self.limit)
+        out = AdaptiveModel.__new__(AdaptiveModel)
+        out.freqs, out.increment, out.limit, out.total = self.freqs[:], self.increment, self.limit, self.total
+        return out
 
 
 @dataclass
@@ -101,45 +115,51 @@ class Encoder:
 
 
 class Decoder:
+    """The encoder's inverse. The data are held as one integer (``_code``): bit ``i`` of the data, most
+    significant first, is its bit ``_size - 1 - i``; bits past the end read as 0."""
+
     def __init__(self, data: bytes) -> None:
-        self._bits = [(byte >> (7 - i)) & 1 for byte in data for i in range(8)]
+        self._size = 8 * len(data)
+        self._code = int.from_bytes(data, "big")
         self._pos = 0
         self.low, self.high, self.value = 0, _TOP, 0
         for _ in range(_BITS):
             self.value = (self.value << 1) | self._next_bit()
 
     def _next_bit(self) -> int:
-        bit = self._bits[self._pos] if self._pos < len(self._bits) else 0
-        self._pos += 1
-        return bit
+        pos = self._pos
+        self._pos = pos + 1
+        return (self._code >> (self._size - 1 - pos)) & 1 if pos < self._size else 0
 
     def _target(self, total: int) -> int:
-        span = self.high - self.low + 1
-        return ((self.value - self.low + 1) * total - 1) // span
+        return ((self.value - self.low + 1) * total - 1) // (self.high - self.low + 1)
 
     def _narrow(self, low: int, high: int, total: int) -> None:
-        span = self.high - self.low + 1
-        self.high = self.low + span * high // total - 1
-        self.low = self.low + span * low // total
+        """Take the interval [low, high) of ``total`` and renormalise, reading a bit per doubling."""
+        lo, hi, value = self.low, self.high, self.value
+        span = hi - lo + 1
+        hi = lo + span * high // total - 1
+        lo = lo + span * low // total
         while True:
-            if self.high < _HALF:
+            if hi < _HALF:
                 pass
-            elif self.low >= _HALF:
-                self.low -= _HALF
-                self.high -= _HALF
-                self.value -= _HALF
-            elif self.low >= _QUARTER and self.high < 3 * _QUARTER:
-                self.low -= _QUARTER
-                self.high -= _QUARTER
-                self.value -= _QUARTER
+            elif lo >= _HALF:
+                lo -= _HALF
+                hi -= _HALF
+                value -= _HALF
+            elif lo >= _QUARTER and hi < _THREE_QUARTERS:
+                lo -= _QUARTER
+                hi -= _QUARTER
+                value -= _QUARTER
             else:
                 break
-            self.low <<= 1
-            self.high = (self.high << 1) | 1
-            self.value = (self.value << 1) | self._next_bit()
+            lo <<= 1
+            hi = (hi << 1) | 1
+            value = (value << 1) | self._next_bit()
+        self.low, self.high, self.value = lo, hi, value
 
     def decode_symbol(self, model: AdaptiveModel) -> int:
-        total = sum(model.freqs)
+        total = model.total
         symbol, low, high = model.find(self._target(total))
         self._narrow(low, high, total)
         model.update(symbol)

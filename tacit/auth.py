@@ -19,6 +19,20 @@ vehicle: it must grow, and a SYNC's time may differ from the vehicle's clock by 
 ``max_correction``. Ordering by counter rather than by time lets a shore clock that stepped ahead and
 was fixed be heard again at its next SYNC.
 
+A *scheduled* SYNC (flag ``SCHEDULED``: pre-signed by the center for a gateway to send during a
+backhaul outage, docs/backhaul.md) is held to a much narrower window: its time within
+``SCHEDULED_WINDOW`` of the vehicle's corrected clock (local clock plus the offset the center's own
+SYNCs set). It resets the link-lost timer and raises the counter, but never moves the clock: its stamp is
+the time it was due, not a reading of the shore's clock, so the window stays anchored to the center's
+last SYNC and no run of scheduled SYNCs can walk the clock away. The window is two minutes because a
+gateway sends each within one budget step (at most a minute, ``SCHEDULED_WINDOW / 2``) after its time,
+with seconds of travel and airtime; the vehicle's clock is within the agent's 30 s correction dead band
+of the last fresh SYNC's time (a fresh SYNC goes within seconds of its stamp: the center stamps it for
+its gateway's slot). A recording of one the vehicle missed is refused when replayed later than that; one
+the vehicle heard, or older than one it heard, by its counter. A captured gateway can release one at
+most two minutes early (its counter then makes the vehicle refuse the center's SYNCs stamped before it,
+for those two minutes at most).
+
 A vehicle that lost its state (no SYNC counter: *unsynced*) accepts no command and no SYNC but one that
 echoes the MAC of a check-point it signed since it started (``SyncWindow.challenge``): a recorded SYNC
 cannot echo a MAC that did not exist when it was recorded. That SYNC sets the counter and the command
@@ -53,6 +67,7 @@ from tacit.packets import (
     MAC_SIZE,
     CheckpointPacket,
     Command,
+    ControlFlag,
     ControlPacket,
     PacketError,
     PacketType,
@@ -71,6 +86,7 @@ MAX_CORRECTION = 86400.0 + 3600.0  # s a SYNC may move a clock: one set a whole 
 # travel and an hour of drift on top (a bound of exactly a day refused the SYNC that would fix it)
 CHALLENGES = 8  # the MACs of its latest check-points an unsynced vehicle takes an echo of
 FLOOR_SLACK = 5  # s: a command stamped this much before the answering SYNC's time still counts
+SCHEDULED_WINDOW = 120.0  # s: a scheduled SYNC is accepted this close to the vehicle's corrected clock
 
 
 class AuthError(PacketError):
@@ -266,8 +282,10 @@ class ReplayWindow:
 
 @dataclass
 class SyncWindow:
-    """Accepts SYNC packets whose counter (``seq``) grows, within ``max_correction`` s of the local clock;
-    while unsynced (``counter`` None: the state was lost), only one that echoes a challenge."""
+    """Accepts SYNC packets whose counter (``seq``) grows, within ``max_correction`` s of the local clock
+    (a scheduled one: within ``SCHEDULED_WINDOW`` of the local clock plus ``offset``, the correction the
+    center's SYNCs gave); while unsynced (``counter`` None: the state was lost), only one that echoes a
+    challenge."""
 
     max_correction: float = MAX_CORRECTION
     counter: int | None = 0  # the last accepted SYNC's; None: unsynced
@@ -281,7 +299,7 @@ class SyncWindow:
         """A check-point signed while unsynced: a SYNC echoing its MAC answers it."""
         self.challenges.append(bytes(checkpoint_mac))
 
-    def accept(self, packet: ControlPacket, local_now: float) -> bool:
+    def accept(self, packet: ControlPacket, local_now: float, offset: float = 0.0) -> bool:
         """Check and record a SYNC; True if it answered a challenge (the vehicle is synced from now)."""
         if self.counter is None:
             if not any(packet.echo) or packet.echo not in self.challenges:
@@ -289,6 +307,11 @@ class SyncWindow:
             self.counter = packet.seq
             self.challenges.clear()
             return True
+        if packet.flags & ControlFlag.SCHEDULED and abs(packet.time - local_now - offset) > SCHEDULED_WINDOW:
+            raise OutOfWindow(
+                f"scheduled SYNC {packet.seq} stamped {packet.time - local_now - offset:+.0f} s from the "
+                f"vehicle's clock (at most {SCHEDULED_WINDOW:.0f} s)"
+            )
         if abs(packet.time - local_now) > self.max_correction:
             raise OutOfWindow(
                 f"SYNC stamped {packet.time - local_now:+.0f} s from the local clock "
@@ -316,7 +339,7 @@ class ControlReceiver:
     def accept(self, frame: bytes, now: float, offset: float = 0.0) -> ControlPacket:
         packet = verify(frame, self.key, self.address)
         if packet.command is Command.SYNC:
-            if self.sync.accept(packet, now):
+            if self.sync.accept(packet, now, offset):
                 self.window.floor = packet.time - FLOOR_SLACK  # nothing recorded before it passes
         elif self.sync.unsynced:
             raise Unsynced(f"control seq {packet.seq}: no SYNC has answered this vehicle's check-points")

@@ -18,7 +18,8 @@ Control packet (shore -> vehicle), authenticated (see ``tacit.auth``):
 ==========  ====  =================  ==========================  ============  ==========
 field       off   type               range                       resolution    unit
 ==========  ====  =================  ==========================  ============  ==========
-header      0     u8                 flags: bit0 absolute angle, bit1 delay-sensitive
+header      0     u8                 flags: bit0 absolute angle, bit1 delay-sensitive, bit2 scheduled
+                                     (a SYNC only, below)
 command     1     u8                 ``Command``
 seq         2     u32                0 .. 4294967295             1             -
 time        6     u32                0 .. 4294967295             1             s (UNIX)
@@ -43,7 +44,7 @@ A SYNC control packet (command 10) is the shore's authenticated "I am here", wit
 ==========  ====  =================  =============================================================
 field       off   type               meaning
 ==========  ====  =================  =============================================================
-header      0     u8                 flags zero
+header      0     u8                 flags zero, or bit 2 *scheduled*: pre-signed for its time (below)
 command     1     u8                 10 (SYNC)
 seq         2     u32                the SYNC counter: per vehicle, persisted by the shore, only grows
 time        6     u32                the shore's clock, s (UNIX)
@@ -57,6 +58,12 @@ mac         24    8 bytes            truncated HMAC-SHA256 (64 bits), as in ever
 
 Only authentic control packets, SYNC included, reset the vehicle's link-lost timer: an
 unauthenticated Micro-Modem poll ($CCCYC) is answered but proves nothing.
+
+A *scheduled* SYNC is one the center signed in advance for a gateway to send when its time comes (the
+SYNC budget, docs/backhaul.md): its counter is its time, it echoes nothing and restarts nothing, and the
+vehicle accepts it only within ``tacit.auth.SCHEDULED_WINDOW`` of its own clock and never corrects its
+clock by it. The flag is in the header, which the MAC covers; an agent that predates it refuses it as an
+unknown flag (it then never takes a pre-signed SYNC), which is why no version change was needed.
 
 Check-point packet (vehicle -> shore): "still here, still predictable", the state the shore's
 predictors resynchronise on, the final statuses of recent commands, and the MAC that vouches for it
@@ -189,6 +196,7 @@ HOLDS_NEXT_KEY = 0x20
 class ControlFlag(enum.IntFlag):
     ABSOLUTE_ANGLE = 1
     DELAY_SENSITIVE = 2
+    SCHEDULED = 4  # a SYNC only: pre-signed for its time (the SYNC budget)
 
 
 class MissionState(enum.IntEnum):
@@ -410,6 +418,8 @@ class ControlPacket(_Packet):
     TAIL: ClassVar = 1 + MAC_SIZE
 
     def _header_low(self) -> int:
+        if self.flags & ControlFlag.SCHEDULED and self.command is not Command.SYNC:
+            raise FieldRangeError("flags", int(self.flags), 0, 3, "(only a SYNC is scheduled)")
         return int(self.flags) & 0x0F
 
     def _body(self) -> bytes:
@@ -572,9 +582,11 @@ def decode_control(frame: bytes) -> ControlPacket:
     """Decode a control packet's fields. The MAC is checked by ``tacit.auth``, not here."""
     values = ControlPacket._unpack_fields(frame)
     flags = frame[0] & 0x0F
-    if flags & ~int(ControlFlag.ABSOLUTE_ANGLE | ControlFlag.DELAY_SENSITIVE):
+    if flags & ~int(ControlFlag.ABSOLUTE_ANGLE | ControlFlag.DELAY_SENSITIVE | ControlFlag.SCHEDULED):
         raise PacketError(f"unknown control flags {flags:#x}")
     _check_zero(frame, 23, 24)
+    if flags & ControlFlag.SCHEDULED and values["command"] is not Command.SYNC:
+        raise PacketError(f"{values['command'].name} is flagged scheduled: only a SYNC is")
     if values["command"] is Command.SYNC:
         return ControlPacket(flags=ControlFlag(flags), **{**values, "param_value": 0.0}, echo=frame[ECHO])
     if not math.isfinite(values["param_value"]):

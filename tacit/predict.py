@@ -4,7 +4,8 @@ Every predictor sees only *reconstructed* values (what the shore holds), never r
 both ends compute identical predictions; the quantizer in ``tacit.codec`` then guarantees
 |reconstruction - truth| <= eps for every sample. Methods (``make_predictor``):
 
-``kalman`` (default) -- a local-level Kalman filter per channel (filterpy): level_k = level_{k-1} + w,
+``kalman`` (default) -- a local-level Kalman filter per channel (filterpy's equations, on the
+    diagonals: ``_LocalLevel``): level_k = level_{k-1} + w,
     z_k = level_k + v, Q = q, R = r. Only q/r shapes the prediction; it is tuned from data every
     ``ADAPT_EVERY`` ticks: over the last ``ADAPT_WINDOW`` reconstructed values, each channel takes the
     steady-state gain K from ``GAINS`` with the smallest one-step prediction error, and the filter gets
@@ -13,7 +14,7 @@ both ends compute identical predictions; the quantizer in ``tacit.codec`` then g
     a random walk picks a large one (it follows the last value). (The method of moments on first
     differences was tried first: on 64 ticks of real IMU data it overestimates q/r by 4-40x.)
     This is the paper's model-based approach with its equations corrected.
-``kalman-cv`` -- a constant-velocity Kalman filter per channel (level and rate), white-noise
+``kalman-cv`` -- a constant-velocity Kalman filter per channel (level and rate; filterpy), white-noise
     acceleration of intensity q (same adaptive estimate), for smooth kinematic channels.
 ``mean`` -- the paper's model-free test (Algorithm 1) made dual-consistent: the prediction mu is the
     mean of the last ``MEAN_WINDOW`` reconstructed values; a sample is unpredictable when
@@ -96,31 +97,91 @@ def _ratio_for_gain(gain: np.ndarray) -> np.ndarray:
     return gain * gain / (1 - gain)
 
 
-class _AdaptiveKalman:
-    """A filterpy Kalman filter whose Q is re-tuned from the reconstructed series it has seen."""
+class _LocalLevel:
+    """Every channel's local-level filter (F = H = I, diagonal P, Q and R), kept as the diagonals: filterpy's
+    ``KalmanFilter.predict`` and ``update`` restricted to them. Each entry of filterpy's matrix products
+    then has a single non-zero term, so these element-wise operations are the same floating-point
+    operations on the same numbers, bit for bit (``tests/unit/tacit/test_predict.py`` runs both on random
+    series), without nine-by-nine products, an inverse and copies for every sample."""
 
-    def __init__(self, kf: KalmanFilter, channels: int, initial: np.ndarray, order: int) -> None:
-        self.kf, self.channels, self.order = kf, channels, order
-        self.kf.x = np.zeros(channels * order)
-        self.kf.x[::order] = initial
+    def __init__(self, initial: np.ndarray) -> None:
+        self.x = np.array(initial, dtype=np.float64)
+        self.p = np.full(len(self.x), 1e6)
+        self.q = np.zeros(len(self.x))
+
+    def tune(self, ratio: np.ndarray) -> None:
+        self.q = ratio.copy()
+
+    def predict(self) -> None:
+        self.p = self.p + self.q  # P = F P F' + Q
+
+    def update(self, z: np.ndarray, r: np.ndarray) -> None:
+        gain = self.p * (1.0 / (self.p + r))  # K = P H' inv(H P H' + R)
+        self.x = self.x + gain * (z - self.x)
+        keep = 1.0 - gain  # I - K H
+        self.p = keep * self.p * keep + gain * r * gain  # Joseph form: (I-KH) P (I-KH)' + K R K'
+
+    def level(self) -> np.ndarray:
+        return self.x
+
+    def state(self) -> tuple[np.ndarray, np.ndarray]:
+        """(x, P) as filterpy holds them (P a matrix), so that a saved state reads the same either way."""
+        return self.x.copy(), np.diag(self.p)
+
+    def restore(self, x: np.ndarray, p: np.ndarray) -> None:
+        self.x, self.p = np.array(x, dtype=np.float64), np.diag(p).astype(np.float64)
+
+
+class _ConstantVelocity:
+    """Every channel's constant-velocity filter (level and rate, white-noise acceleration): filterpy."""
+
+    def __init__(self, initial: np.ndarray) -> None:
+        n = len(initial)
+        self.kf = KalmanFilter(dim_x=2 * n, dim_z=n)
+        self.kf.F = np.kron(np.eye(n), np.array([[1.0, 1.0], [0.0, 1.0]]))
+        self.kf.H = np.kron(np.eye(n), np.array([[1.0, 0.0]]))
+        self.kf.x = np.zeros(2 * n)
+        self.kf.x[::2] = initial
         self.kf.P *= 1e6
+
+    def tune(self, ratio: np.ndarray) -> None:
+        self.kf.Q = np.kron(np.diag(ratio), np.array([[1 / 3, 1 / 2], [1 / 2, 1.0]]))
+
+    def predict(self) -> None:
+        self.kf.predict()
+
+    def update(self, z: np.ndarray, r: np.ndarray) -> None:
+        self.kf.update(z, R=np.diag(r))
+
+    def level(self) -> np.ndarray:
+        return self.kf.x[::2]
+
+    def state(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.kf.x.copy(), self.kf.P.copy()
+
+    def restore(self, x: np.ndarray, p: np.ndarray) -> None:
+        self.kf.x, self.kf.P = x.copy(), p.copy()
+
+
+class _AdaptiveKalman:
+    """A Kalman filter per channel whose Q is re-tuned from the reconstructed series it has seen. R is 1 in
+    the filter's own units (only q/r matters for the prediction); an absent channel's update has R =
+    ``ABSENT_R`` and no innovation."""
+
+    def __init__(self, kf: _LocalLevel | _ConstantVelocity, channels: int) -> None:
+        self.kf = kf
+        self.ones = np.ones(channels)
         self.ratio = _ratio_for_gain(np.full(channels, 0.25))
         self.history: deque[np.ndarray] = deque(maxlen=ADAPT_WINDOW)
         self.count = 0
-        self._set_noise()
-
-    def _set_noise(self) -> None:
-        # R is 1 in the filter's own units; only q/r matters for the prediction.
-        self.kf.R = np.eye(self.channels)
-        block = np.array([[1.0]]) if self.order == 1 else np.array([[1 / 3, 1 / 2], [1 / 2, 1.0]])
-        self.kf.Q = np.kron(np.diag(self.ratio), block)
+        self.kf.tune(self.ratio)
 
     def predict(self) -> np.ndarray:
         self.kf.predict()
         return self.current()
 
     def current(self) -> np.ndarray:
-        return self.kf.x[:: self.order].copy()
+        return self.kf.level().copy()
 
     def update(self, reconstructed: np.ndarray) -> None:
         values = np.array(reconstructed, dtype=np.float64)
@@ -128,42 +189,37 @@ class _AdaptiveKalman:
         if absent.all():
             return
         if absent.any():
-            level = self.kf.x[:: self.order]
-            self.kf.update(np.where(absent, level, values), R=np.diag(np.where(absent, ABSENT_R, 1.0)))
+            self.kf.update(np.where(absent, self.kf.level(), values), np.where(absent, ABSENT_R, 1.0))
         else:
-            self.kf.update(values)
+            self.kf.update(values, self.ones)
         self.history.append(values)
         self.count += 1
         if self.count % ADAPT_EVERY == 0 and len(self.history) >= 8:
             self.ratio = _ratio_for_gain(_best_gain(np.array(self.history)))
-            self._set_noise()
+            self.kf.tune(self.ratio)
 
     def skip(self, ticks: int = 1) -> None:
         for _ in range(min(ticks, MAX_SKIP)):
             self.kf.predict()
 
     def state(self) -> Any:
-        return (self.kf.x.copy(), self.kf.P.copy(), self.ratio.copy(), list(self.history), self.count)
+        x, p = self.kf.state()
+        return (x, p, self.ratio.copy(), list(self.history), self.count)
 
     def restore(self, state: Any) -> None:
         x, p, ratio, history, count = state
-        self.kf.x, self.kf.P, self.ratio, self.count = x.copy(), p.copy(), ratio.copy(), count
+        self.kf.restore(x, p)
+        self.ratio, self.count = ratio.copy(), count
         self.history = deque(history, maxlen=ADAPT_WINDOW)
-        self._set_noise()
+        self.kf.tune(self.ratio)
 
 
 def kalman_level(channels: int, initial: np.ndarray) -> _AdaptiveKalman:
-    kf = KalmanFilter(dim_x=channels, dim_z=channels)
-    kf.F = np.eye(channels)
-    kf.H = np.eye(channels)
-    return _AdaptiveKalman(kf, channels, initial, order=1)
+    return _AdaptiveKalman(_LocalLevel(initial), channels)
 
 
 def kalman_cv(channels: int, initial: np.ndarray) -> _AdaptiveKalman:
-    kf = KalmanFilter(dim_x=2 * channels, dim_z=channels)
-    kf.F = np.kron(np.eye(channels), np.array([[1.0, 1.0], [0.0, 1.0]]))
-    kf.H = np.kron(np.eye(channels), np.array([[1.0, 0.0]]))
-    return _AdaptiveKalman(kf, channels, initial, order=2)
+    return _AdaptiveKalman(_ConstantVelocity(initial), channels)
 
 
 class WindowMean:

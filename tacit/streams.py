@@ -49,8 +49,9 @@ def default_streams(
     eps: dict[str, float] | None = None, imu_period: float = IMU_PERIOD, env_period: float = ENV_PERIOD
 ) -> dict[Stream, StreamSpec]:
     """The kinematic (RAW_IMU) and environmental (depth, water temperature, oxygen) streams. Both ends
-    date samples by the wall clock: a simulation run k times faster than real time delivers k samples
-    per tick (each kept, dated within the tick); at real time every sample has its own tick."""
+    date samples by the wall clock (the vehicle's when the autopilot measured them, ``tacit.sampletime``):
+    a simulation run k times faster than real time delivers k samples per tick (each kept, dated within
+    the tick); at real time every sample has its own tick."""
     bounds = {**DEFAULT_EPS, **(eps or {})}
     return {
         Stream.KINEMATIC: StreamSpec("imu", Stream.KINEMATIC, IMU_CHANNELS,

@@ -7,7 +7,8 @@ link or a restart: the MAVLink and modem links reconnect with backoff while the 
 
 Trust: only authentic control packets (commands, or the shore's SYNC heartbeat) reset the link-lost
 timer; a SYNC's time corrects the clock (up to ``max_clock_correction``, both ways) and can ask the
-compressor to restart its chains. An agent that lost its state is unsynced: its check-points say so,
+compressor to restart its chains; a scheduled SYNC (pre-signed, sent by a gateway cut off from the
+center) only keeps the link alive, within ``tacit.auth.SCHEDULED_WINDOW`` of the clock. An agent that lost its state is unsynced: its check-points say so,
 and it accepts nothing until a SYNC echoes one of their MACs (``tacit.auth.SyncWindow``), which sets
 its clock. Check-points are signed with the vehicle's key and cover the priority packets
 delivered since the last delivered check-point (at most 16 packet seqs back: a check-point is due
@@ -45,6 +46,7 @@ from tacit.packets import (
     CheckpointPacket,
     Command,
     CommandStatus,
+    ControlFlag,
     ControlPacket,
     MissionState,
     Priority,
@@ -54,6 +56,7 @@ from tacit.packets import (
     with_seq,
 )
 from tacit.private import private_dir
+from tacit.sampletime import SampleClock, boot_seconds
 from tacit.streams import WATER_CHANNELS, default_streams
 from vehicle_agent.compressor import Compressor, PlumeDetector, PlumeEvent
 from vehicle_agent.link import VehicleLink
@@ -189,6 +192,7 @@ class Agent:
         self._challenged = -1e9  # vehicle time of the last check-point sent unsynced
         self._report: CheckpointPacket | None = None  # the check-point of the last status change, until sent
         self.samples: deque[tuple[str, float, tuple]] = deque(maxlen=10_000)
+        self._clocks = {"RAW_IMU": SampleClock(), "SCALED_PRESSURE2": SampleClock()}  # MAVLink thread's
         self.mav.listeners.append(self._on_mavlink)
         self.shore_heard_at: float | None = None
         self._dirty = True
@@ -197,18 +201,25 @@ class Agent:
     # --- inputs ---------------------------------------------------------------------------------
 
     def _on_mavlink(self, kind: str, msg: object) -> None:
-        """MAVLink thread: hand samples to the loop (a deque is safe between threads)."""
+        """MAVLink thread: hand samples to the loop (a deque is safe between threads), each dated when
+        the autopilot measured it (``tacit.sampletime``), not when it arrived."""
         imu = self.mav.telemetry.imu
         if kind == "RAW_IMU" and imu is not None:
-            self.samples.append(("imu", self.now(), imu))
+            self.samples.append(("imu", self._measured(kind, msg), imu))
         elif kind == "SCALED_PRESSURE2":
             self.samples.append(
                 (
                     "env",
-                    self.now(),
+                    self._measured(kind, msg),
                     (self.mav.telemetry.temperature, self.mav.telemetry.depth, self.mav.telemetry.oxygen),
                 )
             )
+
+    def _measured(self, kind: str, msg: object) -> float:
+        """When a sample message was measured, on the local clock corrected by the shore's SYNC time
+        (pymavlink stamps each message ``_timestamp`` as it parses it: its arrival)."""
+        arrival = float(getattr(msg, "_timestamp", None) or time.time())
+        return self._clocks[kind].date(boot_seconds(msg), arrival) + self.link.offset
 
     def pose(self) -> Pose:
         tel = self.mav.telemetry
@@ -245,7 +256,16 @@ class Agent:
         """The shore's authenticated heartbeat: its clock, corrected both ways when it is off by more
         than the SYNC's own error (whole seconds, stamped before its seconds of travel and airtime: a
         smaller correction would move the samples' clock back and forth for nothing), and maybe a request
-        to restart the chains. The replay floor is the receiver's: a SYNC never moves it back."""
+        to restart the chains. The replay floor is the receiver's: a SYNC never moves it back. A
+        scheduled SYNC moves nothing: its stamp is when it was due, not the shore's clock when it left."""
+        if packet.flags & ControlFlag.SCHEDULED:
+            log.info(
+                "scheduled SYNC %d (due %d): the shore's gateway is cut off from its center",
+                packet.seq,
+                packet.time,
+            )
+            self._persist()
+            return
         local = time.time()
         error = packet.time - (local + self.link.offset)
         if abs(error) > CLOCK_DEADBAND:

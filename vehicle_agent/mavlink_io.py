@@ -76,6 +76,18 @@ class VehicleTelemetry:
         return math.degrees(self.yaw) % 360.0
 
 
+def _closed() -> None:
+    raise ConnectionError("the vehicle closed the connection")
+
+
+def _raise_on_close(conn: mavutil.mavfile) -> None:
+    """A stream socket's end (TCP, Unix) as an error: pymavlink prints "EOF on TCP socket" and returns no
+    data, which a blocking read asks for again in a loop (tens of thousands of lines until its timeout)."""
+    for name in ("handle_eof", "handle_disconnect"):
+        if hasattr(conn, name):
+            setattr(conn, name, _closed)
+
+
 class MavlinkLink:
     def __init__(self, url: str, tlog: str | Path | None = None, reconnect_max: float = 10.0) -> None:
         self.url = url
@@ -122,6 +134,7 @@ class MavlinkLink:
                     autoreconnect=False,
                     robust_parsing=True,
                 )
+                _raise_on_close(self._conn)
                 if self._conn.wait_heartbeat(timeout=10) is None:
                     raise ConnectionError("no heartbeat")
                 self.connected = True
@@ -149,7 +162,7 @@ class MavlinkLink:
             if msg.get_type() == "BAD_DATA":
                 continue
             if self._tlog:
-                self._tlog.write(struct.pack(">Q", int(time.time() * 1e6)) + bytes(msg.get_msgbuf()))
+                self._tlog.write(struct.pack(">Q", int(msg._timestamp * 1e6)) + bytes(msg.get_msgbuf()))
             self._apply(msg)
 
     def _request_streams(self) -> None:

@@ -24,6 +24,7 @@ sits on the previous command's target is therefore executing until the vehicle r
 from __future__ import annotations
 
 import json
+import logging
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -32,6 +33,8 @@ from tacit import navigation
 from tacit.limits import Limits
 from tacit.navigation import Pose, Target
 from tacit.packets import Command, CommandStatus, ControlFlag, ControlPacket, MissionState, Reason
+
+log = logging.getLogger("tacit.agent.mission")
 
 ACTIVE = {
     MissionState.PREPROGRAMMED,
@@ -283,6 +286,8 @@ class MissionFSM:
             and now - shore_heard_at > s.params["link_lost_timeout"]
         ):
             self._lost(pose)
+        if s.mission is not None and s.mission not in self.plans:
+            self._unknown_mission(pose)
         if (
             s.started_at is not None
             and s.mission is not None
@@ -292,6 +297,15 @@ class MissionFSM:
         ):
             self._go(MissionState.RETURNING)
         return self._target(pose, reached)
+
+    def _unknown_mission(self, pose: Pose) -> None:
+        """The saved status names a mission this configuration no longer has (the plans changed while it
+        ran): hold where the vehicle is, as a hold command would, and say so, instead of failing every tick."""
+        s = self.status
+        log.error("mission %d is not in this configuration's plans any more: holding position", s.mission)
+        s.mission, s.started_at, s.waypoint = None, None, 0
+        s.target = (pose.north, pose.east, pose.depth)
+        self._go(MissionState.HOLDING)
 
     def _lost(self, pose: Pose) -> None:
         targets = {

@@ -6,7 +6,7 @@
 const state = { token: "", role: null, vehicles: [], vehicleId: null, form: null, config: null,
   packets: [], commands: new Map(), timeline: [], streams: {}, series: [], channel: "env:temperature",
   lastSent: null, estimate: null, angleMode: "relative", fleet: [], fleetAt: 0, origin: null,
-  pendingFleet: null, fleetSent: [] };
+  pendingFleet: null, fleetSent: [], gateways: [], gatewaysAt: 0 };
 const $ = (id) => document.getElementById(id);
 const esc = (s) => String(s ?? "").replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c]);
 
@@ -126,7 +126,7 @@ async function load() {
   state.packets = page.items.map(packetRow).reverse();
   for (const p of state.packets) state.timeline.push({ at: p.at, kind: p.type === "checkpoint" ? "cp" : `p${p.priority}`, vehicle: p.vehicle });
   renderAll();
-  await refreshLink();
+  await Promise.all([refreshLink(), refreshGateways()]);
   connect();
 }
 
@@ -163,9 +163,21 @@ async function loadCommand(id) {
   return known;
 }
 
+/** A packet from the API (``heard``: the gateways' copies of its frame) or the event stream (``gateway``: the first copy's). */
 function packetRow(p) {
   const name = p.vehicle ?? state.vehicles.find((v) => v.id === p.vehicle_id)?.name ?? p.vehicle_id;
-  return { id: p.id, at: p.at, vehicle: name, type: p.type, seq: p.seq, priority: p.priority, size: p.size ?? 32, snr: p.snr, auth: p.auth };
+  const heard = p.heard ?? (p.gateway ? [{ gateway: p.gateway, snr: p.snr, kept: true }] : []);
+  return { id: p.id, frame: p.frame_id, at: p.at, vehicle: name, type: p.type, seq: p.seq, priority: p.priority, size: p.size ?? 32, snr: p.snr, auth: p.auth, heard };
+}
+
+/** Another gateway's copy of a frame already shown (the center stored the frame once): added to its rows;
+ * when its SNR is the best, it is the kept copy and the frame's SNR. */
+function heardAgain(n) {
+  for (const p of state.packets.filter((p) => p.frame === n.frame_id)) {
+    if (n.kept) { p.heard.forEach((c) => { c.kept = false; }); p.snr = n.snr_in; }
+    p.heard.push({ gateway: n.gateway, snr: n.snr_in, kept: n.kept });
+  }
+  renderPackets();
 }
 
 async function loadSeries() {
@@ -225,7 +237,14 @@ function connect() {
     renderPlot();
   });
   source.addEventListener("settled", (e) => settle(JSON.parse(e.data)));
-  source.addEventListener("link", () => refreshLink());
+  source.addEventListener("link", (e) => {
+    const n = JSON.parse(e.data);
+    if (n.event === "heard_again") heardAgain(n); else refreshLink();
+  });
+  source.addEventListener("gateway", (e) => {
+    soonRefreshGateways();
+    if (JSON.parse(e.data).what !== "heartbeat") soonRefreshFleet();  // a vehicle's gateway changed
+  });
 }
 
 /** A check-point settled priority packets: the packet log's trust and the plotted samples' change live. A
@@ -262,6 +281,51 @@ async function refreshFleet() {
   renderFleet();
 }
 
+// --- the gateways (a center's; none on a single shore: the card and the fleet's column stay hidden) ----
+
+async function refreshGateways() {
+  try { state.gateways = await api("/gateways"); } catch (error) { return; }
+  state.gatewaysAt = Date.now() / 1000;
+  renderGateways();
+}
+
+let gatewaysTimer = null;
+/** Heartbeats of every gateway come every few seconds: one fetch for those that come together. */
+function soonRefreshGateways() {
+  if (gatewaysTimer === null) gatewaysTimer = setTimeout(() => { gatewaysTimer = null; refreshGateways(); }, 500);
+}
+
+const gatewaySwatch = (name) => `<span class="swatch" style="background:${esc(state.gateways.find((g) => g.name === name)?.colour ?? "#fff")}"></span>`;
+
+function duration(seconds) {
+  const s = Math.max(0, Math.round(seconds));
+  return s < 120 ? `${s} s` : s < 7200 ? `${Math.round(s / 60)} min` : `${(s / 3600).toFixed(1)} h`;
+}
+
+function gatewayRow(g, since) {
+  const long = duration(g.for_s + since);
+  const backhaul = g.alive ? `up for ${long}` : `<strong>silent for ${long}</strong>`;
+  const place = g.place ? `N ${g.place.north.toFixed(0)}, E ${g.place.east.toFixed(0)} m, ${g.place.depth.toFixed(0)} m deep` +
+    (g.latlon ? `<br><span class="sub">${latlon(g.latlon)}</span>` : "") : "not told";
+  const outage = g.last_outage ? `${duration(g.last_outage.lasted_s)}, ${g.last_outage.backlog ?? "?"} waiting when it came back` +
+    (g.last_outage.ended ? `<br><span class="sub">ended ${utc(g.last_outage.ended)} UTC</span>` : "") : "none";
+  const vehicles = g.vehicles.map((v) => `${swatch(v.name)}${esc(v.name)}${v.pinned ? " <span class=\"sub\">(pinned)</span>" : ""}`).join(" ") || "-";
+  return `<tr data-name="${esc(g.name)}" class="${g.alive ? "" : "silent"}" title="last heard ${utc(g.last_seen)} UTC">
+    <td>${gatewaySwatch(g.name)}<strong>${esc(g.name)}</strong></td><td class="gw-state">${backhaul}</td><td>${place}</td>
+    <td>${g.address === null ? "-" : `address ${g.address}`}<br><span class="sub">${esc(g.modem ?? "-")}</span></td>
+    <td class="gw-outbox">${g.outbox ?? "-"}</td><td>${outage}</td><td>${g.frames}</td><td class="gw-vehicles">${vehicles}</td></tr>`;
+}
+
+function renderGateways() {
+  const any = state.gateways.length > 0;
+  $("gateways-card").hidden = !any;
+  $("fleet").classList.toggle("no-gateways", !any);
+  const up = state.gateways.filter((g) => g.alive).length;
+  if (any) setBadge(`gateways: ${up} of ${state.gateways.length} up`, up === state.gateways.length ? "ready" : "down");
+  const since = Date.now() / 1000 - state.gatewaysAt;
+  $("gateways").tBodies[0].innerHTML = state.gateways.map((g) => gatewayRow(g, since)).join("");
+}
+
 let fleetTimer = null;
 /** Many check-points can arrive at once: one fetch of the fleet for them. */
 function soonRefreshFleet() {
@@ -293,6 +357,7 @@ function fleetRow(v, since) {
     <td title="${esc(v.state_hint ?? "")}">${esc(v.state_label ?? "no check-point yet")}${v.overdue ? " <span class=\"sub\">(overdue)</span>" : ""}</td>
     <td>${report}</td><td>${predicted}</td><td>${cp ? `${cp.battery.toFixed(1)} V` : "-"}</td>
     <td>SNR ${snr(v.snr_in)} / ${snr(v.snr_out)} dB<br><span class="sub">${v.range_m === null ? "range -" : `${v.range_m.toFixed(0)} m`}</span></td>
+    <td class="gw-col">${v.gateway ? `${gatewaySwatch(v.gateway)}${esc(v.gateway)}${v.gateway_pinned ? " <span class=\"sub\">(pinned)</span>" : ""}` : "-"}</td>
     <td>${v.airtime_s.total.toFixed(0)} s <span class="sub">(${(v.airtime_share * 100).toFixed(0)} %)</span></td></tr>`;
 }
 
@@ -368,7 +433,7 @@ function renderVehicle() {
 async function refreshLink() {
   try {
     const [link, shares, vehicles] = await Promise.all([api("/link"), api("/link/shares"), api("/vehicles")]);
-    setBadge(`modem: ${link.modem}`, link.modem === "ready" ? "ready" : "down");
+    if (!state.gateways.length) setBadge(`modem: ${link.modem}`, link.modem === "ready" ? "ready" : "down");  // a center: its gateways
     const rows = [];
     for (const [name, v] of Object.entries(link.vehicles)) {
       const heard = v.last_heard ? `${ago(Date.now() / 1000 - v.last_heard)} (${utc(v.last_heard)} UTC)` : "never";
@@ -501,9 +566,16 @@ const TRUST = {
 
 // --- rendering --------------------------------------------------------------------------------------
 
+/** Who heard a packet's frame: the shore modem, or every gateway's copy with its SNR (the kept one bold). */
+function heardBy(p) {
+  const snr = (x) => (x === null || x === undefined ? "-" : x.toFixed(1));
+  if (!p.heard.length) return `<span class="copy">shore modem ${snr(p.snr)}</span>`;
+  return p.heard.map((c) => `<span class="copy${c.kept ? " kept" : ""}" title="${c.kept ? "the copy kept: the best SNR" : "another gateway's copy"}">${esc(c.gateway)} ${snr(c.snr)}</span>`).join("");
+}
+
 function renderPackets() {
   const rows = state.packets.slice(-100).reverse().map((p) => `<tr data-id="${p.id}"><td>${utc(p.at)}</td>
-    <td>${swatch(p.vehicle)}${esc(p.vehicle)}</td><td>${p.type}</td><td>${p.seq}</td><td>${p.priority}</td><td>${p.size}</td><td>${p.snr ?? "-"}</td>
+    <td>${swatch(p.vehicle)}${esc(p.vehicle)}</td><td>${p.type}</td><td>${p.seq}</td><td>${p.priority}</td><td>${p.size}</td><td class="heard">${heardBy(p)}</td>
     <td class="trust trust-${esc(p.auth)}" title="${esc(TRUST[p.auth] ?? "")}">${esc(p.auth)}</td></tr>`);
   $("packets").tBodies[0].innerHTML = rows.join("");
 }
@@ -627,8 +699,8 @@ $("command-form").addEventListener("submit", async (e) => {
   }
 });
 setInterval(() => { $("clock").textContent = `${utc(Date.now() / 1000)} UTC`; }, 1000);
-setInterval(() => { if (state.role) { renderTimeline(); renderVehicle(); renderFleet(); } }, 2000);
-setInterval(() => { if (state.role) refreshFleet(); }, 5000);
+setInterval(() => { if (state.role) { renderTimeline(); renderVehicle(); renderFleet(); renderGateways(); } }, 2000);
+setInterval(() => { if (state.role) { refreshFleet(); refreshGateways(); } }, 5000);
 setInterval(() => { if (state.role) { refreshLink(); refreshEstimate(); } }, 10000);
 $("clock").textContent = `${utc(Date.now() / 1000)} UTC`;
 {

@@ -6,7 +6,8 @@ One user per role: ``center``, and ``gateway-<name>`` per gateway. A gateway may
 frames and events (its command outcomes among them), create and read only its own command consumer
 (``gateway-<name>``, filtered on its own command subject) and its own schedule consumer
 (``schedule-<name>``, filtered on its own schedule subject; it deletes it at start to begin again at the
-last schedule kept), and receive replies only on its own inbox prefix (``_INBOX.gateway.<name>``), so it
+last schedule kept) and its own SYNC budget consumer (``syncs-<name>``, likewise, on its own vehicles'
+budgets: no gateway reads the pre-signed SYNCs of a vehicle it does not serve), and receive replies only on its own inbox prefix (``_INBOX.gateway.<name>``), so it
 can neither pass frames off as another's nor see another's commands or schedule, even in a reply. It
 cannot create, change or delete a stream: the center does. A client without credentials is refused by
 the broker.
@@ -33,6 +34,7 @@ from server.backhaul import subjects
 CENTER = "center"
 GATEWAY_CONSUMER = "gateway-{name}"  # the durable each gateway reads its commands through
 SCHEDULE_CONSUMER = "schedule-{name}"  # the durable each gateway reads its schedule through
+SYNCS_CONSUMER = "syncs-{name}"  # the durable each gateway reads its vehicles' SYNC budgets through
 
 
 class CredentialsError(ValueError):
@@ -91,6 +93,7 @@ def gateway_permissions(name: str) -> dict[str, Any]:
     consumer = GATEWAY_CONSUMER.format(name=subjects.gateway_name(name))
     stream = subjects.COMMANDS_STREAM
     schedule, plan = SCHEDULE_CONSUMER.format(name=name), subjects.SCHEDULE_STREAM
+    syncs, budget = SYNCS_CONSUMER.format(name=name), subjects.SYNCS_STREAM
     return {
         "publish": {
             "allow": [
@@ -105,6 +108,11 @@ def gateway_permissions(name: str) -> dict[str, Any]:
                 f"$JS.API.CONSUMER.CREATE.{plan}.{schedule}.{subjects.schedule(name)}",
                 f"$JS.API.CONSUMER.MSG.NEXT.{plan}.{schedule}",
                 f"$JS.ACK.{plan}.{schedule}.>",
+                f"$JS.API.CONSUMER.INFO.{budget}.{syncs}",
+                f"$JS.API.CONSUMER.DELETE.{budget}.{syncs}",
+                f"$JS.API.CONSUMER.CREATE.{budget}.{syncs}.{subjects.syncs(name)}",
+                f"$JS.API.CONSUMER.MSG.NEXT.{budget}.{syncs}",
+                f"$JS.ACK.{budget}.{syncs}.>",
             ]
         },
         "subscribe": {"allow": [inbox_prefix(gateway_user(name)) + ".>"]},
@@ -112,11 +120,20 @@ def gateway_permissions(name: str) -> dict[str, Any]:
 
 
 def center_permissions() -> dict[str, Any]:
-    """The center: every stream and consumer (its frames' durable and ``<durable>-events``), the
-    commands and schedules down; it publishes no frame or event."""
+    """The center: every stream and consumer (its partitions' durables and ``<durable>-events``), the
+    commands, schedules and SYNC budgets down, its processes' leases (a KV bucket named as its durables)
+    and live events; it publishes no frame or event."""
+    down = [subjects.commands(">"), subjects.schedule(">"), subjects.syncs(">")]
     return {
-        "publish": {"allow": [subjects.commands(">"), subjects.schedule(">"), "$JS.API.>", "$JS.ACK.>"]},
-        "subscribe": {"allow": [subjects.frames(">"), subjects.events(">"), inbox_prefix(CENTER) + ".>"]},
+        "publish": {"allow": [*down, subjects.live(">"), "$KV.>", "$JS.API.>", "$JS.ACK.>"]},
+        "subscribe": {
+            "allow": [
+                subjects.frames(">"),
+                subjects.events(">"),
+                subjects.live(">"),
+                inbox_prefix(CENTER) + ".>",
+            ]
+        },
     }
 
 

@@ -80,8 +80,9 @@ async def connect(
 
 def stream_configs(duplicate_window: float = subjects.DUPLICATE_WINDOW) -> list[StreamConfig]:
     """The streams: frames (kept until the center has them: limits by size and age, not by interest, so
-    a center away for hours finds them), commands, events, and each gateway's last schedule (a gateway
-    restarting finds its slots, center or not). File storage: a broker restart loses none."""
+    a center away for hours finds them), commands, events, each gateway's last schedule (a gateway
+    restarting finds its slots, center or not) and the last SYNC budget of each gateway and vehicle.
+    File storage: a broker restart loses none."""
     return [
         StreamConfig(name=subjects.FRAMES_STREAM, subjects=[subjects.frames(">")],
                      storage=StorageType.FILE, retention=RetentionPolicy.LIMITS, duplicate_window=duplicate_window,
@@ -94,6 +95,8 @@ def stream_configs(duplicate_window: float = subjects.DUPLICATE_WINDOW) -> list[
                      max_age=subjects.EVENTS_MAX_AGE),
         StreamConfig(name=subjects.SCHEDULE_STREAM, subjects=[subjects.schedule(">")], storage=StorageType.FILE,
                      retention=RetentionPolicy.LIMITS, max_msgs_per_subject=1),
+        StreamConfig(name=subjects.SYNCS_STREAM, subjects=[subjects.syncs(">")], storage=StorageType.FILE,
+                     retention=RetentionPolicy.LIMITS, duplicate_window=duplicate_window, max_msgs_per_subject=1),
     ]  # fmt: skip
 
 

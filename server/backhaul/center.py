@@ -1,22 +1,34 @@
-"""The center's end of the backhaul: a durable pull consumer on the frames stream feeding the shore's
-ingest (``RelayIngest``), and the commands it sends down.
+"""The center's end of the backhaul: durable pull consumers on the frames stream, one per partition
+(``subjects.partition``: a vehicle's frames are all in one), feeding the shore's ingest
+(``RelayIngest``), and the commands it sends down.
 
 A frame must come on its own gateway's subject with an id of that gateway (with per-gateway publish
-permissions on the broker, a gateway cannot pass its frames off as another's). For each fetched batch,
-in stream order: the frames are handed to ingest in one transaction (the
-store de-duplicates by message id and across gateways), then every message is acked. A failing
-transaction is retried (the messages kept in progress) before anything later is fetched, so a vehicle's
-frames are stored in the order the stream holds them. A center that dies between its commit and its
-acks gets the messages again (the store drops them); at start, if messages were left unacked, the
-consumer is set back to just after its ack floor, so they come again at once and in order instead of
-after ``ack_wait`` behind newer ones.
+permissions on the broker, a gateway cannot pass its frames off as another's), on its partition. For
+each fetched batch of a partition, in stream order: the frames are handed to ingest in one transaction
+(the store de-duplicates by message id and across gateways), then every message is acked. A failing
+transaction is retried (the messages kept in progress) before anything later of that partition is
+fetched, so a vehicle's frames are stored in the order the stream holds them. A process that dies
+between its commit and its acks leaves the messages to the partition's next holder (the store drops
+them); when a process takes a partition whose messages were left unacked, the consumer is set back to
+just after its ack floor, so they come again at once and in order instead of after ``ack_wait`` behind
+newer ones.
 
-The gateways' events (attempt outcomes, heartbeats) come through a second durable consumer
+Several center processes share one broker and database: each holds the partitions it has a lease on
+(``server.backhaul.leases``; their vehicles' states loaded and replayed when it takes one, saved and
+forgotten when it lets go), and the one holding the coordinator's lease runs the singletons: the
+gateways' events, the command dispatcher, the routing, the TDMA schedules and retention. Every process
+serves the REST API and the dashboard from the database.
+
+The gateways' events (attempt outcomes, heartbeats) come through another durable consumer
 (``tacit-center-events``) to ``on_event`` (the command dispatcher, ``server.backhaul.dispatch``), acked
-after it returns; its reports are idempotent, so a redelivery does no harm.
+after it returns; its reports are idempotent, so a redelivery does no harm. A restarted center resumes
+from its ack floor; a fresh one (no such consumer yet) starts ``events_since`` s back (a command's
+``max_age``: an attempt's outcome matters while the command may still be sent), not at the day the
+stream keeps. A heartbeat older than a few heartbeats (a backlog) does not make its gateway up.
 
 ``tacit center``: the consumers into ingest and the dispatcher (PostgreSQL or SQLite), with the REST
-API, the dashboard and the map of ``tacit serve`` (no shore modem of its own). One center per broker.
+API, the dashboard and the map of ``tacit serve`` (no shore modem of its own); ``--instance`` names a
+process among several.
 """
 
 from __future__ import annotations
@@ -25,10 +37,14 @@ import argparse
 import asyncio
 import contextlib
 import logging
+import os
+import re
+import socket
 import sys
 import time
 from collections import Counter
 from collections.abc import Awaitable, Callable
+from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any
 
 from nats.aio.client import Client
@@ -42,18 +58,25 @@ from sqlalchemy.exc import InterfaceError, OperationalError
 from server.backhaul import access, broker, subjects
 from server.backhaul.access import BrokerAuth
 from server.backhaul.guard import Guard
+from server.backhaul.leases import COORDINATOR, Leases, partition_key
+from server.backhaul.live import Live
 from server.backhaul.relay import RelayedIncoming, RelayIngest
-from server.backhaul.subjects import CommandMessage, EventMessage
+from server.backhaul.subjects import CommandMessage, EventMessage, PayloadError, ScheduleMessage
 
 if TYPE_CHECKING:
     from server.shore import Shore
 
 log = logging.getLogger("tacit.backhaul.center")
 
-DURABLE = "tacit-center"  # its events' durable is "<durable>-events"
+DURABLE = "tacit-center"  # partition p's durable is "<durable>-<p>", its events' "<durable>-events"
 
 
 class Center:
+    """One center process's consumers. ``instance`` None: the only one, consuming every partition and
+    running the singletons, without leases (the tests and the benchmark drive it by ``step``); with an
+    ``instance`` name, ``run`` shares the partitions and the singletons with the other processes through
+    leases (``server.backhaul.leases``)."""
+
     def __init__(
         self,
         ingest: RelayIngest,
@@ -63,54 +86,83 @@ class Center:
         ack_wait: float = 30.0,
         duplicate_window: float = subjects.DUPLICATE_WINDOW,
         auth: BrokerAuth | None = None,
+        events_since: float = subjects.COMMAND_MAX_AGE,
+        instance: str | None = None,
+        lease: float = 5.0,
     ) -> None:
         self.ingest = ingest
+        self.events_since = events_since
         self.auth = auth
         self.url = url
         self.durable = durable
         self.batch = batch
         self.ack_wait = ack_wait
         self.duplicate_window = duplicate_window
+        self.instance = instance
+        self.lease = lease
         self.nc: Client | None = None
         self.js: JetStreamContext | None = None
-        self.sub: JetStreamContext.PullSubscription | None = None
+        self.leases: Leases | None = None
+        self.live = None if instance is None else Live(ingest.bus, instance)  # the others' live events
+        self.subs: dict[int, JetStreamContext.PullSubscription] = {}  # the partitions consumed here
+        self.coordinator = instance is None  # runs the singletons (the events, the dispatcher, retention)
         self.gateways: dict[str, dict[str, Any]] = {}  # each gateway's last heartbeat
         self.on_event: Callable[[EventMessage], Awaitable[None]] | None = None
         self.events: JetStreamContext.PullSubscription | None = None
         self.counters = {"messages": 0, "batches": 0, "malformed": 0, "retries": 0}
         self.guard = Guard()
         self.frames: Counter[str] = Counter()  # frame messages consumed, by gateway
-        self.pending = 0  # frame messages in the stream not yet delivered to this center
+        self.pending = 0  # frame messages in the stream not yet delivered to this center's partitions
         self.up, self.since = False, time.time()  # the broker connection, and since when
+        self._pending: dict[int, int] = {}  # by partition
+        self._loops: dict[int, asyncio.Task[None]] = {}
+        self._ingesting = asyncio.Lock()  # one batch in the ingest's thread at a time
+        self._reloaded = 0.0  # when the vehicles were last read again for an unknown address (monotonic)
 
     def _state(self, up: bool) -> None:
         self.up, self.since = up, time.time()
 
     async def connect(self) -> None:
-        self.nc = await broker.connect(self.url, "tacit-center", self._state, auth=self.auth)
+        """The broker, the streams and the events' consumer; without an instance, every partition."""
+        self.nc = await broker.connect(self.url, self.instance or "tacit-center", self._state, auth=self.auth)
         self.js = self.nc.jetstream()
         await broker.ensure_streams(self.js, self.duplicate_window)
-        self.sub = await self._subscribe(self.js)
-        self.events = await self.js.pull_subscribe(
-            subjects.events(">"),
-            durable=f"{self.durable}-events",
-            stream=subjects.EVENTS_STREAM,
-            config=ConsumerConfig(ack_policy=AckPolicy.EXPLICIT, ack_wait=self.ack_wait),
-        )
+        if self.instance is None:
+            self.events = await self._subscribe_events(self.js)
+            for part in range(subjects.PARTITIONS):
+                self.subs[part] = await self._partition(self.js, part)
+        else:
+            self.leases = Leases(self.js, self.durable, self.instance, self.lease)
+            await self.leases.open()
+            await self.leases.renew()  # announced among the members
+            await asyncio.to_thread(self.ingest.own, self.mine)  # none until it holds a partition
+        if self.live is not None:
+            await self.live.start(self.nc)
 
     async def close(self) -> None:
         if self.nc is not None:
             with contextlib.suppress(NatsError, OSError):  # the backhaul may be down: closed all the same
                 await self.nc.close()
-        self.nc = self.js = self.sub = self.events = None
+        self.nc = self.js = self.events = self.leases = None
+        if self.live is not None:
+            self.live.nc = None
+        self.subs = {}
         self._state(False)
 
     async def run(self, *also: Awaitable[None]) -> None:
-        """Connect, then consume frames and events for ever, with ``also`` (the dispatcher)."""
+        """Connect, take this process's share of the partitions, then consume its frames and, while it
+        coordinates, the events, for ever, with ``also`` (the dispatcher); at the end its partitions'
+        states saved and its leases released, for another process to take at once."""
         await self.connect()
         try:
-            await asyncio.gather(self._forever(self.step), self._forever(self.step_events), *also)
+            await self.rebalance()
+            if self.leases is None:
+                self._start(list(self.subs))
+            await asyncio.gather(
+                self._renewing(), self._rebalancing(), self._forever(self._coordinated_events), *also
+            )
         finally:
+            await self._leave()
             await self.close()
 
     @staticmethod
@@ -125,36 +177,210 @@ class Center:
         assert self.js is not None, "connect() first"
         await self.js.publish(subject, payload, headers={subjects.MSG_ID: message_id})
 
-    async def _subscribe(self, js: JetStreamContext) -> JetStreamContext.PullSubscription:
+    async def kept_schedules(self) -> list[ScheduleMessage]:
+        """The last schedule the stream keeps for each gateway (what gateways may still follow)."""
+        assert self.js is not None, "connect() first"
+        info = await self.js.stream_info(subjects.SCHEDULE_STREAM, subjects_filter=subjects.schedule(">"))
+        kept = []
+        for subject in sorted(info.state.subjects or {}):
+            msg = await self.js.get_last_msg(subjects.SCHEDULE_STREAM, subject)
+            try:
+                kept.append(ScheduleMessage.decode(msg.data or b""))
+            except PayloadError as exc:
+                log.error("backhaul: the schedule kept on %s is unreadable (%s): ignored", subject, exc)
+        return kept
+
+    # --- the partitions: which this process consumes -----------------------------------------------
+
+    def mine(self, address: int) -> bool:
+        """This process decodes the vehicle at ``address``: it consumes its partition."""
+        return subjects.partition(address) in self.subs
+
+    async def _renewing(self) -> None:
+        while self.leases is not None:
+            await asyncio.sleep(self.lease / 3)
+            try:
+                await self.leases.renew()
+            except (NatsError, TimeoutError) as exc:  # the broker away: leases expire if it lasts
+                log.warning("center %s: leases not renewed: %s", self.instance, exc)
+
+    async def _rebalancing(self) -> None:
+        while self.leases is not None:
+            await asyncio.sleep(self.lease / 3)
+            try:
+                await self.rebalance()
+            except (NatsError, TimeoutError) as exc:
+                log.warning("center %s: partitions not rebalanced: %s", self.instance, exc)
+
+    async def rebalance(self) -> None:
+        """Let go of the partitions whose leases were lost or that another live process wants, take those
+        this one wants that are free, and the coordinator's role if free (``server.backhaul.leases``)."""
+        leases, js = self.leases, self.js
+        if leases is None or js is None:
+            return
+        if not leases.holds(COORDINATOR):
+            await self._coordinate(js, False)
+        gone = {p for p in self.subs if not leases.holds(partition_key(p))}
+        if gone:  # lost: another process may hold them already, and save their vehicles' states: not saved
+            await self._stop(gone)
+            await asyncio.to_thread(self.ingest.own, self.mine)
+        members = await leases.members()
+        wanted = leases.wanted(members, leases.instance)
+        if self.live is not None:
+            self.live.peers = len(members) > 1
+        leaving = set(self.subs) - wanted
+        if leaving:
+            await self._stop(leaving)
+            parts = frozenset(leaving)
+            await asyncio.to_thread(self.ingest.save_states, lambda a: subjects.partition(a) in parts)
+            await asyncio.to_thread(self.ingest.own, self.mine)
+            for part in sorted(leaving):
+                await leases.release(partition_key(part))
+        taken = [p for p in sorted(wanted - set(self.subs)) if await leases.take(partition_key(p))]
+        if taken:
+            for part in taken:
+                self.subs[part] = await self._partition(js, part)
+            fresh = frozenset(taken)  # their vehicles read from the store before their frames are consumed
+            await asyncio.to_thread(self.ingest.own, self.mine, lambda a: subjects.partition(a) in fresh)
+            self._start(taken)
+            log.info(
+                "center %s: consuming partitions %s (%d center processes)",
+                leases.instance,
+                sorted(self.subs),
+                len(members),
+            )
+        await self._coordinate(js, await leases.take(COORDINATOR))
+
+    async def _coordinate(self, js: JetStreamContext, coordinator: bool) -> None:
+        """Take up the singletons (the events' consumer first), or let go of them."""
+        if coordinator and self.events is None:
+            self.events = await self._subscribe_events(js)
+            log.info("center %s: coordinating (events, dispatch, routing, slots, retention)", self.instance)
+        elif not coordinator and self.events is not None:
+            events, self.events = self.events, None
+            with contextlib.suppress(NatsError, TimeoutError):
+                await events.unsubscribe()
+        self.coordinator = coordinator
+
+    def _start(self, parts: list[int]) -> None:
+        for part in parts:
+            self._loops[part] = asyncio.create_task(self._consume(part, self.subs[part]))
+
+    async def _consume(self, part: int, sub: JetStreamContext.PullSubscription) -> None:
+        while self.subs.get(part) is sub:
+            if self.leases is not None and not self.leases.fresh(partition_key(part)):
+                await asyncio.sleep(0.2)  # not renewed for a lease (the broker away): wait for the renewal
+                continue
+            try:
+                await self._step(part, sub)
+            except (NatsError, TimeoutError) as exc:  # an ack lost with the connection: it comes again
+                log.warning("backhaul: partition %d: %s", part, exc)
+                await asyncio.sleep(0.5)
+
+    async def _stop(self, parts: set[int]) -> None:
+        """Stop consuming ``parts``: each loop ends after its batch is stored and acked."""
+        subs = {part: self.subs.pop(part) for part in parts if part in self.subs}
+        await asyncio.gather(*(self._loops.pop(part) for part in parts if part in self._loops))
+        for sub in subs.values():
+            with contextlib.suppress(NatsError, TimeoutError):
+                await sub.unsubscribe()
+        for part in parts:
+            self._pending.pop(part, None)
+
+    async def _leave(self) -> None:
+        """Stopping: the partitions' loops ended, their vehicles' states saved, the leases released."""
+        leases = self.leases
+        if leases is None:
+            await self._stop(set(self.subs))
+            return
+        renewing = asyncio.create_task(self._renewing())  # held until the states are saved
+        try:
+            await self._stop(set(self.subs))
+            await asyncio.to_thread(self.ingest.save_states)
+        finally:
+            renewing.cancel()
+        with contextlib.suppress(NatsError, TimeoutError):
+            for key in list(leases.held):
+                await leases.release(key)
+            await leases.leave()
+        self.coordinator = False
+
+    def _partition(self, js: JetStreamContext, part: int) -> Awaitable[JetStreamContext.PullSubscription]:
+        return self._durable(
+            js, subjects.FRAMES_STREAM, f"{self.durable}-{part}", subjects.frames("*", part), 10 * self.batch
+        )
+
+    async def _durable(
+        self,
+        js: JetStreamContext,
+        stream: str,
+        durable: str,
+        subject: str,
+        max_ack_pending: int | None = None,
+        since: float | None = None,
+    ) -> JetStreamContext.PullSubscription:
+        """A durable consumer this process takes over (a partition's, the events'). If messages were left
+        unacked (its last holder died between commit and acks), it is set back to just after its ack
+        floor: they come again at once and in order. A fresh one (no such consumer yet) starts ``since``
+        s back if given, else at the stream's first message."""
         config = ConsumerConfig(
-            durable_name=self.durable,
+            durable_name=durable,
             ack_policy=AckPolicy.EXPLICIT,
             ack_wait=self.ack_wait,
-            max_ack_pending=10 * self.batch,
-            filter_subject=subjects.frames(">"),
+            max_ack_pending=max_ack_pending,
+            filter_subject=subject,
         )
         try:
-            info = await js.consumer_info(subjects.FRAMES_STREAM, self.durable)
+            info = await js.consumer_info(stream, durable)
         except NotFoundError:
             info = None
+            if since is not None:
+                start = datetime.fromtimestamp(time.time() - since, UTC)
+                config.deliver_policy, config.opt_start_time = DeliverPolicy.BY_START_TIME, start
+                log.info("backhaul: a fresh consumer %s, from %s on", durable, start.isoformat())
         if info is not None and info.num_ack_pending:
             floor = info.ack_floor.stream_seq if info.ack_floor else 0
             log.warning(
-                "backhaul: %d frames were left unacked; consumer set back to after %d",
+                "backhaul: %s: %d messages were left unacked; consumer set back to after %d",
+                durable,
                 info.num_ack_pending,
                 floor,
             )
-            await js.delete_consumer(subjects.FRAMES_STREAM, self.durable)
+            await js.delete_consumer(stream, durable)
             config.deliver_policy, config.opt_start_seq = DeliverPolicy.BY_START_SEQUENCE, floor + 1
-        return await js.pull_subscribe(
-            subjects.frames(">"), durable=self.durable, stream=subjects.FRAMES_STREAM, config=config
+        return await js.pull_subscribe(subject, durable=durable, stream=stream, config=config)
+
+    async def _subscribe_events(self, js: JetStreamContext) -> JetStreamContext.PullSubscription:
+        """The events' durable consumer (the coordinator's): resumed where it is (set back to after its ack
+        floor if its last holder left messages unacked), or made to start ``events_since`` s back."""
+        return await self._durable(
+            js,
+            subjects.EVENTS_STREAM,
+            f"{self.durable}-events",
+            subjects.events(">"),
+            since=self.events_since,
         )
 
+    # --- frames ----------------------------------------------------------------------------------
+
     async def step(self, timeout: float = 1.0) -> int:
-        """Fetch one batch, store it, ack it; how many messages it held."""
-        assert self.sub is not None, "connect() first"
+        """Fetch one batch of every partition consumed here with frames waiting (of every one, waiting up to
+        ``timeout`` for them, if none has), store each, ack it; how many messages. ``run`` consumes each
+        partition in a loop of its own instead."""
+        subs = list(self.subs.items())
         try:
-            msgs = await self.sub.fetch(self.batch, timeout=timeout)
+            infos = await asyncio.gather(*(sub.consumer_info() for _, sub in subs))
+        except (TimeoutError, NatsError) as exc:
+            await _pause(exc)
+            return 0
+        waiting = [(p, sub) for (p, sub), info in zip(subs, infos, strict=True) if info.num_pending]
+        fetched = await asyncio.gather(*(self._step(p, sub, timeout) for p, sub in waiting or subs))
+        return sum(fetched)
+
+    async def _step(self, part: int, sub: JetStreamContext.PullSubscription, timeout: float = 1.0) -> int:
+        """Fetch one batch of partition ``part``, store it, ack it; how many messages it held."""
+        try:
+            msgs = await sub.fetch(self.batch, timeout=timeout)
         except (TimeoutError, NatsError) as exc:
             await _pause(exc)
             return 0
@@ -167,12 +393,25 @@ class Center:
             else:
                 batch.append((RelayedIncoming.of(frame), msg))
                 self.frames[frame.gateway] += 1
-        self.pending = msgs[-1].metadata.num_pending if msgs else 0
+        self._pending[part] = msgs[-1].metadata.num_pending if msgs else 0
+        self.pending = sum(self._pending.values())
+        if any(frame.src not in self.ingest.vehicles for frame, _ in batch):
+            await self._reload()
         for msg in await self._store(batch) if batch else []:
             await msg.ack()
         self.counters["messages"] += len(msgs)
         self.counters["batches"] += 1
         return len(msgs)
+
+    async def _reload(self) -> None:
+        """A frame from an address this process holds no vehicle for: one registered through another
+        process's API since it loaded them, or a stranger. The vehicles read again before the batch is
+        stored (at most once a lease, for the strangers' sake)."""
+        if time.monotonic() - self._reloaded < self.lease:
+            return
+        self._reloaded = time.monotonic()
+        async with self._ingesting:
+            await asyncio.to_thread(self.ingest.load_vehicles)
 
     async def _store(self, batch: list[tuple[RelayedIncoming, Msg]]) -> list[Msg]:
         """Ingest the batch in one transaction; the messages stored. Retried while the database is away
@@ -182,7 +421,8 @@ class Center:
         wait = 0.2
         while True:
             try:
-                await asyncio.to_thread(self.ingest.handle_batch, [frame for frame, _ in batch])
+                async with self._ingesting:
+                    await asyncio.to_thread(self.ingest.handle_batch, [frame for frame, _ in batch])
                 return [msg for _, msg in batch]
             except (OperationalError, InterfaceError):  # the database away, or locked
                 self.counters["retries"] += 1
@@ -213,6 +453,15 @@ class Center:
             return []
         return [msg]
 
+    # --- events ----------------------------------------------------------------------------------
+
+    async def _coordinated_events(self) -> int:
+        """The gateways' events, while this process coordinates (one process handles them)."""
+        if self.events is not None:
+            return await self.step_events()
+        await asyncio.sleep(self.lease / 3)
+        return 0
+
     async def step_events(self, timeout: float = 1.0) -> int:
         """Fetch the gateways' events, hand each to ``on_event``, ack it; how many were fetched. An
         event ``on_event`` failed on (the database away) is left for redelivery."""
@@ -227,12 +476,14 @@ class Center:
         return len(msgs)
 
     async def _event(self, msg: Msg) -> None:
-        event = self.guard.event(msg.subject, msg.data, time.time())
+        now = time.time()
+        event = self.guard.event(msg.subject, msg.data, now)
         if event is None:
             await msg.term()
             return
         if event.kind == "heartbeat":
-            self.gateways[event.gateway] = {**event.detail, "at": event.at, "seen": time.time()}
+            if not self.guard.stale(event, now):  # a backlog's says nothing of now
+                self.gateways[event.gateway] = {**event.detail, "at": event.at, "seen": now}
         elif event.kind != "attempt":
             log.info("gateway %s: %s %s", event.gateway, event.kind, event.detail)
         try:
@@ -262,14 +513,34 @@ async def _pause(exc: Exception) -> None:
         await asyncio.sleep(0.5)
 
 
-async def serve(shore: Shore, url: str, durable: str = DURABLE, auth: BrokerAuth | None = None) -> None:
-    """The center's backhaul in a shore's app: the consumers into its ingest and the dispatcher of its
-    command desk (a queued command wakes it), with the retention and ``/metrics`` (``server.ops``)."""
+def default_instance() -> str:
+    """A center process's name unless given: its host's and its process id."""
+    return f"{re.sub(r'[^A-Za-z0-9_-]', '-', socket.gethostname())[:40]}-{os.getpid()}"
+
+
+async def serve(
+    shore: Shore,
+    url: str,
+    durable: str = DURABLE,
+    auth: BrokerAuth | None = None,
+    instance: str | None = None,
+) -> None:
+    """The center's backhaul in a shore's app: the consumers of its share of the partitions into its
+    ingest and the dispatcher of its command desk (a queued command wakes it; it dispatches while this
+    process coordinates), with the retention and ``/metrics`` (``server.ops``). Several processes may
+    serve one broker and database, each under its own ``instance`` name."""
     from server.backhaul.dispatch import Dispatcher
     from server.ops.process import operate
 
     assert isinstance(shore.ingest, RelayIngest), "a center's shore is built with RelayIngest"
-    center = Center(shore.ingest, url, durable=durable, auth=auth)
+    center = Center(
+        shore.ingest,
+        url,
+        durable=durable,
+        auth=auth,
+        instance=instance or default_instance(),
+        lease=shore.settings.center_lease,
+    )
     dispatcher = Dispatcher(
         shore.commands,
         shore.routing,
@@ -277,6 +548,8 @@ async def serve(shore: Shore, url: str, durable: str = DURABLE, auth: BrokerAuth
         center.publish,
         shore.link.heartbeat,
         shore.ingest.states,
+        coordinating=lambda: center.coordinator,
+        kept=center.kept_schedules,
     )
     center.on_event = dispatcher.on_event
     shore.commands.wake = dispatcher.wake
@@ -295,7 +568,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "TACIT_DATABASE_URL or the server's default)",
     )
     parser.add_argument(
-        "--durable", default=DURABLE, help="the consumer's durable name (default %(default)s)"
+        "--durable",
+        default=DURABLE,
+        help="the consumers' durable names' prefix, the same for every process of one center "
+        "(default %(default)s)",
+    )
+    parser.add_argument(
+        "--instance",
+        type=_instance,
+        default=None,
+        help="this process's name among the center's processes on one broker and database (default: "
+        "host-pid); run several, each with its own --port, --map-port and --metrics-port",
     )
     parser.add_argument(
         "--metrics-port",
@@ -310,6 +593,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--map-port", type=int, help="3D map port (default 8080)")
     parser.add_argument("--no-map", action="store_true", help="do not start the 3D map")
     parser.set_defaults(modem_url=None)  # the center has no modem: its gateways have
+
+
+def _instance(name: str) -> str:
+    try:
+        return subjects.gateway_name(name)
+    except ValueError:
+        raise argparse.ArgumentTypeError("1-64 letters, digits, '_' or '-'") from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -333,11 +623,15 @@ def run(args: argparse.Namespace) -> int:
     except access.CredentialsError as exc:
         print(f"tacit center: {exc}", file=sys.stderr)
         return 2
+    instance = args.instance or default_instance()
     app = create_app(
-        settings, RelayIngest, [lambda shore: serve(shore, settings.nats_url, args.durable, auth)]
+        settings,
+        RelayIngest,
+        [lambda shore: serve(shore, settings.nats_url, args.durable, auth, instance)],
     )
     log.info(
-        "center: consuming %s from %s; API on %s:%d",
+        "center %s: sharing %s from %s with the other center processes; API on %s:%d",
+        instance,
         subjects.frames(">"),
         settings.nats_url,
         settings.host,

@@ -15,12 +15,22 @@ executes the command once).
 SYNCs go the same way: the center holds the keys, so it signs each vehicle's SYNC when the heartbeat
 says it is due (``server.link.heartbeat``: an unsynced check-point waits for its answer, a chain restart
 is needed, or ``sync_interval`` has passed) and sends it to the vehicle's gateway as a one-attempt
-command message ``sync-<address>-<counter>``; a vehicle accepts no command before a SYNC has answered
-its check-points. Only while the backhaul is up: a budget of pre-signed SYNCs for a gateway cut off
-longer than a vehicle's link-lost timeout is not built yet (docs/backhaul.md).
+command message ``sync-<address>-<counter>``, its counter at least its time (the budget's rule),
+stamped for the opening of the gateway's first slot after it can be there (``SYNC_LEAD``): the center
+hands out the slots, so it knows when that gateway transmits next, and the gateway sends it only within
+``SYNC_WINDOW`` of that stamp, so the vehicle's clock is set to within seconds of the shore's. One that
+misses its window comes back expired and is signed anew (with the same answer, if it carried one). A
+vehicle accepts no command before a SYNC has answered its check-points, so its commands wait here until
+the center has heard one of its check-points and sent the SYNC answering a challenge in it. For when
+SYNCs stop coming (the backhaul cut, the center down), the vehicle's gateway holds a budget of SYNCs
+signed ahead (``server.backhaul.budget``), which the dispatcher keeps after the routes.
 
 The dispatcher also hands the gateways their TDMA slots (``server.backhaul.slots``) whenever the set of
-live gateways or of vehicles to poll changes.
+live gateways or of vehicles to poll changes. A center that starts finds the plans the stream kept from
+the one before it (``kept``): gateways may still follow them, heard from or not, so for its first
+``gateway_timeout`` s every gateway they name keeps a slot in its plans (a dead one is dropped after),
+and its first epoch leaves the longest kept slot time to end (a different ``tdma_slot``, or time scale,
+does not cut a transmission in progress short).
 """
 
 from __future__ import annotations
@@ -33,13 +43,14 @@ import time
 from collections.abc import Awaitable, Callable
 
 from server.backhaul import subjects
-from server.backhaul.slots import ATTEMPT_AIRTIME
-from server.backhaul.subjects import CommandMessage, EventMessage, ScheduleMessage
+from server.backhaul.budget import Publish, SyncBudgets
+from server.backhaul.slots import ATTEMPT_AIRTIME, SYNC_WINDOW, Schedule, SlotPlan
+from server.backhaul.subjects import CommandMessage, EventMessage, GatewayState, ScheduleMessage
 from server.commands.models import CommandRecord, CommandState
 from server.commands.service import CommandDesk
 from server.core.config import Settings
 from server.core.db import saved_id
-from server.link.heartbeat import Heartbeat
+from server.link.heartbeat import Heartbeat, Sync
 from server.link.state import VehicleState
 from server.routing.models import Dispatch, DispatchState
 from server.routing.service import Route, Routing
@@ -47,9 +58,10 @@ from server.vehicles.models import Vehicle
 
 log = logging.getLogger("tacit.backhaul.dispatch")
 
-Publish = Callable[[str, bytes, str], Awaitable[None]]  # subject, payload, message id
+Kept = Callable[[], Awaitable[list[ScheduleMessage]]]  # the last schedule the stream keeps per gateway
 FINAL = {"acked": DispatchState.ACKED, "failed": DispatchState.FAILED, "expired": DispatchState.EXPIRED}
 STEP = {"stored": DispatchState.STORED, "sent": DispatchState.SENT, "acked": DispatchState.SENT}
+SYNC_LEAD = 1.0  # s: a SYNC published now reaches its gateway before a slot opening this much later
 
 
 class Dispatcher:
@@ -62,6 +74,8 @@ class Dispatcher:
         heartbeat: Heartbeat | None = None,
         states: Callable[[], list[VehicleState]] = list,
         tick: float = 0.5,
+        kept: Kept | None = None,
+        coordinating: Callable[[], bool] = lambda: True,
     ) -> None:
         self.desk = desk
         self.routing = routing
@@ -70,10 +84,23 @@ class Dispatcher:
         self.heartbeat = heartbeat  # the link's: when a vehicle's SYNC is due, and signing it
         self.states = states  # the vehicles' link states (ingest's), by which SYNCs are due
         self.tick = tick
+        self.coordinating = coordinating  # this process runs the routing, the slots and the commands
         self.handed: tuple[tuple[str, ...], tuple[int, ...]] = ((), ())  # the last schedule's gateways, polls
+        self.kept = kept
+        self.inherited: tuple[float, set[str], float] | None = None  # (read at, gateways, slot) of kept plans
         self._published: set[str] = set()  # dispatches published by this process
+        self.slots = Schedule()  # the TDMA frames handed out: when each gateway transmits next
+        self._last_sync: dict[int, tuple[str, Sync]] = {}  # by address: the last SYNC sent, its message id
+        self._answer_at: dict[int, float] = {}  # by address: the stamp of the last SYNC answering a challenge
+        self.budgets = self._budgets()  # the SYNC budgets: in the coordinating process only
+        self._followed = -math.inf  # when a process that does not coordinate last read the slots handed out
         self._wake = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
+
+    def _budgets(self) -> SyncBudgets:
+        return SyncBudgets(
+            self.settings, self.publish, lambda: [g.name for g in self.routing.gateways()], self.ack_timeout
+        )
 
     def wake(self) -> None:
         """A command was queued: dispatch now rather than at the next tick (from any thread)."""
@@ -95,14 +122,29 @@ class Dispatcher:
                 pass
 
     async def step(self, now: float | None = None) -> None:
-        """Re-assign vehicles, hand out slots if the gateways changed, dispatch what waits."""
+        """Re-assign vehicles, hand out slots if the gateways changed, renew the SYNC budgets, dispatch
+        what waits: while this process coordinates. SYNCs in every center process, to the vehicles whose
+        states it holds."""
         now = time.time() if now is None else now
-        await asyncio.to_thread(self.routing.update, now)
+        coordinating = self.coordinating()
+        if coordinating:
+            await asyncio.to_thread(self.routing.update, now)
         routes = await asyncio.to_thread(self.routing.routes, now)
-        await self._schedule(now, tuple(sorted(r.vehicle.address for r in routes)))
+        if coordinating:
+            await self._schedule(now, tuple(sorted(r.vehicle.address for r in routes)))
+        else:
+            await self._follow(now)
         await self._syncs(routes)
+        if not coordinating:
+            if self.budgets.issued or self.budgets.started:  # the role lost: its next holder withdraws them
+                self.budgets = self._budgets()
+            return
+        if self.heartbeat is not None:  # a center that sends SYNCs: its budgets too (the coordinator's)
+            await self.budgets.update(routes, {s.address: s.link.sync_counter for s in self.states()}, now)
+        held = self._unsynced()
         for route in routes:
-            await self._vehicle(route.vehicle, now)
+            if route.vehicle.address not in held:
+                await self._vehicle(route.vehicle, now)
 
     # --- SYNCs down ------------------------------------------------------------------------------
 
@@ -115,16 +157,47 @@ class Dispatcher:
             gateway = gateways.get(state.address)
             if gateway is None or not self.heartbeat.due(state):
                 continue
-            sync = await self.heartbeat.signed(state)
+            at = round(self.slots.opening(gateway, time.time() + SYNC_LEAD))
+            sync = await self.heartbeat.signed(state, floor=at, at=at)  # counter at least its time
             message = CommandMessage(
-                f"sync-{state.address}-{sync.seq}", gateway, state.address, sync.frame, attempts=1,
-                ack_timeout=self.ack_timeout(), expires_at=time.time() + self.settings.sync_interval,
+                subjects.sync_id(state.address, sync.seq), gateway, state.address, sync.frame, attempts=1,
+                ack_timeout=self.ack_timeout(), expires_at=at + SYNC_WINDOW,
                 start_by=time.time() + self.settings.dispatch_receipt,
             )  # fmt: skip
             await self.publish(subjects.commands(gateway), message.encode(), message.id)
             self.heartbeat.sent(state, sync, acked=False)
+            self._last_sync[state.address] = (message.id, sync)
+            if sync.echo is not None:
+                self._answer_at[state.address] = at
+
+    def _sync_lost(self, command_id: str, expired: bool) -> None:
+        """The vehicle's last SYNC missed its slot's window (``expired``: the next step signs another),
+        or went unacknowledged: if it answered a challenge, the answer goes again (unless a newer
+        challenge came) and the vehicle's commands wait for it."""
+        for state in self.states():
+            sent = self._last_sync.get(state.address)
+            if self.heartbeat is None or sent is None or sent[0] != command_id:
+                continue
+            if sent[1].echo is not None and state.link.echo is None:
+                state.link.echo = sent[1].echo
+            if expired or sent[1].echo is not None:
+                self.heartbeat.again(state)
 
     # --- commands down ---------------------------------------------------------------------------
+
+    def _unsynced(self) -> set[int]:
+        """The addresses whose commands wait: not heard yet, a challenge of theirs not answered
+        (``Heartbeat.synced``: the vehicle would refuse them), or its answer's slot not opened yet (a
+        command sent before the answer would be refused, and one stamped before the answer's time less
+        ``FLOOR_SLACK`` is older than the floor that answer sets)."""
+        if self.heartbeat is None:
+            return set()
+        now = time.time()
+        return {
+            s.address
+            for s in self.states()
+            if not self.heartbeat.synced(s) or now < self._answer_at.get(s.address, 0.0)
+        }
 
     async def _vehicle(self, vehicle: Vehicle, now: float) -> None:
         deadline = now - self.settings.confirm_timeout / self.settings.time_scale  # as the link's timing
@@ -203,7 +276,13 @@ class Dispatcher:
     # --- what the gateways report ----------------------------------------------------------------
 
     async def on_event(self, event: EventMessage) -> None:
-        await asyncio.to_thread(self.routing.seen, event.gateway, min(event.at, time.time()))
+        """A gateway's event (the guard let it through): it is alive; a heartbeat's state is kept for the
+        screens; an attempt report moves its command."""
+        at = min(event.at, time.time())
+        if event.kind == "heartbeat":
+            await asyncio.to_thread(self.routing.beat, event.gateway, at, GatewayState.of(event.detail))
+        else:
+            await asyncio.to_thread(self.routing.seen, event.gateway, at)
         if event.kind == "attempt":
             await asyncio.to_thread(self._attempt, event)
 
@@ -214,8 +293,10 @@ class Dispatcher:
         final = bool(detail.get("final"))
         state = FINAL.get(outcome) if final else STEP.get(outcome)
         attempt = int(detail.get("attempt") or 0) if outcome in ("sent", "acked") and not final else 0
-        if str(detail.get("command", "")).startswith("sync-"):
-            return  # a SYNC's outcome: the next check-point says whether it arrived
+        if subjects.is_sync(str(detail.get("command", ""))):
+            if final and outcome in ("expired", "failed"):
+                self._sync_lost(str(detail["command"]), expired=outcome == "expired")
+            return  # sent: the next check-point says whether it arrived
         report = self.routing.report(str(detail.get("command", "")), state, attempt)
         if report is None:
             log.warning("gateway %s reported an unknown command %s", event.gateway, detail.get("command"))
@@ -235,17 +316,42 @@ class Dispatcher:
         """Hand the live gateways a new TDMA frame when they (or the vehicles they poll) change; it
         starts two slots from now, so every gateway has it before it applies. Every gateway polls every
         vehicle in its slots: each one's answers score the gateways that hear it."""
-        order = tuple(sorted(await asyncio.to_thread(self.routing.alive, now)))
+        inherited, lead = await self._inherited(now)
+        order = tuple(sorted(await asyncio.to_thread(self.routing.alive, now) | inherited))
         if (order, polls) == self.handed or not order:
             return
         slot = self.settings.tdma_slot
-        epoch = math.ceil(now / slot) * slot + slot
+        epoch = math.ceil((now + max(slot, lead)) / slot) * slot
         plan = hashlib.sha256(
             repr((epoch, slot, self.settings.tdma_guard, order, polls)).encode()
         ).hexdigest()
+        self.slots.receive(SlotPlan(epoch, slot, self.settings.tdma_guard, order), now)
         for gateway in order:  # the id names the plan: another plan from the same epoch is not a duplicate
             message = ScheduleMessage(f"schedule-{plan[:16]}-{gateway}", gateway, epoch, slot,
                                       self.settings.tdma_guard, order, polls)  # fmt: skip
             await self.publish(subjects.schedule(gateway), message.encode(), message.id)
         log.info("schedule: %d gateways, %.1f s slots from %.0f, polling %s", len(order), slot, epoch, polls)
         self.handed = (order, polls)
+
+    async def _follow(self, now: float) -> None:
+        """A process that does not hand out the slots reads them from the stream, once a slot: it stamps
+        its own vehicles' SYNCs for their gateways' next slot openings as the coordinator would."""
+        if self.kept is None or now < self._followed + self.settings.tdma_slot:
+            return
+        self._followed = now
+        for plan in await self.kept():
+            self.slots.receive(SlotPlan(plan.epoch, plan.slot, plan.guard, plan.order), now)
+
+    async def _inherited(self, now: float) -> tuple[set[str], float]:
+        """The gateways the plans kept from before this center name (while they may still follow them:
+        ``gateway_timeout`` s from the first look), and the longest of their slots."""
+        if self.inherited is None:
+            plans = await self.kept() if self.kept is not None else []
+            names = {name for plan in plans for name in (plan.gateway, *plan.order)}
+            for plan in plans[:1]:  # what the gateways follow until this center's first epoch
+                self.slots.receive(SlotPlan(plan.epoch, plan.slot, plan.guard, plan.order), now)
+            self.inherited = (now, names, max((plan.slot for plan in plans), default=0.0))
+            if names:
+                log.info("schedule: the kept plans name %s; they keep their slots for now", sorted(names))
+        since, names, slot = self.inherited
+        return (names, slot) if now < since + self.settings.gateway_timeout else (set(), 0.0)

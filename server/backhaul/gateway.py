@@ -6,13 +6,21 @@ outcomes go up as events. It holds no vehicle key (docs/protocol.md).
 The MAC: one exchange per slot of the TDMA frame the center hands the gateways sharing the band
 (``server.backhaul.slots``): a command's next attempt (SYNCs are commands here) or a poll of the next
 vehicle of the center's poll list (its answer, heard by this gateway's modem, goes up as frames; the
-center scores the gateways by them), taking turns when both wait. Without a plan a gateway alone on its band sends its commands at will and polls
-nobody. A command that reaches the gateway after its ``start_by`` is not sent: the center has sent it
+center scores the gateways by them), taking turns when both wait. The center's SYNCs come first, each in
+the slot it was stamped for: a SYNC's time sets the vehicle's clock, so it goes only within
+``SYNC_WINDOW`` of its stamp (one waits for it; one past it is reported expired, and the center signs
+another), and the vehicle's newest replaces one still waiting. Without a plan a gateway alone on its
+band sends its commands at will and polls nobody. A command that reaches the gateway after its ``start_by`` is not sent: the center has sent it
 through another gateway by then. A gateway transmits nothing before it has read the last schedule the
-stream keeps for it (a restart resumes its stored commands in its slots). The SYNC budget is the next
-slice (docs/backhaul.md).
+stream keeps for it (a restart resumes its stored commands in its slots).
 
-Imports the standard library, the core (``tacit.modem``) and nats-py only: ``tacit[gateway]`` has no web
+The SYNC budget: for each vehicle the center assigns to it, the gateway keeps the SYNCs the center
+pre-signed for the coming hours (in its outbox file: a restart keeps them), and when the center's own
+SYNCs for that vehicle have not come for two intervals (a backhaul outage, a center down) it sends the
+newest whose time has come, one per interval, in its slots before the commands; a vehicle that moves to
+another gateway has its budget here withdrawn. It cannot make one: it holds no key (docs/protocol.md).
+
+Imports the standard library, the core (``tacit.modem``, ``tacit.packets``) and nats-py only: ``tacit[gateway]`` has no web
 stack (tests/integration/server/test_backhaul.py checks that fastapi, sqlmodel and sqlalchemy are not loaded).
 """
 
@@ -22,10 +30,12 @@ import argparse
 import asyncio
 import contextlib
 import logging
+import math
 import os
 import sys
 import time
 from collections import deque
+from collections.abc import Awaitable, Callable
 from pathlib import Path
 
 from nats.aio.client import Client
@@ -38,9 +48,19 @@ from nats.js.errors import NotFoundError
 from server.backhaul import access, broker, subjects
 from server.backhaul.access import BrokerAuth
 from server.backhaul.outbox import Outbox, Publisher
-from server.backhaul.slots import ATTEMPT_AIRTIME, Schedule, SlotPlan
-from server.backhaul.subjects import CommandMessage, EventMessage, PayloadError, ScheduleMessage
+from server.backhaul.slots import ATTEMPT_AIRTIME, SYNC_WINDOW, Schedule, SlotPlan
+from server.backhaul.subjects import (
+    CommandMessage,
+    EventMessage,
+    GatewayState,
+    Outage,
+    PayloadError,
+    Place,
+    ScheduleMessage,
+    SyncBudgetMessage,
+)
 from tacit import modem as mm
+from tacit.packets import Command, ControlFlag, PacketError, decode_control
 
 log = logging.getLogger("tacit.backhaul.gateway")
 
@@ -54,7 +74,10 @@ class Gateway:
         heartbeat: float = subjects.HEARTBEAT,
         duplicate_window: float = subjects.DUPLICATE_WINDOW,
         auth: BrokerAuth | None = None,
+        place: Place | None = None,
+        address: int | None = None,
     ) -> None:
+        """``place``: where its modem is (the screens show it); ``address``: its modem's."""
         self.outbox = outbox
         self.auth = auth or BrokerAuth()
         self.name = outbox.gateway
@@ -65,14 +88,23 @@ class Gateway:
         self.nc: Client | None = None
         self.publisher: Publisher | None = None
         self.backhaul = False  # connected to the broker
+        self.place = place
+        self.address = address
+        self.down_since: float | None = None  # when the backhaul went down (None: up, or never connected)
+        self.outage: Outage | None = None  # the last outage, said in every heartbeat after it
+        self._beat_now = asyncio.Event()  # a heartbeat at once: the backhaul came back
         self.schedule = Schedule()  # the center's TDMA frames; none: transmit at will
         self.polls: tuple[int, ...] = ()  # the vehicles' addresses the center asks this gateway to poll
         self.queue: deque[tuple[CommandMessage, int]] = deque()  # commands to send, attempts made
+        self.syncs: dict[int, CommandMessage] = {}  # the center's SYNC waiting for its time, by address
         self._polled = 0
         self._commanded = False  # the last slot carried a command
         self._work = asyncio.Event()
         self._planned = asyncio.Event()  # the schedule the stream keeps for it was read, or there is none
         self.transmissions: list[tuple[float, float]] = []  # (start, end) of each attempt, UNIX s
+        self._center_synced: dict[int, float] = {}  # by vehicle address: when the center's last SYNC came
+        self._budget_used: dict[int, float] = {}  # by vehicle address: when its last pre-signed one left
+        self._started = time.monotonic()  # these three on the monotonic clock
         self._tasks: list[asyncio.Task[None]] = []
         if driver is not None:
             driver.add_listener(self.on_modem)
@@ -102,10 +134,12 @@ class Gateway:
             asyncio.create_task(self.publisher.run()),
             asyncio.create_task(self._commands(js)),
             asyncio.create_task(self._schedules(js)),
+            asyncio.create_task(self._budgets(js)),
             asyncio.create_task(self._beat()),
         ]
         if self.driver is not None:
-            self.queue.extend((c, 0) for c in self.outbox.commands("stored"))  # a restart resumes them
+            for stored in self.outbox.commands("stored"):  # a restart resumes them
+                self._keep(stored)
             self._tasks.append(asyncio.create_task(self._mac()))
 
     async def stop(self) -> None:
@@ -122,7 +156,21 @@ class Gateway:
             await self.driver.stop()
 
     def _state(self, up: bool) -> None:
+        """The broker connection came or went: an outage is timed, and the heartbeat after it says how
+        long it lasted and what waited in the outbox."""
         self.backhaul = up
+        now = time.time()
+        if not up:
+            self.down_since = now
+            return
+        if self.down_since is not None:
+            self.outage = Outage(now - self.down_since, now, self.outbox.depth())
+            self.down_since = None
+            log.info(
+                "gateway %s: backhaul back after %.0f s, %d messages waiting",
+                *(self.name, self.outage.lasted, self.outage.backlog),
+            )
+        self._beat_now.set()
 
     # --- commands down ---------------------------------------------------------------------------
 
@@ -142,17 +190,7 @@ class Gateway:
                 await asyncio.sleep(0.5)
 
     async def _commands(self, js: JetStreamContext) -> None:
-        sub = await self._subscribe(js)
-        while True:
-            try:
-                msgs = await sub.fetch(16, timeout=1.0)
-            except TimeoutError:
-                continue
-            except NatsError:  # failed at once (closed, consumer gone): never spin without yielding
-                await asyncio.sleep(0.5)
-                continue
-            for msg in msgs:
-                await self._command(msg)
+        await _consume(await self._subscribe(js), self._command)
 
     async def _command(self, msg: Msg) -> None:
         """Keep a command (once, whatever the redeliveries), ack it, report it, send it if a modem is here."""
@@ -166,35 +204,66 @@ class Gateway:
         await msg.ack()
         if not fresh:
             return
+        if subjects.is_sync(command.id):  # the center's SYNCs come: its pre-signed ones wait
+            self._center_synced[command.address] = time.monotonic()
         if command.start_by and time.time() > command.start_by:  # the center went through another
             self._final(command, "expired")
             return
         self.outbox.add_event("attempt", {"command": command.id, "outcome": "stored", "attempt": 0})
         if self.driver is not None:
-            self.queue.append((command, 0))
+            self._keep(command)
             self._work.set()
+
+    def _keep(self, command: CommandMessage) -> None:
+        """Queue a command; a center's SYNC waits for its time apart (its vehicle's newest only)."""
+        if not subjects.is_sync(command.id):
+            self.queue.append((command, 0))
+            return
+        older = self.syncs.get(command.address)
+        if older is not None:
+            self._final(older, "expired")
+        self.syncs[command.address] = command
+
+    def _sync_due(self, now: float) -> CommandMessage | None:
+        """A center's SYNC whose time is within ``SYNC_WINDOW`` of ``now`` (taken); those past it are
+        reported expired."""
+        for address, command in list(self.syncs.items()):
+            stamp = decode_control(command.data).time
+            if now > stamp + SYNC_WINDOW:
+                log.info("vehicle %d: SYNC %s missed its slot (stamped %.0f s ago)", address, command.id,
+                         now - stamp)  # fmt: skip
+                self._final(self.syncs.pop(address), "expired")
+            elif now >= stamp - SYNC_WINDOW:
+                return self.syncs.pop(address)
+        return None
 
     # --- the MAC: one exchange per slot ------------------------------------------------------------
 
     async def _mac(self) -> None:
         await self._planned.wait()  # not a transmission at will before the slots it may already have
         while True:
-            plan = self.schedule.current
+            self._budget_syncs()
+            plan = self.schedule.plan(time.time())
             usable = plan.usable if plan is not None and self.name in plan.order else 0.0
             polling = bool(self.polls) and usable > 0  # polls only in slots: never at will
-            if not self.queue and not polling:
+            if not self.queue and not self.syncs and not polling:
                 self._work.clear()
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(self._work.wait(), 1.0)
                 continue
             start = self.schedule.start(self.name, time.time(), usable or ATTEMPT_AIRTIME)
             await asyncio.sleep(max(0.0, start - time.time()))
-            if self.queue and not (polling and self._commanded):
+            sync = self._sync_due(time.time())
+            if sync is not None:  # in the slot it was stamped for: before the commands and polls
+                self._final(sync, "acked" if await self._attempt(sync, 1) == "acked" else "failed")
+            elif self.queue and not (polling and self._commanded):
                 await self._next_attempt()
                 self._commanded = True
-            else:  # polls and commands take turns: a vehicle's answers keep coming while commands wait
+            elif polling:  # polls and commands take turns: a vehicle's answers come while commands wait
                 await self._poll()
                 self._commanded = False
+            else:  # only a SYNC waiting for its time
+                await asyncio.sleep(SYNC_WINDOW / 2)
             await asyncio.sleep(max(0.0, start + usable - time.time()))  # the slot's answers still come
 
     async def _next_attempt(self) -> None:
@@ -242,29 +311,31 @@ class Gateway:
         self.outbox.set_command(command.id, outcome)
         self.outbox.add_event("attempt", {"command": command.id, "outcome": outcome, "final": True})
 
-    async def _schedule_consumer(self, js: JetStreamContext) -> JetStreamContext.PullSubscription:
-        """The gateway's own schedule consumer, made anew so that it starts at the last schedule the
-        stream keeps for this gateway; retried while the stream does not exist yet (the center creates
-        it) or the broker does not answer."""
-        durable = access.SCHEDULE_CONSUMER.format(name=self.name)
+    async def _latest(
+        self, js: JetStreamContext, stream: str, durable: str, subject: str
+    ) -> JetStreamContext.PullSubscription:
+        """One of the gateway's own consumers of what a stream keeps last per subject (its schedule, its
+        vehicles' SYNC budgets), made anew so that it starts at those last messages; retried while the
+        stream does not exist yet (the center creates it) or the broker does not answer."""
         while True:
             try:
                 with contextlib.suppress(NotFoundError):
-                    await js.delete_consumer(subjects.SCHEDULE_STREAM, durable)
+                    await js.delete_consumer(stream, durable)
                 return await js.pull_subscribe(
-                    subjects.schedule(self.name),
+                    subject,
                     durable=durable,
-                    stream=subjects.SCHEDULE_STREAM,
+                    stream=stream,
                     config=ConsumerConfig(
                         ack_policy=AckPolicy.EXPLICIT, deliver_policy=DeliverPolicy.LAST_PER_SUBJECT
                     ),
                 )
             except (NatsError, TimeoutError) as exc:
-                log.info("backhaul: no schedule consumer yet (%s); retrying", type(exc).__name__)
+                log.info("backhaul: no %s consumer yet (%s); retrying", durable, type(exc).__name__)
                 await asyncio.sleep(0.5)
 
     async def _schedules(self, js: JetStreamContext) -> None:
-        sub = await self._schedule_consumer(js)
+        durable = access.SCHEDULE_CONSUMER.format(name=self.name)
+        sub = await self._latest(js, subjects.SCHEDULE_STREAM, durable, subjects.schedule(self.name))
         while True:
             try:
                 msgs = await sub.fetch(1, timeout=1.0)
@@ -296,6 +367,71 @@ class Gateway:
             *(schedule.slot, schedule.guard, schedule.order, schedule.poll),
         )
 
+    # --- the SYNC budget -------------------------------------------------------------------------
+
+    async def _budgets(self, js: JetStreamContext) -> None:
+        durable = access.SYNCS_CONSUMER.format(name=self.name)
+        sub = await self._latest(js, subjects.SYNCS_STREAM, durable, subjects.syncs(self.name))
+        await _consume(sub, self._budget)
+
+    async def _budget(self, msg: Msg) -> None:
+        self.keep_budget(msg.subject, msg.data)
+        await msg.ack()
+
+    def keep_budget(self, subject: str, data: bytes) -> bool:
+        """Keep a vehicle's pre-signed SYNCs (none: drop those kept, withdrawn); a message that is not a
+        budget for this gateway on its own subject, or holds anything but scheduled SYNCs, is refused
+        (logged). Whether it was kept."""
+        try:
+            budget = SyncBudgetMessage.decode(data)
+            if budget.gateway != self.name or subject != subjects.syncs(self.name, budget.address):
+                raise PayloadError(f"one for {budget.gateway}'s vehicle {budget.address} on {subject}")
+            packets = [decode_control(frame) for frame in budget.syncs]
+        except (PayloadError, PacketError) as exc:
+            log.error("SYNC budget refused on %s: %s", subject, exc)
+            return False
+        if any(p.command is not Command.SYNC or not p.flags & ControlFlag.SCHEDULED for p in packets):
+            log.error(
+                "SYNC budget %s for vehicle %d refused: not only scheduled SYNCs", budget.id, budget.address
+            )
+            return False
+        if not self.outbox.keep_budget(budget, [p.time for p in packets]):
+            return True  # a redelivery: kept already
+        if packets:
+            last = time.strftime("%H:%M:%S", time.gmtime(max(p.time for p in packets)))
+            log.info("vehicle %d: %d pre-signed SYNCs kept, to %s UTC", budget.address, len(packets), last)
+        else:
+            log.info("vehicle %d: its pre-signed SYNCs withdrawn (%s)", budget.address, budget.id)
+        return True
+
+    def _budget_syncs(self) -> None:
+        """Queue first a pre-signed SYNC for each vehicle the center's SYNCs have not reached for two
+        intervals (its backhaul or the center is down) and that had none from here for one."""
+        if self.driver is None:
+            return
+        now = time.monotonic()
+        for budget in self.outbox.budgets():
+            quiet = now - self._center_synced.get(budget.address, self._started)
+            if (
+                quiet < 2 * budget.interval
+                or now - self._budget_used.get(budget.address, -math.inf) < budget.interval
+            ):
+                continue
+            taken = self.outbox.take_sync(budget, time.time())
+            if taken is None:
+                continue
+            at, frame = taken
+            self._budget_used[budget.address] = now
+            command = CommandMessage(
+                subjects.sync_id(budget.address, at), self.name, budget.address, frame, attempts=1,
+                ack_timeout=budget.ack_timeout, expires_at=at + budget.step,
+            )  # fmt: skip
+            self.queue.appendleft((command, 0))
+            log.info(
+                "vehicle %d: pre-signed SYNC %d (due %.0f s ago); none from the center for %.0f s",
+                budget.address, at, time.time() - at, quiet,
+            )  # fmt: skip
+
     # --- heartbeat -------------------------------------------------------------------------------
 
     async def _beat(self) -> None:
@@ -303,18 +439,40 @@ class Gateway:
         outage is stale by the time it could go)."""
         while True:
             if self.nc is not None and self.nc.is_connected:
-                detail = {
-                    "incarnation": self.outbox.incarnation,
-                    "backhaul": "up",
-                    "outbox": self.outbox.depth(),
-                    "modem": self.driver.state.value if self.driver else "none",
-                }
                 beat = EventMessage(
-                    f"{self.name}-beat-{time.time():.3f}", self.name, "heartbeat", time.time(), detail
-                )
+                    f"{self.name}-beat-{time.time():.3f}", self.name, "heartbeat", time.time(),
+                    self.state().detail(),
+                )  # fmt: skip
                 with contextlib.suppress(NatsError):
                     await self.nc.publish(subjects.events(self.name), beat.encode())
-            await asyncio.sleep(self.heartbeat)
+            self._beat_now.clear()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._beat_now.wait(), self.heartbeat)
+
+    def state(self) -> GatewayState:
+        """What its heartbeat says: its outbox, modem, place and last outage."""
+        return GatewayState(
+            self.outbox.incarnation,
+            self.outbox.depth(),
+            self.driver.state.value if self.driver else "none",
+            self.address,
+            self.place,
+            self.outage,
+        )
+
+
+async def _consume(sub: JetStreamContext.PullSubscription, handle: Callable[[Msg], Awaitable[None]]) -> None:
+    """Fetch from a pull consumer for ever, each message to ``handle`` in order."""
+    while True:
+        try:
+            msgs = await sub.fetch(16, timeout=1.0)
+        except TimeoutError:
+            continue
+        except NatsError:  # failed at once (closed, consumer gone): never spin without yielding
+            await asyncio.sleep(0.5)
+            continue
+        for msg in msgs:
+            await handle(msg)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -335,6 +493,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--modem-address", type=int, default=0, help="the shore modem's address (default 0)")
     parser.add_argument("--modem-log", default=None, help="append the modem's sentences to this file")
+    parser.add_argument(
+        "--position",
+        type=_place,
+        default=None,
+        metavar="NORTH,EAST[,DEPTH]",
+        help="where the modem is: metres north and east of the fleet's origin (TACIT_ORIGIN), and its "
+        "depth; the center's screens show it (--position=-300,0,1 when it starts with a minus)",
+    )
+
+
+def _place(text: str) -> Place:
+    """``--position``'s value; a refusal says what a place is."""
+    try:
+        return Place.parse(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -356,7 +530,10 @@ def run(args: argparse.Namespace) -> int:
         log.warning("no modem (--modem-url): relaying nothing but commands' receipts")
 
     async def main() -> None:
-        gateway = Gateway(outbox, args.nats, driver, auth=auth)
+        gateway = Gateway(
+            outbox, args.nats, driver, auth=auth, place=args.position,
+            address=args.modem_address if driver else None,
+        )  # fmt: skip
         await gateway.start()
         log.info(
             "gateway %s: outbox %s (%d waiting), publishing to %s",

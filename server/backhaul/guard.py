@@ -3,13 +3,18 @@ gateways' table, and a message that fails is a logged, counted refusal, never an
 
 * A frame must decode (``subjects.FrameMessage``), come on its own gateway's subject with an id of that
   gateway (the broker's permissions keep a gateway to its own subject; the id check catches a message
-  passed off inside it), and carry a finite time and a statistics object.
-* An event must decode and come on its own gateway's subject.
+  passed off inside it), on its source address's partition (the process that owns the partition decodes
+  the vehicle), and carry a finite time and a statistics object.
+* An event must decode and come on its own gateway's subject; a heartbeat's detail must be a
+  ``subjects.GatewayState`` (its place, outbox and outage numbers).
 * A gateway announcing itself twice: heartbeats under one name from two outbox incarnations (two
   processes sharing a name or a credentials file, or a gateway restarted on a new outbox while the old
   one still runs). The first keeps the name until it has been silent for ``STALE_BEATS`` heartbeats;
   the other's heartbeats are refused and logged. Its frames are not: their ids differ (the incarnation
   is part of them), so they are stored, none lost.
+* A stale heartbeat (sent ``STALE_BEATS`` heartbeats ago or more, by its own time: a backlog a center
+  consumes after it was away) is passed on but says nothing of now: it neither makes its gateway up nor
+  holds its name against another incarnation.
 """
 
 from __future__ import annotations
@@ -20,7 +25,7 @@ from collections import Counter
 from dataclasses import dataclass
 
 from server.backhaul import subjects
-from server.backhaul.subjects import EventMessage, FrameMessage, PayloadError
+from server.backhaul.subjects import EventMessage, FrameMessage, GatewayState, PayloadError
 
 log = logging.getLogger("tacit.backhaul.guard")
 
@@ -40,7 +45,7 @@ class Announced:
 class Guard:
     def __init__(self, heartbeat: float = subjects.HEARTBEAT) -> None:
         self.heartbeat = heartbeat
-        self.refused: Counter[str] = Counter()  # by reason: malformed, foreign, twice
+        self.refused: Counter[str] = Counter()  # by reason: malformed, foreign, partition, twice
         self.announced: dict[str, Announced] = {}  # by gateway name
 
     def frame(self, subject: str, data: bytes) -> FrameMessage | None:
@@ -51,9 +56,18 @@ class Guard:
         except (PayloadError, ValueError) as exc:
             self._refuse("malformed", f"malformed frame message on {subject} dropped: {exc}")
             return None
-        if subject != subjects.frames(frame.gateway) or not _own(frame.gateway, frame.id):
+        if not subject.startswith(subjects.frames(frame.gateway).removesuffix("*")) or not _own(
+            frame.gateway, frame.id
+        ):
             self._refuse(
                 "foreign", f"frame {frame.id[:MAX_ID]!r} of gateway {frame.gateway!r} on {subject} dropped"
+            )
+            return None
+        if subject != subjects.frames(frame.gateway, subjects.partition(frame.src)):
+            self._refuse(
+                "partition",
+                f"frame {frame.id} from address {frame.src} on {subject} dropped: not its partition's subject "
+                f"({subjects.PARTITIONS} partitions: a gateway of another wire)",
             )
             return None
         if not math.isfinite(frame.at) or not isinstance(frame.stats, dict | None):
@@ -71,9 +85,18 @@ class Guard:
         if subject != subjects.events(event.gateway):
             self._refuse("foreign", f"event of gateway {event.gateway!r} on {subject} dropped")
             return None
-        if event.kind == "heartbeat" and not self._one_incarnation(event, now):
+        if event.kind != "heartbeat":
+            return event
+        try:
+            GatewayState.of(event.detail)
+        except PayloadError as exc:
+            self._refuse("malformed", f"heartbeat {event.id!r} on {subject} dropped: {exc}")
             return None
-        return event
+        return event if self.stale(event, now) or self._one_incarnation(event, now) else None
+
+    def stale(self, event: EventMessage, now: float) -> bool:
+        """The event was sent ``STALE_BEATS`` heartbeats ago or more (its gateway's clock)."""
+        return now - event.at >= STALE_BEATS * self.heartbeat
 
     def up(self, gateway: str, now: float) -> bool:
         """Its last heartbeat came less than ``STALE_BEATS`` heartbeats ago."""

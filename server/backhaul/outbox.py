@@ -9,7 +9,9 @@ first, each with its id as ``Nats-Msg-Id``, and marks it published when JetStrea
 an outage or a restart it resumes from the first unpublished message. A message published whose ack was
 lost is published again: JetStream drops it within its ``duplicate_window``, the center's store after.
 
-Commands from the center are kept in the same file (``inbox``), de-duplicated by their id.
+Commands from the center are kept in the same file (``inbox``), de-duplicated by their id, and so are
+the SYNCs it pre-signed for each vehicle the gateway serves (``budget``, ``budget_sync``), so that a
+gateway restarted during a backhaul outage still has them.
 
 Standard library (and nats-py for the publisher): the gateway imports it.
 """
@@ -29,7 +31,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from server.backhaul import subjects
-from server.backhaul.subjects import CommandMessage, EventMessage, FrameMessage
+from server.backhaul.subjects import CommandMessage, EventMessage, FrameMessage, SyncBudgetMessage
 
 if TYPE_CHECKING:
     from nats.js import JetStreamContext
@@ -53,7 +55,30 @@ CREATE TABLE IF NOT EXISTS inbox (
     received_at REAL NOT NULL,
     state TEXT NOT NULL DEFAULT 'stored'
 );
+CREATE TABLE IF NOT EXISTS budget (
+    address INTEGER PRIMARY KEY,
+    id TEXT NOT NULL,
+    interval REAL NOT NULL,
+    step REAL NOT NULL,
+    ack_timeout REAL NOT NULL
+);
+CREATE TABLE IF NOT EXISTS budget_sync (
+    address INTEGER NOT NULL,
+    at INTEGER NOT NULL,
+    frame BLOB NOT NULL,
+    PRIMARY KEY (address, at)
+);
 """
+
+
+@dataclass(frozen=True)
+class Budget:
+    """How the gateway uses a vehicle's pre-signed SYNCs (``subjects.SyncBudgetMessage``)."""
+
+    address: int
+    interval: float
+    step: float
+    ack_timeout: float
 
 
 @dataclass(frozen=True)
@@ -84,7 +109,24 @@ class Outbox:
             if row is None:
                 row = (secrets.token_hex(4),)
                 self._db.execute("INSERT INTO meta VALUES ('incarnation', ?)", row)
+            self._partition_frames()
         self.incarnation: str = row[0]
+
+    def _partition_frames(self) -> None:
+        """Frames a gateway of the previous wire stored on its gateway's subject and did not publish go on
+        their partition's subject (``subjects.frames``): the center consumes no other."""
+        legacy = self._db.execute(
+            "SELECT seq, payload FROM outbox WHERE published = 0 AND subject = ?",
+            (subjects.frames(self.gateway).rsplit(".", 1)[0],),  # without the partition
+        ).fetchall()
+        for seq, payload in legacy:
+            src = FrameMessage.decode(bytes(payload)).src
+            self._db.execute(
+                "UPDATE outbox SET subject = ? WHERE seq = ?",
+                (subjects.frames(self.gateway, subjects.partition(src)), seq),
+            )
+        if legacy:
+            log.warning("outbox: %d unpublished frames moved to their partitions' subjects", len(legacy))
 
     def close(self) -> None:
         with self._lock:
@@ -132,7 +174,7 @@ class Outbox:
                 message_id, self.gateway, src, dest, data, rate, snr_in, snr_out, stats, at
             ).encode()
 
-        return self._add(subjects.frames(self.gateway), build, at)
+        return self._add(subjects.frames(self.gateway, subjects.partition(src)), build, at)
 
     def add_event(self, kind: str, detail: dict[str, Any], at: float | None = None) -> str:
         """Store an event to report upward (an attempt's outcome, a modem state); its id."""
@@ -199,6 +241,58 @@ class Outbox:
                 "SELECT payload FROM inbox WHERE state = ? ORDER BY received_at", (state,)
             ).fetchall()
         return [CommandMessage.decode(bytes(row[0])) for row in rows]
+
+    # --- SYNC budgets down ----------------------------------------------------------------------
+
+    def keep_budget(self, message: SyncBudgetMessage, stamps: list[int]) -> bool:
+        """Replace the vehicle's pre-signed SYNCs by the message's (``stamps``: each frame's time; none:
+        withdrawn); False if this message was kept already (a redelivery)."""
+        with self._lock, self._tx():
+            row = self._db.execute("SELECT id FROM budget WHERE address = ?", (message.address,)).fetchone()
+            if row is not None and row[0] == message.id:
+                return False
+            self._db.execute("DELETE FROM budget_sync WHERE address = ?", (message.address,))
+            self._db.execute("DELETE FROM budget WHERE address = ?", (message.address,))
+            if message.syncs:
+                self._db.execute(
+                    "INSERT INTO budget VALUES (?, ?, ?, ?, ?)",
+                    (message.address, message.id, message.interval, message.step, message.ack_timeout),
+                )
+                self._db.executemany(
+                    "INSERT OR REPLACE INTO budget_sync VALUES (?, ?, ?)",
+                    [(message.address, at, frame) for at, frame in zip(stamps, message.syncs, strict=True)],
+                )
+            return True
+
+    def budgets(self) -> list[Budget]:
+        """The vehicles this gateway holds pre-signed SYNCs for."""
+        with self._lock:
+            rows = self._db.execute("SELECT address, interval, step, ack_timeout FROM budget").fetchall()
+        return [Budget(int(a), float(i), float(s), float(t)) for a, i, s, t in rows]
+
+    def budget_left(self, address: int) -> tuple[int, int | None]:
+        """How many pre-signed SYNCs are kept for the vehicle, and the time of the last."""
+        with self._lock:
+            n, last = self._db.execute(
+                "SELECT count(*), max(at) FROM budget_sync WHERE address = ?", (address,)
+            ).fetchone()
+        return int(n), None if last is None else int(last)
+
+    def take_sync(self, budget: Budget, now: float) -> tuple[int, bytes] | None:
+        """The vehicle's newest pre-signed SYNC whose time has come, if it is less than a step old (its
+        time and frame); it and every older one are dropped: none goes out twice, or late."""
+        with self._lock, self._tx():
+            row = self._db.execute(
+                "SELECT at, frame FROM budget_sync WHERE address = ? AND at <= ? ORDER BY at DESC LIMIT 1",
+                (budget.address, now),
+            ).fetchone()
+            if row is None:
+                return None
+            self._db.execute(
+                "DELETE FROM budget_sync WHERE address = ? AND at <= ?", (budget.address, row[0])
+            )
+        at, frame = int(row[0]), bytes(row[1])
+        return (at, frame) if now - at < budget.step else None
 
 
 class Publisher:

@@ -37,7 +37,6 @@ class RelayedIncoming(IncomingFrame):
     """A received frame with the backhaul message it came in."""
 
     id: str = ""
-    gateway: str = ""
 
     @classmethod
     def of(cls, m: FrameMessage) -> RelayedIncoming:
@@ -118,6 +117,7 @@ class RelayIngest(Ingest):
         batch.record(self._row(frame, digest, frame_id, kept=better))
         detail = {
             "address": frame.src,
+            "frame_id": frame_id,
             "gateway": frame.gateway,
             "snr_in": frame.snr_in,
             "heard_by": batch.heard_by(s, frame_id),

@@ -23,6 +23,30 @@ def stored_ids(s: Session, message_ids: Sequence[str]) -> set[str]:
     return set(s.exec(select(RelayedFrame.id).where(col(RelayedFrame.id).in_(message_ids))).all())
 
 
+def frame_ids(s: Session, message_ids: Sequence[str], chunk: int = 500) -> dict[str, int | None]:
+    """Of the message ids, those stored, with the frame row each stands for."""
+    out: dict[str, int | None] = {}
+    for i in range(0, len(message_ids), chunk):
+        query = select(RelayedFrame.id, RelayedFrame.frame_id).where(
+            col(RelayedFrame.id).in_(message_ids[i : i + chunk])
+        )
+        out.update(dict(s.exec(query).all()))
+    return out
+
+
+def copy_counts(s: Session, frame_ids: Sequence[int], chunk: int = 500) -> dict[int, int]:
+    """How many gateways' copies each frame row stands for."""
+    out: dict[int, int] = {}
+    for i in range(0, len(frame_ids), chunk):
+        query = (
+            select(RelayedFrame.frame_id, func.count())
+            .where(col(RelayedFrame.frame_id).in_(frame_ids[i : i + chunk]))
+            .group_by(col(RelayedFrame.frame_id))
+        )
+        out.update({int(f): int(n) for f, n in s.exec(query).all() if f is not None})
+    return out
+
+
 def add_rows(s: Session, rows: list[dict[str, Any]]) -> None:
     """Relayed frames' records, in one statement."""
     if rows:
@@ -63,6 +87,22 @@ def heard_by(s: Session, frame_id: int) -> int:
     """How many gateways' copies the frame row stands for."""
     query = select(func.count()).select_from(RelayedFrame).where(RelayedFrame.frame_id == frame_id)
     return int(s.exec(query).one())
+
+
+def copies_of(s: Session, frame_ids: Sequence[int]) -> dict[int, list[RelayedFrame]]:
+    """Each frame's copies from the gateways that heard it (none for a frame of a shore's own modem),
+    in the order they came."""
+    if not frame_ids:
+        return {}
+    query = (
+        select(RelayedFrame)
+        .where(col(RelayedFrame.frame_id).in_(frame_ids))
+        .order_by(col(RelayedFrame.received_at))
+    )
+    found: dict[int, list[RelayedFrame]] = {}
+    for row in s.exec(query).all():
+        found.setdefault(row.frame_id or 0, []).append(row)
+    return found
 
 
 def copies(s: Session, frame_id: int) -> list[RelayedFrame]:

@@ -17,12 +17,16 @@ Standard library and the core: the gateway imports it.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from tacit.rates import CYCLE_INIT_BITS, airtime_s, data_airtime_s
 
 #: A command attempt's time on the air before its ACK wait: the cycle-init and one rate-0 frame.
 ATTEMPT_AIRTIME = airtime_s(CYCLE_INIT_BITS, 0) + data_airtime_s(0, 1)
+#: s either side of its stamp in which a gateway sends the center's SYNC: the center stamps it for the
+#: start of a slot of its gateway, and its time sets the vehicle's clock (within the agent's dead band).
+SYNC_WINDOW = 2.0
 
 
 def guard_for(max_range: float, clock_error: float, sound_speed: float = 1500.0) -> float:
@@ -69,10 +73,21 @@ class SlotPlan:
                 return max(now, begins + self.guard)
         raise AssertionError("unreachable: every frame holds one slot of each gateway")
 
+    def next_slot(self, gateway: str, after: float) -> float:
+        """When ``gateway``'s first slot whose transmissions start at ``after`` or later opens (its
+        beginning plus the guard)."""
+        if gateway not in self.order:
+            raise ValueError(f"{gateway} has no slot in this plan")
+        k = math.ceil((after - self.epoch - self.guard) / self.slot)
+        k += (self.order.index(gateway) - k) % len(self.order)
+        return self.epoch + k * self.slot + self.guard
+
 
 class Schedule:
     """A gateway's plans: the one in force, and the one the center handed out for a later epoch (every
-    gateway changes plan at that same instant of its clock, none while another still follows the old)."""
+    gateway changes plan at that same instant of its clock, none while another still follows the old).
+    A gateway that has only a plan to come (it started after the center handed it out) transmits nothing
+    before its epoch: the others follow another plan until then, whose slots it does not know."""
 
     def __init__(self) -> None:
         self.current: SlotPlan | None = None
@@ -80,10 +95,15 @@ class Schedule:
 
     def receive(self, plan: SlotPlan, now: float) -> None:
         self._promote(now)
-        if self.current is None or plan.epoch <= now:
+        if plan.epoch <= now:
             self.current, self.coming = plan, None
         else:
             self.coming = plan
+
+    def plan(self, now: float) -> SlotPlan | None:
+        """The plan in force at ``now`` (None before the first one's epoch)."""
+        self._promote(now)
+        return self.current
 
     def _promote(self, now: float) -> None:
         if self.coming is not None and now >= self.coming.epoch:
@@ -93,14 +113,39 @@ class Schedule:
         """When ``gateway`` may start a transmission of ``duration`` s (clipped to a slot): in its slot of
         the plan in force, or of the coming one if it would straddle the change; ``now`` when no plan
         in force holds the gateway (alone on its band)."""
+        return self._first(
+            gateway,
+            now,
+            lambda plan, t: plan.next_start(gateway, t, min(duration, plan.usable)),
+            lambda plan: min(duration, plan.usable),
+        )
+
+    def opening(self, gateway: str, after: float) -> float:
+        """When ``gateway``'s first slot opening at ``after`` or later opens (as ``start`` picks it for
+        a slot's exchange); ``after`` when no plan in force holds the gateway."""
+        return self._first(
+            gateway, after, lambda plan, t: plan.next_slot(gateway, t), lambda plan: plan.usable
+        )
+
+    def _first(
+        self,
+        gateway: str,
+        now: float,
+        pick: Callable[[SlotPlan, float], float],
+        length: Callable[[SlotPlan], float],
+    ) -> float:
+        """``pick``'s time in the plan in force, or in the coming one when what takes ``length`` would
+        straddle the change (nothing before a coming plan's epoch when none is in force)."""
         self._promote(now)
-        plan = self.current
-        if plan is None or gateway not in plan.order:
+        plan, coming = self.current, self.coming
+        if plan is None and coming is not None:  # only a plan to come: nothing before its epoch
+            at = now
+        elif plan is None or gateway not in plan.order:
             return now
-        start = plan.next_start(gateway, now, min(duration, plan.usable))
-        coming = self.coming
-        if coming is not None and start + min(duration, plan.usable) > coming.epoch:
+        else:
+            at = pick(plan, now)
+        if coming is not None and (plan is None or at + length(plan) > coming.epoch):
             if gateway not in coming.order:
-                return max(start, coming.epoch)
-            return coming.next_start(gateway, max(now, coming.epoch), min(duration, coming.usable))
-        return start
+                return max(at, coming.epoch)
+            return pick(coming, max(now, coming.epoch))
+        return at

@@ -2,12 +2,20 @@
 
 Subjects (docs/backhaul.md has the table other tools subscribe by):
 
-* ``tacit.v1.frames.<gateway>``: up, a frame the gateway's modem received (``FrameMessage``);
+* ``tacit.v1.frames.<gateway>.<partition>``: up, a frame the gateway's modem received (``FrameMessage``);
+  ``<partition>`` is its source modem address modulo ``PARTITIONS`` (``partition``), so that the
+  center's processes can share the vehicles, each partition decoded by one of them at a time
+  (``server.backhaul.leases``);
 * ``tacit.v1.commands.<gateway>``: down, a signed command frame for the gateway to send (``CommandMessage``);
 * ``tacit.v1.events.<gateway>``: up, what the gateway reports: attempt outcomes, modem states, its
   heartbeat (``EventMessage``);
 * ``tacit.v1.schedule.<gateway>``: down, the gateway's transmit slots in the TDMA frame the center
-  hands the gateways sharing the band (``ScheduleMessage``; the stream keeps the last per gateway).
+  hands the gateways sharing the band (``ScheduleMessage``; the stream keeps the last per gateway);
+* ``tacit.v1.live.<center>``: between the center's processes (core NATS, not a stream), the live events
+  each one's browsers are shown (``server.backhaul.live``).
+* ``tacit.v1.syncs.<gateway>.<address>``: down, the SYNCs the center pre-signed for the vehicle at
+  ``address`` while the gateway serves it, or their withdrawal (``SyncBudgetMessage``; the stream keeps
+  the last per gateway and vehicle).
 
 Every message carries an ``id`` unique across the system, which is also its ``Nats-Msg-Id`` header
 (JetStream's de-duplication within the stream's ``duplicate_window``). Payloads are JSON objects with
@@ -19,6 +27,7 @@ Standard library only: the gateway imports it.
 from __future__ import annotations
 
 import json
+import math
 import re
 from dataclasses import asdict, dataclass, field
 from typing import Any
@@ -29,10 +38,14 @@ FRAMES_STREAM = "TACIT_FRAMES"
 COMMANDS_STREAM = "TACIT_COMMANDS"
 EVENTS_STREAM = "TACIT_EVENTS"
 SCHEDULE_STREAM = "TACIT_SCHEDULE"
+SYNCS_STREAM = "TACIT_SYNCS"
 DUPLICATE_WINDOW = 120.0  # s: JetStream drops a message whose id it stored this recently
 COMMAND_MAX_AGE = 600.0  # s: a signed command frame is acceptable to the vehicle for its max_age
 EVENTS_MAX_AGE = 86400.0  # s: events are kept a day for late subscribers
 HEARTBEAT = 10.0  # s between a gateway's heartbeats
+# Frame subjects' partitions. Part of the wire, not a setting: a gateway and the center that disagreed on
+# it would put one vehicle's frames in two partitions (two processes decoding it) or strand them.
+PARTITIONS = 16
 MSG_ID = "Nats-Msg-Id"
 _TOKEN = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 
@@ -48,8 +61,15 @@ def gateway_name(name: str) -> str:
     return name
 
 
-def frames(gateway: str = "*") -> str:
-    return f"{PREFIX}.frames.{gateway}"
+def partition(address: int) -> int:
+    """The frames partition of a vehicle's modem address."""
+    return address % PARTITIONS
+
+
+def frames(gateway: str = "*", part: int | str = "*") -> str:
+    """A frame subject: ``frames(g, partition(src))``; ``frames(">")`` every frame, ``frames(g)`` every
+    partition of one gateway, ``frames("*", p)`` one partition of every gateway."""
+    return f"{PREFIX}.frames.{gateway}" if gateway == ">" else f"{PREFIX}.frames.{gateway}.{part}"
 
 
 def commands(gateway: str = "*") -> str:
@@ -62,6 +82,26 @@ def events(gateway: str = "*") -> str:
 
 def schedule(gateway: str = "*") -> str:
     return f"{PREFIX}.schedule.{gateway}"
+
+
+def live(center: str = "*") -> str:
+    return f"{PREFIX}.live.{center}"
+
+
+def syncs(gateway: str = "*", address: int | str = "*") -> str:
+    """A vehicle's SYNC budget at a gateway (``*``: any); ``syncs(">")``: every one."""
+    return f"{PREFIX}.syncs.>" if gateway == ">" else f"{PREFIX}.syncs.{gateway}.{address}"
+
+
+def sync_id(address: int, counter: int) -> str:
+    """The command id of a SYNC to the vehicle at ``address`` (the center's, or one of a budget)."""
+    return f"sync-{address}-{counter}"
+
+
+def is_sync(command_id: str) -> bool:
+    """Whether a command id is a SYNC's: its outcome is not a command's (the next check-point says
+    whether it arrived)."""
+    return command_id.startswith("sync-")
 
 
 def _load(data: bytes) -> dict[str, Any]:
@@ -189,11 +229,50 @@ class ScheduleMessage:
 
 
 @dataclass(frozen=True)
+class SyncBudgetMessage:
+    """The SYNCs the center pre-signed for the vehicle at ``address`` while ``gateway`` serves it (each
+    frame a scheduled SYNC whose counter is its time, one every ``step`` s), replacing any the gateway
+    held for it; none: withdrawn. The gateway sends one when the center's own SYNCs for the vehicle have
+    stopped for two ``interval`` s (a backhaul outage), then one per ``interval``: the newest whose time
+    has come, if it is less than ``step`` old, with one attempt waiting ``ack_timeout`` s for the ACK."""
+
+    id: str
+    gateway: str
+    address: int
+    syncs: tuple[bytes, ...] = ()
+    interval: float = 60.0
+    step: float = 60.0
+    ack_timeout: float = 20.0
+
+    def encode(self) -> bytes:
+        return _dump({**asdict(self), "syncs": [frame.hex() for frame in self.syncs]})
+
+    @classmethod
+    def decode(cls, data: bytes) -> SyncBudgetMessage:
+        body = _load(data)
+        try:
+            message = cls(
+                id=str(body["id"]),
+                gateway=str(body["gateway"]),
+                address=int(body["address"]),
+                syncs=tuple(bytes.fromhex(frame) for frame in body.get("syncs", ())),
+                interval=float(body["interval"]),
+                step=float(body["step"]),
+                ack_timeout=float(body["ack_timeout"]),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise PayloadError(f"a SYNC budget without {exc}") from exc
+        if not all(math.isfinite(v) and v > 0 for v in (message.interval, message.step, message.ack_timeout)):
+            raise PayloadError("a SYNC budget's interval, step and ACK wait are positive numbers")
+        return message
+
+
+@dataclass(frozen=True)
 class EventMessage:
     """What a gateway reports. ``kind``: ``attempt`` (detail: command id, outcome ``stored``/``sent``/
     ``acked``/``failed``/``expired``, attempt number; the last one of a command has ``final``: true and
     its outcome is ``acked``, ``failed`` (no ACK after its attempts) or ``expired``), ``modem`` (detail: state), ``heartbeat`` (detail:
-    backhaul state, outbox depth: frames and events not yet published)."""
+    ``GatewayState``)."""
 
     id: str
     gateway: str
@@ -219,5 +298,81 @@ class EventMessage:
             raise PayloadError(f"an event without {exc}") from exc
 
 
+@dataclass(frozen=True)
+class Place:
+    """Where a gateway's modem is, as every position in the fleet: metres north and east of the fleet's
+    one origin (``TACIT_ORIGIN`` gives it in latitude and longitude), and its depth (m)."""
+
+    north: float
+    east: float
+    depth: float = 0.0
+
+    @classmethod
+    def parse(cls, text: str) -> Place:
+        """``NORTH,EAST[,DEPTH]`` (m); raises ValueError."""
+        try:
+            values = [_finite(x) for x in text.split(",")]
+        except ValueError:
+            values = []
+        if len(values) not in (2, 3):
+            raise ValueError(f"a place is NORTH,EAST[,DEPTH] in metres: {text!r}")
+        return cls(*values)
+
+
+@dataclass(frozen=True)
+class Outage:
+    """A backhaul outage the gateway lived through: how long (s), when it ended (UNIX s, its clock), and
+    the messages its outbox held when the backhaul came back (the backlog it then sent)."""
+
+    lasted: float
+    ended: float
+    backlog: int
+
+
+@dataclass(frozen=True)
+class GatewayState:
+    """A heartbeat's detail, what a gateway says of itself: its outbox's incarnation, its backhaul (``up``:
+    it is sent only while connected), the messages not yet published (``outbox``), its modem's address and
+    state, its place (None: not told) and its last outage (None: none since it started)."""
+
+    incarnation: str
+    outbox: int
+    modem: str
+    address: int | None = None
+    place: Place | None = None
+    outage: Outage | None = None
+    backhaul: str = "up"
+
+    def detail(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def of(cls, detail: dict[str, Any]) -> GatewayState:
+        """The heartbeat in an event's detail; raises PayloadError (a field missing or of the wrong type)."""
+        try:
+            place, outage = detail.get("place"), detail.get("outage")
+            address = detail.get("address")
+            return cls(
+                incarnation=str(detail["incarnation"]),
+                outbox=int(detail["outbox"]),
+                modem=str(detail.get("modem", "")),
+                address=None if address is None else int(address),
+                place=None if place is None else Place(*(_finite(place[k]) for k in ("north", "east", "depth"))),
+                outage=None if outage is None else Outage(
+                    _finite(outage["lasted"]), _finite(outage["ended"]), int(outage["backlog"])
+                ),
+                backhaul=str(detail.get("backhaul", "up")),
+            )  # fmt: skip
+        except (KeyError, TypeError, ValueError) as exc:
+            raise PayloadError(f"a heartbeat without {exc}") from exc
+
+
 def _number(value: Any) -> float | None:
     return None if value is None else float(value)
+
+
+def _finite(value: Any) -> float:
+    number = float(value)
+    if not math.isfinite(number):
+        raise ValueError(f"a number: {value!r}")
+    return number

@@ -150,6 +150,27 @@ def supersede_older(s: Tx, command: CommandRecord) -> list[CommandRecord]:
     return [c for c in repo.executing_before(s, command) if advance(s, c, CommandState.SUPERSEDED, detail)]
 
 
+def _caught_up(s: Tx, vehicle: Vehicle, reported: int) -> int:
+    """The latest sequence number issued to the vehicle, raised to the one its verified check-point
+    reports when that is ahead (by less than half the 16-bit circle): the shore's database is older than
+    the vehicle's memory (restored from a backup, or lost). Numbers it would issue again from there are
+    ones the vehicle already accepted, and it would refuse every command as a replay."""
+    latest = vehicle.next_seq - 1
+    ahead = (reported - latest) % 65536
+    if 0 < ahead < 32768:
+        log.warning(
+            "vehicle %s: its check-point reports command seq %d, which this shore has not issued (a database "
+            "older than the vehicle's memory): issuing from seq %d",
+            vehicle.name,
+            latest + ahead,
+            latest + ahead + 1,
+        )
+        latest += ahead
+        vehicle_repo.raise_next_seq(s, saved_id(vehicle), latest + 1)
+        vehicle.next_seq = latest + 1
+    return latest
+
+
 def apply_checkpoint(s: Tx, vehicle: Vehicle, cp: CheckpointPacket, body: dict) -> list[CommandChanged]:
     """What a verified check-point says of the vehicle's commands, through the one lifecycle:
     last_command's status, with where and when (``body``, the check-point), and the final statuses of the
@@ -157,7 +178,7 @@ def apply_checkpoint(s: Tx, vehicle: Vehicle, cp: CheckpointPacket, body: dict) 
     executing are superseded."""
     if not cp.last_command:
         return []
-    latest = vehicle.next_seq - 1  # the check-point names the latest seq with these low 16 bits
+    latest = _caught_up(s, vehicle, cp.last_command)  # the check-point names it with these low 16 bits
     last = latest - ((latest - cp.last_command) % 65536)
     heard_at = time.time()
     vehicle_offset = telemetry.clock_offset(s, saved_id(vehicle), (cp.time, heard_at))

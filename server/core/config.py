@@ -55,6 +55,10 @@ class Settings(BaseSettings):
     sync_interval: float = Field(
         60.0, gt=0
     )  # s between SYNC heartbeats (a fifth of the agent's link_lost_timeout)
+    sync_budget: float = Field(
+        21600.0, ge=0
+    )  # s of SYNCs pre-signed ahead for each vehicle's gateway, sent by it while the center's stop coming
+    # (a backhaul outage); of the vehicles' time, like sync_interval; 0: none (docs/backhaul.md)
     sync_retry: float = Field(
         5.0, gt=0
     )  # s between SYNCs asking for a chain restart, until one is acknowledged
@@ -96,6 +100,8 @@ class Settings(BaseSettings):
     # center sends it through the next gateway (the first never sends it after that: ``start_by``)
     tdma_slot: float = Field(12.0, gt=0)  # s: each gateway's slot in the frame of the gateways on a band
     tdma_guard: float = Field(1.1, ge=0)  # s at each end of a slot: range / 2c + clock error (3 km, NTP)
+    center_lease: float = Field(5.0, ge=1)  # s: a center process's lease on a frames partition or on the
+    # coordinator's role, renewed every third of it; a killed process's are taken over after it
 
     @field_validator("write_tokens", "read_tokens", "cors_origins", mode="before")
     @classmethod

@@ -34,11 +34,14 @@ class Event:
 
 @dataclass(frozen=True, kw_only=True)
 class PacketHeard(Event):
-    """A vehicle packet was stored as packet ``id`` (``auth``: its trust, ``server.telemetry.models.PacketTrust``;
-    a priority packet's is pending until a check-point settles it: ``PacketsSettled``)."""
+    """A vehicle packet was stored as packet ``id`` of frame ``frame_id`` (``auth``: its trust,
+    ``server.telemetry.models.PacketTrust``; a priority packet's is pending until a check-point settles it:
+    ``PacketsSettled``). Another gateway's copy of the frame is a ``LinkNotice`` ``heard_again``."""
 
     kind: ClassVar[str] = "packet"
     id: int
+    frame_id: int
+    gateway: str | None  # the gateway whose copy of the frame came first (None: the shore's own modem)
     vehicle: str
     address: int
     type: str
@@ -122,6 +125,18 @@ class LinkNotice(Event):
 
 
 @dataclass(frozen=True, kw_only=True)
+class Relayed(Event):
+    """An event another center process published, as its ``as_dict`` (``server.backhaul.live``): shown
+    to this process's browsers (``Bus.show``), handled by nothing here."""
+
+    kind: ClassVar[str] = "relayed"
+    body: dict[str, Any]
+
+    def as_dict(self) -> dict[str, Any]:
+        return self.body
+
+
+@dataclass(frozen=True, kw_only=True)
 class SeparationWarning(Event):
     """Two vehicles' predicted positions came within the separation plus both their uncertainties
     (``active``), or are no longer that close (``active`` false): ``server.safety``."""
@@ -143,6 +158,18 @@ class TeamChanged(Event):
     team_id: int
     what: str
     detail: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, kw_only=True)
+class GatewayChanged(Event):
+    """A gateway's heartbeat came (its state, outbox, modem, place), or a vehicle's gateway changed
+    (``what``: ``heartbeat``, ``assignment``, ``pin``, ``unpin``; ``vehicle`` names it): the screens read
+    the gateways again (``GET /api/v1/gateways``)."""
+
+    kind: ClassVar[str] = "gateway"
+    gateway: str
+    what: str
+    vehicle: str | None = None
 
 
 class Bus:
@@ -183,16 +210,22 @@ class Bus:
             loop.call_soon_threadsafe(self._deliver, event)
 
     def _deliver(self, event: Event) -> None:
+        self.show(event)
+        for callback in self._callbacks:
+            callback(event)
+
+    def show(self, event: Event) -> None:
+        """To the subscribers (the browsers' event streams), from the event loop; alone for an event
+        another center process published, which that process's handlers have handled."""
         for queue in list(self._subscribers):
             if queue.full():
                 queue.get_nowait()
             queue.put_nowait(event)
-        for callback in self._callbacks:
-            callback(event)
 
     @staticmethod
     def sse(event: Event) -> str:
-        return f"event: {event.kind}\ndata: {json.dumps(event.as_dict())}\n\n"
+        body = event.as_dict()
+        return f"event: {body['kind']}\ndata: {json.dumps(body)}\n\n"
 
 
 class Watcher:

@@ -42,6 +42,7 @@ class Batch:
     trusted: set[int] = field(default_factory=set)  # older packets whose data became trusted
     vehicles: dict[int, Vehicle] = field(default_factory=dict)  # the batch's vehicles, read once
     stored: dict[int, dict[str, Any]] = field(default_factory=dict)  # older packets' states as read
+    redecoded: dict[int, dict[str, Any]] = field(default_factory=dict)  # older packets decoded now
 
     @classmethod
     def open(cls, s: Tx, frames: int, packets: int) -> Self:
@@ -81,6 +82,17 @@ class Batch:
             else:
                 self.trusted.add(packet_id)
 
+    def decoded(self, s: Tx, packet_id: int, body: dict[str, Any], origin: int | None) -> None:
+        """A packet stored undecoded (it waited for its base state) decoded now: its body and origin."""
+        row = self.packets.get(packet_id) or self.redecoded.get(packet_id)
+        if row is None:
+            stored = self.packet_states(s, [packet_id]).get(packet_id)
+            if stored is None:
+                return
+            row = self.redecoded[packet_id] = {"id": packet_id, "body": dict(stored["body"])}
+        row["body"] = {**{k: x for k, x in row["body"].items() if k != "error"}, **body}
+        row["origin"] = origin
+
     def packet_states(self, s: Tx, packet_ids: Sequence[int]) -> dict[int, dict[str, Any]]:
         """Each packet's ``body``, ``origin``, ``auth`` and ``trusted`` as this batch leaves them."""
         states = {i: self.packets[i] for i in packet_ids if i in self.packets}
@@ -106,6 +118,7 @@ class Batch:
             sample["verified"] = sample["verified"] or sample["packet_id"] in verified
         telemetry.add_frame_rows(s, self.frames)
         telemetry.add_packet_rows(s, list(self.packets.values()))
+        telemetry.decoded_later(s, list(self.redecoded.values()))
         telemetry.add_samples(s, self.samples)
         link.add_events(s, self.events)
         for trust in set(self.trust.values()):
@@ -134,6 +147,9 @@ class Replay(Batch):
         """Stored already."""
 
     def trust_data(self, packet_ids: Iterable[int]) -> None:
+        """Stored already."""
+
+    def decoded(self, s: Tx, packet_id: int, body: dict[str, Any], origin: int | None) -> None:
         """Stored already."""
 
     def flush(self, s: Tx) -> None:

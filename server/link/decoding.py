@@ -5,11 +5,18 @@ does not hold (``UnknownBase``: it was down while the vehicle's modem was ACKed)
 the vehicle is asked, in a SYNC control packet (``needs_restart``, sent by the link engine), to
 restart its chains. A priority packet is not authenticated, so anyone can send one with an unknown
 base: such a request is raised at most once per ``restart_min_interval``.
+
+A *late* packet (heard before a frame stored already: it came through a gateway behind a backhaul
+outage) is decoded if its base state is still held, and leaves the states of the newer packets as they
+were: a late packet that restarted the chain (base 0) must not forget them, nor one whose state id the
+chain has reused since (ids cycle through 63) replace it. A late packet whose base is gone asks for no
+restart: the vehicle's chain has moved on and the newer packets decode.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -34,18 +41,35 @@ class Decoded:
 
 
 def decode(
-    batch: Batch, v: VehicleState, pp: PriorityPacket, at: float, packet_id: int, restart_every: float
+    batch: Batch,
+    v: VehicleState,
+    pp: PriorityPacket,
+    at: float,
+    packet_id: int,
+    restart_every: float,
+    late: bool = False,
 ) -> Decoded:
     """Decode on the vehicle's chain; an unknown base asks for a chain restart (once per ``restart_every``
-    s at most)."""
+    s at most), unless the packet is ``late``. A packet whose base is unknown waits (``LinkRecord.wait``)
+    for a late packet that may leave it."""
+    base, own = chain_ids(pp.payload)
+    held = v.decoder.mark() if late else None
     try:
+        if late and v.link.made.get(base, -math.inf) > at:  # its base id was left by a newer packet since
+            raise UnknownBase(base)
         spans = v.decoder.decode(pp.payload, at)
     except CodecError as exc:
-        return _undecodable(batch, v, pp, at, exc, restart_every)
+        return _undecodable(batch, v, pp, at, exc, restart_every, late, packet_id)
     v.decoder_saved = None
-    base, own = chain_ids(pp.payload)
     out = Decoded(origin=v.link.producers.get(base) if base else None)  # the packet whose state this built on
-    v.link.producers = {own: packet_id} if not base else {**v.link.producers, own: packet_id}
+    if held is None:
+        v.link.producers = {own: packet_id} if not base else {**v.link.producers, own: packet_id}
+        v.link.made[own] = at
+    elif v.link.made.get(own, -math.inf) > at:  # a newer packet's state has its id: the newer stays
+        v.decoder.undo(held)
+    else:  # the newer states stay; the late one's is added as the least recent
+        v.decoder.undo({own: v.decoder.mark()[own], **{k: c for k, c in held.items() if k != own}})
+        v.link.producers[own], v.link.made[own] = packet_id, at
     carried = []
     for span in spans:
         if span.lost:  # the shore cannot vouch for these ticks: stored as uncertain, without values
@@ -109,13 +133,24 @@ def _samples(batch: Batch, v: VehicleState, span: DecodedSpan, packet_id: int) -
 
 
 def _undecodable(
-    batch: Batch, v: VehicleState, pp: PriorityPacket, at: float, exc: CodecError, restart_every: float
+    batch: Batch,
+    v: VehicleState,
+    pp: PriorityPacket,
+    at: float,
+    exc: CodecError,
+    restart_every: float,
+    late: bool,
+    packet_id: int,
 ) -> Decoded:
     stream = pp.stream.name.lower()
     batch.events.append(
         {"vehicle_id": v.id, "kind": "undecodable", "at": at, "detail": {"stream": stream, "error": str(exc)}}
     )
-    if isinstance(exc, UnknownBase) and not v.link.needs_restart and at - v.restart_raised >= restart_every:
+    if isinstance(exc, UnknownBase) and not v.link.made.get(exc.base, -math.inf) > at:
+        v.link.wait(packet_id, pp.encode(), at)  # a late packet may yet leave its base
+    if late:
+        log.warning("vehicle %s: late priority packet seq %d not decoded: %s", v.name, pp.seq, exc)
+    elif isinstance(exc, UnknownBase) and not v.link.needs_restart and at - v.restart_raised >= restart_every:
         v.link.needs_restart = True  # the engine's next SYNCs ask the vehicle to restart its chains
         v.restart_raised = at
         log.warning("vehicle %s: sample chain state lost: asking the vehicle to restart its chains", v.name)

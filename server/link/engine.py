@@ -185,6 +185,7 @@ class LinkEngine:
     async def _run(self) -> None:
         idle = 0  # slots in a row with nothing sent or heard
         while True:
+            self._wake.clear()  # a wake from here on (a command queued during the slot) ends the idle pause
             plan = await self._plan()
             busy = False
             if plan:
@@ -199,7 +200,6 @@ class LinkEngine:
             idle = 0 if busy else idle + 1
             if idle >= max(1, len(plan)):  # a whole round with nothing to do
                 idle = 0
-                self._wake.clear()
                 with contextlib.suppress(asyncio.TimeoutError):
                     await asyncio.wait_for(self._wake.wait(), self.timing.idle_wait())
 
@@ -223,6 +223,8 @@ class LinkEngine:
             return True  # our modem was busy: the SYNC goes first in the next slot (an unsynced vehicle
         # takes no command before it); one on the air does not end the slot: a SYNC never costs a poll
         turn = self.schedule.command_turn(vehicle)  # commands share its slots with polls (schedule.py)
+        if not self.heartbeat.synced(vehicle):
+            turn = False  # it would refuse a command before its first check-point was heard and answered
         command = await self.delivery.next_command(vehicle.id) if turn else None
         if command is not None:
             if await self.delivery.attempt(driver, vehicle, command):

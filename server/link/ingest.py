@@ -24,6 +24,7 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Callable, Iterable
 from typing import Any
 
 from sqlalchemy import Engine
@@ -44,7 +45,7 @@ from server.vehicles import keys
 from server.vehicles import repository as vehicles
 from server.vehicles.models import Vehicle
 from tacit import auth, packets
-from tacit.codec import PacketDecoder, StreamSpec
+from tacit.codec import PacketDecoder, StreamSpec, chain_ids
 from tacit.link import from_frame
 from tacit.navigation import Pose
 from tacit.packets import CheckpointPacket, PacketError, Priority, PriorityPacket, Stream
@@ -64,6 +65,10 @@ class Ingest:
         }  # frames from unknown addresses stored / deleted since start
         self._stranger_floor = 0  # frame id: strangers' frames up to it are deleted already
         self.vehicles: dict[int, VehicleState] = {}  # by modem address; changed only under both locks
+        # the modem addresses whose vehicles this process decodes: all, unless several center processes
+        # share them (``own``); ``known``: every registered vehicle's, whoever decodes it
+        self.mine: Callable[[int], bool] = lambda address: True
+        self.known: list[int] = []
         self._lock = threading.Lock()  # held by a batch from its first frame to its commit
         self._roster = (
             threading.Lock()
@@ -77,6 +82,8 @@ class Ingest:
             "verified": 0,
             "forged": 0,
             "replayed": 0,
+            "late": 0,
+            "waited": 0,
             "unverifiable": 0,
             "old_protocol": 0,
         }
@@ -88,9 +95,11 @@ class Ingest:
     # --- the vehicles' link states ------------------------------------------------------------------
 
     def load_vehicles(self) -> None:
-        """The vehicles from the database; one new here gets its saved link state and decoders back."""
+        """The vehicles from the database (those ``mine`` accepts); one new here gets its saved link state
+        and decoders back."""
         with reading(self.db) as s:
-            rows = vehicles.every(s)
+            every = vehicles.every(s)
+            rows = [v for v in every if self.mine(v.address)]
             with self._lock:
                 fresh = {
                     v.address: self._resume(s, v)
@@ -100,8 +109,26 @@ class Ingest:
                 with self._roster:
                     self.vehicles.update(fresh)
                     for address in set(self.vehicles) - {v.address for v in rows}:
-                        del self.vehicles[address]
-                self.strangers["kept"] = telemetry.count_strangers(s, list(self.vehicles))
+                        self._forget(address)
+                self.known = [v.address for v in every]
+                self.strangers["kept"] = telemetry.count_strangers(s, self.known)
+
+    def own(self, mine: Callable[[int], bool], taking: Callable[[int], bool] = lambda a: False) -> None:
+        """Decode from now on the vehicles whose modem addresses ``mine`` accepts (a center process's
+        partitions, ``server.backhaul.center``). Those it leaves are forgotten (``save_states`` first,
+        unless another process may hold them already). Those ``taking`` accepts (taken over from another
+        process; what this process held of them is stale) and those new here: read from the store, their
+        saved states and the frames stored since replayed, as at start."""
+        with self._lock, self._roster:
+            for address in [a for a in self.vehicles if taking(a) or not mine(a)]:
+                self._forget(address)
+        self.mine = mine
+        self.load_vehicles()
+
+    def _forget(self, address: int) -> None:
+        del self.vehicles[address]
+        self._unsaved.discard(address)
+        self._fresh.discard(address)
 
     def _resume(self, s: Tx, v: Vehicle) -> VehicleState:
         """A vehicle's state as the last run left it, and its last verified check-point (the pose the limits
@@ -144,18 +171,19 @@ class Ingest:
         ) = 0
         log.info("vehicle %s: %d frames after its saved state replayed", state.name, len(frames))
 
-    def save_states(self) -> None:
-        """Every vehicle's state this process changed and did not save (at shutdown: a restart then
-        replays nothing). Only those: a process that only serves the API must not write its stale states
-        over a center's. A database that fails here is logged, not raised: the next start replays."""
-        if not self._unsaved:
+    def save_states(self, which: Callable[[int], bool] = lambda address: True) -> None:
+        """Every vehicle's state (of those ``which`` accepts) this process changed and did not save (at
+        shutdown: a restart then replays nothing). Only those: a process that only serves the API must
+        not write its stale states over a center's. A database that fails here is logged, not raised:
+        the next start replays."""
+        if not any(which(a) for a in self._unsaved):
             return
         try:
             with self._lock, writing(self.db) as s:
-                due = set(self._unsaved)
+                due = {a for a in self._unsaved if which(a)}
                 self._save(s, due)
                 s.commit()
-                self._saved(due, set(), True)
+                self._saved(due, set(), due == self._unsaved)
         except SQLAlchemyError as exc:
             log.warning("link states not saved (%s): the next start replays their frames", exc)
 
@@ -169,25 +197,33 @@ class Ingest:
         self._fresh -= due
         self._saved_at = time.monotonic() if full else self._saved_at
 
-    def next_sync(self, v: VehicleState) -> int:
-        """The vehicle's next SYNC counter, saved before the SYNC leaves (a vehicle refuses a counter it
-        has seen, across a shore restart too); under the batch lock, so no batch's undo takes it back."""
+    def next_sync(self, v: VehicleState, floor: int = 0) -> int:
+        """The vehicle's next SYNC counter, at least ``floor``, saved before the SYNC leaves (a vehicle
+        refuses a counter it has seen, across a shore restart too); under the batch lock, so no batch's
+        undo takes it back."""
         with self._lock, writing(self.db) as s:
-            v.link.sync_counter += 1
+            v.link.sync_counter = max(v.link.sync_counter + 1, floor)
             link_repo.save_state(s, v.id, v.saved())
             s.commit()
             return v.link.sync_counter
 
     def states(self) -> list[VehicleState]:
-        """The vehicles' states (a copy of the list, taken without waiting for a batch in progress)."""
+        """The states of the vehicles this process decodes (a copy of the list, taken without waiting for a
+        batch in progress)."""
         with self._roster:
-            return list(self.vehicles.values())
+            return [v for v in self.vehicles.values() if self.mine(v.address)]
 
     def pose(self, address: int) -> Pose | None:
-        """The pose the vehicle at ``address`` last reported (None before its first check-point)."""
+        """The pose the vehicle at ``address`` last reported (None before its first check-point); of a
+        vehicle another center process decodes, its last verified check-point's, from the store."""
         with self._roster:
             state = self.vehicles.get(address)
-        return state.pose() if state else None
+        if state is not None or self.mine(address):
+            return state.pose() if state else None
+        with reading(self.db) as s:
+            vehicle = vehicles.by_address(s, address)
+            last = telemetry.checkpoints(s, vehicle.id) if vehicle and vehicle.id else []
+        return Pose.from_checkpoint(last[0].body) if last else None
 
     # --- the pipeline -------------------------------------------------------------------------------
 
@@ -198,7 +234,8 @@ class Ingest:
     def handle_batch(self, frames: list[IncomingFrame]) -> list[Event]:
         """Frames that arrived together, in one transaction: nothing is published before the commit."""
         with self._lock:
-            undo = {v.address: v.undo_point() for f in frames if (v := self.vehicles.get(f.src))}
+            batch = {v.address: v for f in frames if (v := self.vehicles.get(f.src))}  # each vehicle once
+            undo = {address: v.undo_point() for address, v in batch.items()}
             strangers = dict(self.strangers), self._stranger_floor
             try:
                 events = self._commit(frames)
@@ -267,11 +304,11 @@ class Ingest:
         """A stored frame from a known vehicle: its packets, in order."""
         v.frames += 1
         v.link.frame = frame_id
-        v.last_heard = frame.at
+        v.last_heard = frame.at if v.last_heard is None else max(v.last_heard, frame.at)  # late: not back
         v.snr_in, v.snr_out = _finite(frame.snr_in), _finite(frame.snr_out)
         events: list[Event] = []
         for chunk in from_frame(frame.data):
-            events += self._packet(s, batch, v, frame_id, chunk, frame.at)
+            events += self._packet(s, batch, v, frame_id, chunk, frame.at, frame.gateway)
         heard = {"address": v.address, "snr_in": frame.snr_in, "snr_out": frame.snr_out}
         return [*events, LinkNotice(event="heard", vehicle=v.name, detail=heard)]
 
@@ -280,7 +317,7 @@ class Ingest:
         came from, ``server.backhaul.relay``)."""
 
     def _packet(
-        self, s: Tx, batch: Batch, v: VehicleState, frame_id: int, chunk: bytes, at: float
+        self, s: Tx, batch: Batch, v: VehicleState, frame_id: int, chunk: bytes, at: float, gateway: str = ""
     ) -> list[Event]:
         if not v.link.seen.first_time(chunk):
             v.duplicates += 1
@@ -321,6 +358,8 @@ class Ingest:
         if isinstance(packet, CheckpointPacket):
             trust, events = self._checkpoint(s, batch, v, packet, body)
             packet_id = batch.add_packet({**row, "auth": trust.value})
+            if trust is PacketTrust.UNVERIFIABLE:  # the packets it covers may come late
+                v.link.wait(packet_id, chunk, at)
         elif not self._tagged(s, batch, v, chunk):
             trust, (packet_id, events) = PacketTrust.FORGED, self._forged(s, batch, v, packet, row)
         else:
@@ -329,6 +368,8 @@ class Ingest:
         log.info("vehicle %s: %s packet seq %d stored (%s)", v.name, kind, packet.seq, trust.value)
         heard = PacketHeard(
             id=packet_id,
+            frame_id=frame_id,
+            gateway=gateway or None,
             vehicle=v.name,
             address=v.address,
             type=kind,
@@ -360,7 +401,7 @@ class Ingest:
         """Frames from unknown modem addresses are kept to the newest ``stranger_frames_kept`` (a stranger's modem
         must not fill the disk), with their ``unknown_vehicle`` events (one per frame)."""
         excess = self.strangers["kept"] - self.settings.stranger_frames_kept
-        dropped = telemetry.drop_strangers(s, list(self.vehicles), excess, self._stranger_floor)
+        dropped = telemetry.drop_strangers(s, self.known, excess, self._stranger_floor)
         link_repo.drop_events(s, "unknown_vehicle", len(dropped))
         self._stranger_floor = max([self._stranger_floor, *dropped])
         self.strangers["kept"] -= len(dropped)
@@ -371,12 +412,17 @@ class Ingest:
     ) -> tuple[PacketTrust, list[Event]]:
         """Verify, then apply: the vehicle's state, its key's confirmation, its commands' statuses."""
         vehicle = batch.vehicle(s, v.id)
-        verdict = self.verifier.checkpoint(batch, v, vehicle, cp, lambda: vehicles.every(s))
+        verdict = self.verifier.checkpoint(
+            batch, v, vehicle, cp, lambda: vehicles.every(s),
+            lambda: batch.live and telemetry.checkpoint_stored(s, v.id, body),
+        )  # fmt: skip
         if verdict.trust is not PacketTrust.VERIFIED:
             return verdict.trust, verdict.events
+        if verdict.late:  # it vouches; the newer check-points set the state, the key and the commands
+            v.link.remember(cp.mac)
+            return PacketTrust.VERIFIED, self.verifier.vouch(s, batch, v, cp.seq, verdict.covered)
         v.link.accept(body, verdict.floor, cp.mac)
-        if cp.unsynced:
-            v.link.echo = cp.mac  # the heartbeat answers it at the vehicle's next slot
+        v.link.echo = cp.mac if cp.unsynced else None  # answered at its next slot; none: synced
         events: list[Event] = [VehicleReported(vehicle=v.name, checkpoint=body)]
         events += self.verifier.vouch(s, batch, v, cp.seq, verdict.covered)
         if not batch.live:  # a replay: the key and the commands were stored when it came
@@ -439,13 +485,63 @@ class Ingest:
         packet_id = batch.add_packet(row)
         recent = v.link.recent.setdefault(pp.seq, [])
         recent[:] = [*recent[-3:], (auth.packet_hash(chunk), packet_id)]
-        while len(v.link.recent) > RECENT_SEQS:  # drop the seq furthest behind this one
-            del v.link.recent[max(v.link.recent, key=lambda q: (pp.seq - q) % 256)]
+        newest = _newest(v.link.recent, pp.seq)  # this one's, unless it came late
+        while len(v.link.recent) > RECENT_SEQS:  # drop the seq furthest behind the newest
+            del v.link.recent[max(v.link.recent, key=lambda q: (newest - q) % 256)]
         restart_every = self.settings.restart_min_interval / self.settings.time_scale
-        decoded = decode(batch, v, pp, row["at"], packet_id, restart_every)
+        late = v.last_heard is not None and row["at"] < v.last_heard  # heard before a frame stored already
+        decoded = decode(batch, v, pp, row["at"], packet_id, restart_every, late)
         row["body"].update(decoded.body)  # what decoding found (or why it could not)
         row["origin"] = decoded.origin
+        if late and v.link.waiting:
+            return packet_id, decoded.events + self._unblocked(s, batch, v)
         return packet_id, decoded.events
+
+    def _unblocked(self, s: Tx, batch: Batch, v: VehicleState) -> list[Event]:
+        """The waiting packets a late one unblocked, taken again (until none more is): a priority packet
+        whose base state is now held is decoded, a check-point whose covered packets have all come is
+        verified (and applied, unless newer ones were)."""
+        events: list[Event] = []
+        ready = next((w for w in v.link.waiting if self._placeable(v, w[1], w[2])), None)
+        while ready is not None:
+            v.link.waiting.remove(ready)
+            events += self._again(s, batch, v, *ready)
+            ready = next((w for w in v.link.waiting if self._placeable(v, w[1], w[2])), None)
+        return events
+
+    @staticmethod
+    def _placeable(v: VehicleState, data: bytes, at: float) -> bool:
+        packet = packets.decode(data)
+        if isinstance(packet, CheckpointPacket):
+            return all(v.link.recent.get(q) for q in packet.covered_seqs())
+        if not isinstance(packet, PriorityPacket):
+            return False
+        base = chain_ids(packet.payload)[0]
+        return base in v.decoder.snapshots and v.link.made.get(base, -math.inf) <= at
+
+    def _again(
+        self, s: Tx, batch: Batch, v: VehicleState, packet_id: int, data: bytes, at: float
+    ) -> list[Event]:
+        """A waiting packet, decoded or verified now; its stored row updated."""
+        packet = packets.decode(data)
+        self.stats["waited"] += 1
+        log.info("vehicle %s: %s packet seq %d taken again: what it waited for came late",
+                 v.name, packet.TYPE.name.lower(), packet.seq)  # fmt: skip
+        if isinstance(packet, CheckpointPacket):
+            trust, events = self._checkpoint(s, batch, v, packet, packets.as_dict(packet))
+            batch.set_trust([packet_id], trust)
+            return events
+        assert isinstance(packet, PriorityPacket)
+        restart_every = self.settings.restart_min_interval / self.settings.time_scale
+        decoded = decode(batch, v, packet, at, packet_id, restart_every, late=True)
+        batch.decoded(s, packet_id, decoded.body, decoded.origin)
+        return decoded.events
+
+
+def _newest(seqs: Iterable[int], seq: int) -> int:
+    """Of packet seqs on the ring of 256 (``seq`` among them, none more than half the ring apart), the
+    newest: the one furthest ahead of ``seq``."""
+    return (seq + max(((q - seq) % 256 for q in seqs if (q - seq) % 256 < 128), default=0)) % 256
 
 
 def frame_row(frame: IncomingFrame) -> dict[str, Any]:

@@ -24,6 +24,7 @@ log = logging.getLogger("tacit.server.ingest")
 RECENT_SEQS = 64  # priority packet hashes kept per vehicle for the check-points to come
 SAVED_SEEN = 64  # duplicate-window entries saved across a restart (retransmissions come within polls)
 ACCEPTED_MACS = 256  # MACs of the last verified check-points: one seen again is a replay, whatever its time
+WAITING = 32  # packets kept waiting per vehicle for late ones (their base state, the packets they cover)
 SAVED_CHAINS = 4  # decoder states saved per vehicle: the vehicle continues from its last delivered packet,
 # almost always the newest; one based on a state not kept raises UnknownBase and the vehicle restarts
 
@@ -42,6 +43,10 @@ class LinkRecord:
     producers: dict[int, int] = field(default_factory=dict)  # chain state id -> the packet row that left it
     recent: dict[int, list[tuple[bytes, int]]] = field(default_factory=dict)  # seq -> [(hash, packet id)]
     frame: int | None = None  # the last stored frame this record includes (None: saved before it was kept)
+    made: dict[int, float] = field(
+        default_factory=dict
+    )  # chain state id -> when the packet leaving it was heard
+    waiting: list[tuple[int, bytes, float]] = field(default_factory=list)  # (packet id, bytes, heard at)
 
     def to_json(self, seen: int | None = None) -> dict[str, Any]:
         """JSON of the record (the last ``seen`` entries of the duplicate window; all when None)."""
@@ -57,6 +62,8 @@ class LinkRecord:
             "producers": {str(k): v for k, v in self.producers.items()},
             "recent": {str(seq): [[h.hex(), pid] for h, pid in items] for seq, items in self.recent.items()},
             "frame": self.frame,
+            "made": {str(k): at for k, at in self.made.items()},
+            "waiting": [[pid, data.hex(), at] for pid, data, at in self.waiting],
         }
 
     def accept(self, checkpoint: dict[str, Any], floor: int, mac: bytes) -> None:
@@ -64,7 +71,16 @@ class LinkRecord:
         is remembered, so the same check-point replayed later (after the duplicate window forgot its
         bytes, within the same second) is refused."""
         self.checkpoint, self.checkpoint_time = checkpoint, floor
+        self.remember(mac)
+
+    def remember(self, mac: bytes) -> None:
+        """A verified check-point's MAC (applied, or late): the same bytes again are a replay."""
         self.accepted_macs = [*self.accepted_macs[-(ACCEPTED_MACS - 1) :], mac]
+
+    def wait(self, packet_id: int, data: bytes, at: float) -> None:
+        """A packet stored before what it needs came (a priority packet's base state, a check-point's
+        covered packets, coming late through another gateway): taken again when a late packet comes."""
+        self.waiting = [*self.waiting[-(WAITING - 1) :], (packet_id, data, at)]
 
     def candidates(self) -> set[int]:
         """The packets (ids) a check-point may vouch for next, and those their states came from."""
@@ -85,6 +101,8 @@ class LinkRecord:
             recent={int(seq): [(bytes.fromhex(h), int(pid)) for h, pid in items]
                     for seq, items in data.get("recent", {}).items()},
             frame=None if data.get("frame") is None else int(data["frame"]),
+            made={int(k): float(at) for k, at in data.get("made", {}).items()},
+            waiting=[(int(pid), bytes.fromhex(h), float(at)) for pid, h, at in data.get("waiting", [])],
         )  # fmt: skip
 
 
@@ -175,3 +193,4 @@ class IncomingFrame:
     snr_out: float | None = None
     stats: dict[str, Any] | None = None
     at: float = field(default_factory=now)
+    gateway: str = ""  # the gateway whose modem heard it (empty: this shore's own modem)

@@ -1,8 +1,13 @@
 """Trust in what a vehicle sends (``tacit.auth``): a check-point is applied only if its MAC holds under
-one of the vehicle's keys and it is not a replay (its MAC among the last accepted, or its time below the
-replay floor); otherwise it is stored as forged, replayed or unverifiable with a link event, and nothing
-else changes. The floor follows the shore's clock as much as the vehicle's (``raised_floor``): a clock
-that was wrong once must not lock the vehicle's reports out for as long as it was wrong. A verified check-point vouches for
+one of the vehicle's keys and it is not a replay (its MAC among the last accepted, or its bytes stored
+before); otherwise it is stored as forged, replayed or unverifiable with a link event, and nothing
+else changes. One stamped below the replay floor whose bytes were never stored is *late*, not a replay:
+it came after newer ones (through a gateway behind a backhaul outage), so it is verified and vouches for
+the packets it covers, but it is not applied (the vehicle's state, clock, key and commands stay as the
+newer ones left them). A replay by an attacker is the same bytes again, refused by its MAC or the store;
+a genuine check-point the shore never got, sent again by someone, is late: it can only vouch. The floor
+follows the shore's clock as much as the vehicle's (``raised_floor``): a clock that was wrong once must
+not lock the vehicle's reports out for as long as it was wrong. A verified check-point vouches for
 the priority packets it covers: their rows become verified, and another packet received with one of
 their seqs is forged. A vouched-for packet's data are trusted only along a chain of trusted packets:
 the MAC covers a packet's bytes, not the decoder state it was decoded on.
@@ -38,6 +43,7 @@ class Verdict:
     version: int | None = None
     covered: list[tuple[int, bytes]] = field(default_factory=list)
     floor: int = 0  # the replay floor once it is applied
+    late: bool = False  # stamped below the replay floor, never stored: verified, not applied
 
 
 def current_floor(floor: int, shore_now: float, max_skew: float) -> int:
@@ -86,12 +92,14 @@ class Verifier:
         vehicle: Vehicle,
         cp: CheckpointPacket,
         others: Callable[[], Sequence[Vehicle]],
+        stored: Callable[[], bool] = lambda: False,
     ) -> Verdict:
         """Verify a check-point (nothing is applied here, but the challenge of an unsynced one stamped
         below the floor, which is answered all the same: a vehicle whose lost state held a large clock
         offset would otherwise never be heard again, and a SYNC echoing an old MAC answers nothing).
         ``others``: the registered vehicles, read only when the MAC fails, to tell a key configured on
-        the wrong vehicle (two agents' keys swapped) from a forgery."""
+        the wrong vehicle (two agents' keys swapped) from a forgery. ``stored``: whether its bytes were
+        stored before, asked only of one stamped below the floor (late, or a replay)."""
         seqs = cp.covered_seqs()
         candidates = [[h for h, _ in v.link.recent.get(seq, [])] for seq in seqs]
         try:
@@ -114,17 +122,28 @@ class Verifier:
             return self._refused(batch, v, PacketTrust.REPLAYED, cp, ValueError("accepted before"))
         shore_now = time.time()
         floor = current_floor(v.link.checkpoint_time, shore_now, self.max_skew)
-        if cp.time < floor:
+        late = cp.time < floor
+        if late:
             v.link.echo = cp.mac if cp.unsynced else v.link.echo
-            return self._refused(
-                batch, v, PacketTrust.REPLAYED, cp, ValueError("older than the replay floor")
+            if stored():
+                return self._refused(
+                    batch,
+                    v,
+                    PacketTrust.REPLAYED,
+                    cp,
+                    ValueError("older than the replay floor, stored before"),
+                )
+            self.stats["late"] += 1
+            log.warning(
+                "vehicle %s: check-point seq %d stamped %d s before the last came late: verified, its "
+                "packets vouched for, the vehicle's state left as the newer one set it",
+                *(v.name, cp.seq, v.link.checkpoint_time - cp.time),
             )
         v.verified += 1
         self.stats["verified"] += 1
-        floor = raised_floor(cp, floor, shore_now, self.max_skew)
-        return Verdict(
-            PacketTrust.VERIFIED, version=version, covered=list(zip(seqs, chosen, strict=True)), floor=floor
-        )
+        floor = floor if late else raised_floor(cp, floor, shore_now, self.max_skew)
+        covered = list(zip(seqs, chosen, strict=True))
+        return Verdict(PacketTrust.VERIFIED, version=version, covered=covered, floor=floor, late=late)
 
     def _refused(
         self, batch: Batch, v: VehicleState, trust: PacketTrust, cp: CheckpointPacket, why: Exception
@@ -193,14 +212,14 @@ class Verifier:
         origins = {row["origin"] for row in rows.values()} - set(rows) - {None}
         earlier = batch.packet_states(s, sorted(i for i in origins if i is not None))
         trusted: list[int] = []
-        for packet_id in sorted(rows):  # arrival order: an origin comes first
-            row = rows[packet_id]
-            if row["body"].get("error"):
-                continue
-            origin = row["origin"]
-            if origin is None or origin in trusted or _was_trusted(earlier.get(origin)):
-                trusted.append(packet_id)
-        return trusted
+        waiting = sorted(i for i in rows if not rows[i]["body"].get("error"))
+        while True:  # in passes: an origin that came late was stored after the packet decoded on it
+            on = {i: rows[i]["origin"] for i in waiting}
+            more = [i for i, o in on.items() if o is None or o in trusted or _was_trusted(earlier.get(o))]
+            if not more:
+                return trusted
+            trusted += more
+            waiting = [i for i in waiting if i not in more]
 
 
 def _out_of_reach(v: VehicleState, seq: int) -> list[int]:

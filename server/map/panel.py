@@ -79,12 +79,14 @@ LEGEND = """\
 - **estimate** (when ticked): coloured cloud at the vehicle's depth, **black diamonds** its front
 - **purple sphere**: where the temperature estimate is most uncertain (a good place to sample next)
 - **yellow sphere**: the point you clicked (the command's target)
+- **box with a label** (a center's): a gateway at its shore modem's place, dark while its heartbeats come, light grey once silent; **thin line in a vehicle's colour**: from the vehicle to the gateway its commands go through
 """
 
 
 def fleet_html(known: dict[str, Any]) -> str:
-    """The fleet's listing (``Screens.fleet``) as HTML: per vehicle its colour, name, state, last report and
-    its age, predicted pose with its uncertainty, battery and link; greyed while overdue."""
+    """The fleet's listing (``Screens.fleet``) as HTML: per vehicle its colour, name, state, its gateway (a
+    center's), last report and its age, predicted pose with its uncertainty, battery and link; greyed while
+    overdue."""
     rows = [_fleet_row(v) for v in known["vehicles"]]
     return "".join(rows) or "no vehicle registered"
 
@@ -94,7 +96,9 @@ def _fleet_row(v: dict[str, Any]) -> str:
     style = "color:#777;background:#e4e4e4" if v["overdue"] else ""
     swatch = f'<span style="display:inline-block;width:10px;height:10px;background:{v["colour"]}"></span>'
     late = " <b>(overdue)</b>" if v["overdue"] else ""
-    head = f"{swatch} <b>{html.escape(v['name'])}</b>: {html.escape(v['state_label'] or 'no check-point yet')}{late}"
+    pinned = " (pinned)" if v["gateway_pinned"] else ""
+    via = f"; via gateway {html.escape(v['gateway'])}{pinned}" if v["gateway"] else ""
+    head = f"{swatch} <b>{html.escape(v['name'])}</b>: {html.escape(v['state_label'] or 'no check-point yet')}{late}{via}"
     if cp is None or p is None:
         return f'<div style="font-size:0.8em;{style}">{head}</div>'
     snr = "-" if v["snr_in"] is None else f"{v['snr_in']:.0f}"

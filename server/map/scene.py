@@ -6,7 +6,9 @@ predicted to follow during silence with an uncertainty ring that grows while not
 mission's waypoints, packet markers coloured by priority, the reported water temperatures as a
 heatmap (grey until a check-point verifies them), and a Gaussian-process estimate of the temperature
 field, fitted on verified samples only: its mean, where it is most uncertain (the suggested next
-target), and the front's boundary (the mean crossing the median).
+target), and the front's boundary (the mean crossing the median). A center's gateways stand at their
+modems' places (``Screens.gateways``, what ``GET /api/v1/gateways`` lists), each vehicle joined to its
+gateway by a thin line in the vehicle's colour.
 
 Each browser gets its own panel (``server.map.panel``): it acts for a signed-in operator only
 (the API's tokens; observers watch), offers the same commands, fields, units and checks as the dashboard
@@ -63,6 +65,7 @@ OVERDUE_COLOUR = (170, 170, 170)  # a vehicle's body while it is overdue (the da
 PENDING_PACKETS = 500  # packets whose samples wait for a check-point (older ones were never covered)
 Sample = tuple[float, float, float, float]  # north, east, depth, degC
 RECENT_COMMANDS = 10
+GATEWAY_SIZE = (4.0, 4.0, 4.0)  # m: a gateway's marker, seen from a few hundred metres
 
 
 def colormap(values: np.ndarray, lo: float, hi: float) -> np.ndarray:
@@ -100,6 +103,7 @@ class OperatorMap:
         self.reports: dict[str, dict] = {}  # by vehicle name: its last verified check-point
         self.colours: dict[str, str] = {}  # by vehicle name: as on the dashboard (server.screens.fleet)
         self._nodes: dict[str, dict[str, Any]] = {}
+        self._links: dict[str, Any] = {}  # by vehicle name: the line to its gateway
         self.panels: dict[int, OperatorPanel] = {}  # by viser client id: one panel per browser
         self.estimate_cloud: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # points, colours, front
         self.temperature_range: tuple[float, float] | None = None
@@ -436,10 +440,11 @@ class OperatorMap:
             time.sleep(1.0)
 
     def _tick(self) -> None:
-        status, known = self.screens.link_status(), self.screens.fleet()
+        status, known, gateways = self.screens.link_status(), self.screens.fleet(), self.screens.gateways()
         self.colours = {v["name"]: v["colour"] for v in known["vehicles"]}
         names = [v["name"] for v in known["vehicles"]]
-        lines = [f"**Modem**: {status['modem']}"]
+        self._gateways(gateways, known["vehicles"])
+        lines = [gateway_line(g) for g in gateways] or [f"**Modem**: {status['modem']}"]
         for name, v in status["vehicles"].items():
             heard = f"{time.time() - v['last_heard']:.0f} s ago" if v["last_heard"] else "never"
             snr = f"{v['snr_in']:.1f} dB" if v["snr_in"] is not None else "-"
@@ -460,6 +465,32 @@ class OperatorMap:
         if time.time() - self._gp_at > 10:
             self._gp_at = time.time()
             self._gaussian_process()
+
+    def _gateways(self, gateways: list[dict[str, Any]], vehicles: list[dict[str, Any]]) -> None:
+        """Each gateway at its modem's place (dark while it beats, grey once silent) with its label, and a
+        thin line in each vehicle's colour from its last reported position to its gateway."""
+        scene = self.server.scene
+        places: dict[str, tuple[float, float, float]] = {}
+        for g in gateways:
+            if g["place"] is None:
+                continue
+            here = places[g["name"]] = (g["place"]["east"], g["place"]["north"], -g["place"]["depth"])
+            scene.add_box(f"/gateways/{g['name']}", color=fleet.rgb(g["colour"]), dimensions=GATEWAY_SIZE,
+                          position=here)  # fmt: skip
+            scene.add_label(
+                f"/gateways/{g['name']}/label", gateway_line(g).replace("**", ""), position=(0, 0, 3.0)
+            )
+        for v in vehicles:
+            cp, there = v["reported"], places.get(v["gateway"] or "")
+            old = self._links.pop(v["name"], None)
+            if cp is None or there is None:
+                if old is not None:
+                    old.remove()
+                continue
+            segment = np.array([[(cp["east"], cp["north"], -cp["depth"]), there]], dtype=np.float32)
+            self._links[v["name"]] = scene.add_line_segments(
+                f"/gateway_links/{v['name']}", segment, self._colour(v["name"]), thickness=0.05
+            )
 
     def _prediction(self, vehicle: dict[str, Any]) -> None:
         """Draw where the shore thinks the vehicle (a row of ``Screens.fleet``) is now and how sure."""
@@ -542,6 +573,17 @@ class OperatorMap:
         for panel in list(self.panels.values()):
             panel.suggest_btn.visible = True
             panel.show_estimate()
+
+
+def gateway_line(g: dict[str, Any]) -> str:
+    """A gateway (a row of ``Screens.gateways``) in one line: its state and for how long, its outbox and
+    modem, its vehicles."""
+    state = f"up for {g['for_s']:.0f} s" if g["alive"] else f"**silent for {g['for_s']:.0f} s**"
+    vehicles = ", ".join(v["name"] + (" (pinned)" if v["pinned"] else "") for v in g["vehicles"]) or "none"
+    return (
+        f"**Gateway {g['name']}**: {state}, {g['outbox'] if g['outbox'] is not None else '?'} waiting to go "
+        f"up; modem {g['address'] if g['address'] is not None else '?'} {g['modem'] or '?'}; vehicles {vehicles}"
+    )
 
 
 def _scene_points(samples: np.ndarray) -> np.ndarray:

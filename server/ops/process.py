@@ -21,7 +21,7 @@ async def operate(consumer: Consumer, run: Awaitable[None], db: Engine, settings
     import uvicorn
 
     retention = Retention(db, settings.retention_days)
-    tasks = [run, retention.run()]
+    tasks = [run, retention.run(active=lambda: consumer.coordinator)]
     if settings.metrics_port:
         app = metrics_app(Metrics(consumer, retention))
         config = uvicorn.Config(

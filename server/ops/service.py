@@ -9,6 +9,7 @@ import logging
 import math
 import time
 from collections import Counter
+from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
 from sqlalchemy import Engine
@@ -46,9 +47,11 @@ class Retention:
             log.info("retention: %d relayed frames' records older than %g days deleted", count, self.days)
         return count
 
-    async def run(self, every: float = 3600.0) -> None:
+    async def run(self, every: float = 3600.0, active: Callable[[], bool] = lambda: True) -> None:
+        """Prune every ``every`` s while ``active`` (one center process of several coordinates)."""
         while True:
-            await asyncio.to_thread(self.prune)
+            if active():
+                await asyncio.to_thread(self.prune)
             await asyncio.sleep(every)
 
 
@@ -61,6 +64,7 @@ class Consumer(Protocol):
 
     up: bool
     since: float
+    coordinator: bool
     pending: int
     frames: Counter[str]
     counters: dict[str, int]
@@ -69,6 +73,9 @@ class Consumer(Protocol):
 
     @property
     def ingest(self) -> Stats: ...
+
+    @property
+    def subs(self) -> Mapping[int, object]: ...  # the frames partitions this process consumes
 
 
 class Metrics:
@@ -96,6 +103,12 @@ class Metrics:
             ).add(c.since),
             Family("tacit_backhaul_pending_frames", "Frame messages in the stream not yet consumed").add(
                 c.pending
+            ),
+            Family("tacit_center_partitions", "Frames partitions this center process consumes").add(
+                len(c.subs)
+            ),
+            Family("tacit_center_coordinator", "1 if this center process runs the singletons").add(
+                int(c.coordinator)
             ),
             refused.add(stored_refused, reason="store"),
             Family("tacit_backhaul_store_retries_total", "Batches retried: the database away", "counter").add(

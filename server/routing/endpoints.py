@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Depends
 
-from server.api.deps import Id, RoutingDep, require_read, require_write
+from server.api.deps import Id, RoutingDep, ScreensDep, require_read, require_write
 from server.routing.schemas import GatewayOut, PinIn, RouteOut
 
 router = APIRouter(prefix="/api/v1", tags=["routing"])
@@ -19,12 +19,11 @@ def list_routes(routing: RoutingDep) -> list[RouteOut]:
 
 
 @router.get("/gateways", response_model=list[GatewayOut], dependencies=[Depends(require_read)])
-def list_gateways(routing: RoutingDep) -> list[GatewayOut]:
-    alive = routing.alive()
-    return [
-        GatewayOut(name=g.name, first_seen=g.first_seen, last_seen=g.last_seen, alive=g.name in alive)
-        for g in routing.gateways()
-    ]
+def list_gateways(screens: ScreensDep) -> list[GatewayOut]:
+    """The gateways the center has heard from (none on a single shore, ``tacit serve``), as the dashboard
+    and the map show them: up or silent and since when, place, modem, outbox, last outage, frames
+    relayed and the vehicles assigned."""
+    return [GatewayOut.model_validate(g) for g in screens.gateways()]
 
 
 @router.put("/vehicles/{vehicle_id}/gateway", response_model=RouteOut, dependencies=[Depends(require_write)])

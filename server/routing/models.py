@@ -35,13 +35,25 @@ class DispatchState(enum.StrEnum):
 
 
 class GatewayRecord(SQLModel, table=True):
-    """A gateway the center has heard from (a heartbeat or any event), on the center's clock."""
+    """A gateway the center has heard from (a heartbeat or any event), on the center's clock, and what
+    its last heartbeat said (``server.backhaul.subjects.Heartbeat``): kept in the database, so that every
+    process serving the API shows the same."""
 
     __tablename__ = "gateway"
 
     name: str = Field(primary_key=True, max_length=64)
     first_seen: float = Field(default_factory=now)
     last_seen: float = Field(default_factory=now)
+    beating_since: float | None = None  # its first heartbeat after a silence of gateway_timeout
+    north: float | None = None  # its modem's place: m north, east of the fleet's origin, depth (m)
+    east: float | None = None
+    depth: float | None = None
+    address: int | None = None  # its modem's address
+    modem: str = Field(default="", max_length=32, sa_column_kwargs={"server_default": ""})  # its state
+    outbox: int | None = None  # messages not yet published, at its last heartbeat
+    outage_s: float | None = None  # how long its last backhaul outage lasted (its own account)
+    outage_ended: float | None = None  # when it ended (the gateway's clock)
+    outage_backlog: int | None = None  # messages its outbox held when the backhaul came back
 
 
 class Assignment(SQLModel, table=True):

@@ -20,6 +20,17 @@ def touch_gateway(s: Session, name: str, at: float) -> None:
     s.flush()
 
 
+def save_gateway(s: Session, row: GatewayRecord) -> None:
+    s.add(row)
+    s.flush()
+
+
+def frames_by_gateway(s: Session) -> dict[str, int]:
+    """The relayed frames' records kept, by the gateway that heard them (each copy counts)."""
+    query = select(RelayedFrame.gateway, func.count()).group_by(col(RelayedFrame.gateway))
+    return {str(g): int(n) for g, n in s.exec(query)}
+
+
 def gateways(s: Session) -> list[GatewayRecord]:
     return list(s.exec(select(GatewayRecord).order_by(col(GatewayRecord.name))).all())
 

@@ -62,8 +62,42 @@ class RouteOut(BaseModel):
         )
 
 
-class GatewayOut(BaseModel):
+class Place(BaseModel):
+    north: float = Field(description="m north of the fleet's origin")
+    east: float = Field(description="m east of the fleet's origin")
+    depth: float = Field(description="m")
+
+
+class Outage(BaseModel):
+    lasted_s: float = Field(description="how long the gateway's backhaul was down (its own account)")
+    ended: float | None = Field(description="when it came back (the gateway's clock, UNIX s)")
+    backlog: int | None = Field(description="messages its outbox held then, sent since")
+
+
+class Assigned(BaseModel):
+    id: int
     name: str
+    pinned: bool = Field(description="an operator pinned it to this gateway")
+
+
+class GatewayOut(BaseModel):
+    """A gateway as both screens show it (``Screens.gateways``)."""
+
+    name: str
+    alive: bool = Field(description="a heartbeat or event within gateway_timeout")
+    state: str = Field(description="up: its heartbeats come (sent only while its backhaul is up); silent")
+    since: float = Field(
+        description="up: its first heartbeat after its last silence; silent: its last (UNIX s)"
+    )
+    for_s: float = Field(description="how long it has been up, or silent (s)")
     first_seen: float
-    last_seen: float = Field(description="its last heartbeat or event (the center's clock, UNIX s)")
-    alive: bool
+    last_seen: float = Field(description="its last heartbeat or event (UNIX s)")
+    place: Place | None = Field(description="where its modem is (tacit gateway --position); None: not told")
+    latlon: list[float] | None = Field(description="[lat, lon] of its place, the fleet's origin known")
+    address: int | None = Field(description="its modem's address")
+    modem: str | None = Field(description="its modem's state (ready, not_responding, ...)")
+    outbox: int | None = Field(description="messages waiting to go up, at its last heartbeat")
+    last_outage: Outage | None = Field(description="its last backhaul outage; None: none since it started")
+    frames: int = Field(description="frames it relayed (every copy; the records retention keeps)")
+    colour: str = Field(description="#rrggbb on both screens (server.screens.fleet)")
+    vehicles: list[Assigned] = Field(description="the vehicles whose commands go through it")

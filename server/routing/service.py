@@ -1,9 +1,11 @@
 """Routing: the gateways the center knows, which gateway each vehicle is on and why, operators' pins,
 and the bookkeeping of each command's dispatches through the gateways.
 
-The center calls ``seen`` for every gateway event and ``update`` after each batch of frames and on its
-dispatcher's tick; ``update`` applies ``server.routing.choice`` to what every gateway heard of every
-vehicle in the last ``routing_window`` s and saves what changed, with the reason.
+The center calls ``seen`` for every gateway event (``beat`` for a heartbeat: what it says of the gateway
+is kept for the screens, ``board``) and ``update`` after each batch of frames and on its dispatcher's
+tick; ``update`` applies ``server.routing.choice`` to what every gateway heard of every vehicle in the
+last ``routing_window`` s and saves what changed, with the reason. A heartbeat, a move and a pin are
+published on the bus (``GatewayChanged``): the dashboard reads the gateways again.
 """
 
 from __future__ import annotations
@@ -14,9 +16,11 @@ from dataclasses import dataclass, field
 
 from sqlalchemy import Engine
 
+from server.backhaul.subjects import GatewayState
 from server.core.config import Settings
 from server.core.db import Tx, reading, saved_id, writing
 from server.core.errors import NotFound
+from server.core.events import Bus, GatewayChanged
 from server.routing import repository as repo
 from server.routing.choice import Current, Decision, Quality, choose
 from server.routing.models import Assignment, Dispatch, DispatchState, GatewayRecord
@@ -38,10 +42,22 @@ class Route:
     heard: dict[str, Quality] = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class GatewayStatus:
+    """A gateway as the screens show it: its record (what its last heartbeat said), whether it beats,
+    the frames it relayed (the records kept) and the vehicles assigned to it (id, name, pinned)."""
+
+    record: GatewayRecord
+    alive: bool
+    frames: int
+    vehicles: list[tuple[int, str, bool]]
+
+
 class Routing:
-    def __init__(self, db: Engine, settings: Settings) -> None:
+    def __init__(self, db: Engine, settings: Settings, bus: Bus | None = None) -> None:
         self.db = db
         self.settings = settings
+        self.bus = bus
 
     # --- gateways -------------------------------------------------------------------------------
 
@@ -51,9 +67,58 @@ class Routing:
             repo.touch_gateway(s, gateway, time.time() if at is None else at)
             s.commit()
 
+    def beat(self, gateway: str, at: float, beat: GatewayState) -> None:
+        """A heartbeat of ``gateway`` at ``at``: what it says is kept (an older one than the last event is
+        only counted as seen), and whether it beats since its last silence."""
+        with writing(self.db) as s:
+            row = repo.gateway(s, gateway)
+            if row is None:
+                row = GatewayRecord(name=gateway, first_seen=at, last_seen=at)
+            elif at < row.last_seen:  # a late copy: what it says is older than what is kept
+                return
+            if row.beating_since is None or at - row.last_seen > self.settings.gateway_timeout:
+                row.beating_since = at
+            place, outage = beat.place, beat.outage
+            row.last_seen, row.address, row.modem, row.outbox = at, beat.address, beat.modem, beat.outbox
+            row.north, row.east, row.depth = (
+                (place.north, place.east, place.depth) if place else (None, None, None)
+            )
+            if outage is not None:
+                row.outage_s, row.outage_ended, row.outage_backlog = (
+                    outage.lasted,
+                    outage.ended,
+                    outage.backlog,
+                )
+            repo.save_gateway(s, row)
+            s.commit()
+        self._changed(gateway, "heartbeat")
+
     def gateways(self) -> list[GatewayRecord]:
         with reading(self.db) as s:
             return repo.gateways(s)
+
+    def board(self, now: float | None = None) -> list[GatewayStatus]:
+        """Every gateway the center knows, as the screens show it."""
+        alive = self.alive(now)
+        with reading(self.db) as s:
+            rows, frames, current = repo.gateways(s), repo.frames_by_gateway(s), repo.assignments(s)
+            names = {saved_id(v): v.name for v in vehicle_repo.every(s)}
+        vehicles: dict[str, list[tuple[int, str, bool]]] = {}
+        for vehicle_id, a in sorted(current.items()):
+            vehicles.setdefault(a.gateway, []).append((vehicle_id, names.get(vehicle_id, "?"), a.pinned))
+        return [
+            GatewayStatus(row, row.name in alive, frames.get(row.name, 0), vehicles.get(row.name, []))
+            for row in rows
+        ]
+
+    def assignments(self) -> dict[int, Assignment]:
+        """Each vehicle's gateway (by vehicle id); a vehicle no gateway has heard has none."""
+        with reading(self.db) as s:
+            return repo.assignments(s)
+
+    def _changed(self, gateway: str, what: str, vehicle: str | None = None) -> None:
+        if self.bus is not None:
+            self.bus.publish(GatewayChanged(gateway=gateway, what=what, vehicle=vehicle))
 
     def alive(self, now: float | None = None) -> set[str]:
         """The gateways heard from within ``gateway_timeout`` s."""
@@ -91,6 +156,7 @@ class Routing:
             s.commit()
         for route in moved:
             log.info("vehicle %s now on gateway %s: %s", route.vehicle.name, route.gateway, route.reason)
+            self._changed(route.gateway or "", "assignment", route.vehicle.name)
         return moved
 
     @staticmethod
@@ -154,7 +220,9 @@ class Routing:
                                reason="pinned by an operator"),
                 )  # fmt: skip
             s.commit()
-        return next(r for r in self.routes() if saved_id(r.vehicle) == vehicle_id)
+        route = next(r for r in self.routes() if saved_id(r.vehicle) == vehicle_id)
+        self._changed(route.gateway or "", "pin" if gateway else "unpin", route.vehicle.name)
+        return route
 
     def candidates(self, vehicle: Vehicle, now: float | None = None) -> list[str]:
         """The live gateways to send the vehicle's command through, in order: its own first, then the

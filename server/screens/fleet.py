@@ -1,5 +1,6 @@
 """The fleet as both screens show it: each vehicle's colour (one palette, here, served by the API to the
-dashboard and used by the map), and when a silent vehicle is overdue for its place in the schedule.
+dashboard and used by the map; the gateways' too), and when a silent vehicle is overdue for its place in
+the schedule.
 
 Overdue: a vehicle answers when it is polled, and it has something to say at least once per report gap
 (its check-point interval: measured as the median gap between its last check-points, on the shore's
@@ -17,12 +18,20 @@ from collections.abc import Sequence
 #: One colour per vehicle, in order of registration (Okabe-Ito's colour-blind-safe set without its
 #: yellow, which a white page and the map's light water do not show).
 PALETTE = ("#0072b2", "#d55e00", "#009e73", "#cc79a7", "#e69f00", "#56b4e9", "#7a4a00", "#000000")
+#: A gateway's marker and its row: dark while its heartbeats come, light grey once it is silent.
+GATEWAY = "#333333"
+GATEWAY_SILENT = "#b0b0b0"
 OVERDUE_SLOTS = 3  # slots a vehicle may miss (a frame lost, a slot taken by a command) before it is greyed
 
 
 def colour(index: int) -> str:
     """The palette's colour for the ``index``-th vehicle (by registration), as ``#rrggbb``."""
     return PALETTE[index % len(PALETTE)]
+
+
+def gateway_colour(alive: bool) -> str:
+    """A gateway's colour on both screens: ``GATEWAY``, or ``GATEWAY_SILENT`` once it is silent."""
+    return GATEWAY if alive else GATEWAY_SILENT
 
 
 def rgb(hex_colour: str) -> tuple[int, int, int]:

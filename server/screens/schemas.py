@@ -55,6 +55,10 @@ class FleetVehicle(BaseModel):
     address: int
     colour: str = Field(description="#rrggbb: its track and rows on both screens (the fleet's palette)")
     home: list[float] = Field(description="m north, east of the fleet's origin where it starts")
+    gateway: str | None = Field(
+        description="the gateway its commands go through (a center's; None: not assigned, or one shore)"
+    )
+    gateway_pinned: bool = Field(description="an operator pinned it to that gateway")
     reported: dict[str, Any] | None = Field(description="its last verified check-point (vehicle clock)")
     heard_at: float | None = Field(description="when the shore received it (shore clock, UNIX s)")
     age_s: float | None

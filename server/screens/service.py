@@ -1,7 +1,8 @@
 """What the operator's two screens (the dashboard and the 3D map) read, in one place: the command form
 for a vehicle, what the shore knows of a vehicle and how sure (``estimate``), the link's airtime by use
-(``airtime``), the link's status, the configuration the browser needs, and the recent commands. The
-screens call this service (and the command desk to send); never a session or the link engine's dicts.
+(``airtime``), the link's status, the gateways (a center's; ``Routing.board``, the one source of ``GET
+/api/v1/gateways``) and each vehicle's, the configuration the browser needs, and the recent commands.
+The screens call this service (and the command desk to send); never a session or the link engine's dicts.
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ from server.core.config import Settings
 from server.core.db import Tx, reading, saved_id
 from server.link.engine import LinkEngine
 from server.missions import repository as mission_repo
+from server.routing.models import Assignment
+from server.routing.service import GatewayStatus, Routing
 from server.screens import airtime, estimate, fleet, states
 from server.screens.form import command_form
 from server.telemetry import clock
@@ -53,6 +56,7 @@ class Channel:
     frames_sent: dict[int, int]  # by modem address
     packets: dict[tuple[int, str], int]  # by (vehicle id, packet type)
     colours: dict[str, str]  # by vehicle name
+    gateways: dict[int, Assignment]  # by vehicle id: its gateway (a center's; none on a single shore)
 
     def slots(self) -> list[tuple[float, float]]:
         """Each planned vehicle's (share, slot length)."""
@@ -60,10 +64,11 @@ class Channel:
 
 
 class Screens:
-    def __init__(self, settings: Settings, db: Engine, link: LinkEngine) -> None:
+    def __init__(self, settings: Settings, db: Engine, link: LinkEngine, routing: Routing) -> None:
         self.settings = settings
         self.db = db
         self.link = link
+        self.routing = routing
         self.map_port: Callable[[], int | None] = lambda: None  # set when the map runs
         self._counted: tuple[float, dict[int, int], dict[tuple[int, str], int]] = (-1e18, {}, {})
 
@@ -152,7 +157,9 @@ class Screens:
     def _channel(self) -> Channel:
         planned = {p["vehicle_id"]: p for p in self.link.schedule_status()["vehicles"]}
         sent, packets = self._counts()
-        return Channel(self.link.status()["vehicles"], planned, sent, packets, self.colours())
+        return Channel(
+            self.link.status()["vehicles"], planned, sent, packets, self.colours(), self.routing.assignments()
+        )
 
     def _counts(self) -> tuple[dict[int, int], dict[tuple[int, str], int]]:
         """Frames sent by address and packets by vehicle and type, counted again at most every
@@ -181,6 +188,7 @@ class Screens:
             "address": vehicle.address,
             "colour": channel.colours[vehicle.name],
             "home": list(vehicle.home),
+            **_gateway(channel.gateways.get(vehicle_id)),
             **self._reported(known, offset),
             **_heard(vehicle, channel, heard, now),
             "next_slot": None if plan is None else plan["next_slot"],
@@ -194,13 +202,38 @@ class Screens:
         cp, predicted = known["reported"], known["predicted"]
         return {
             **{k: known.get(k) for k in REPORTED},
-            "predicted_latlon": None if predicted is None else self._latlon(predicted["north"], predicted["east"]),
+            "predicted_latlon": None if predicted is None else self.latlon(predicted["north"], predicted["east"]),
             "reported_shore_time": None if cp is None else clock.on_shore_clock(cp["time"], known["heard_at"], offset),
             "clock_offset_s": None if offset is None else round(offset, 2),
             "battery_v": None if cp is None else cp.get("battery"),
         }  # fmt: skip
 
-    def _latlon(self, north: float, east: float) -> list[float] | None:
+    # --- the gateways (a center's) -----------------------------------------------------------------
+
+    def gateways(self, now: float | None = None) -> list[dict[str, Any]]:
+        """Every gateway the center knows (none on a single shore), as both screens show it and ``GET
+        /api/v1/gateways`` lists it: beating (``up``, since its first heartbeat after a silence) or
+        ``silent`` (since its last), its place, modem, outbox, last outage, frames and vehicles."""
+        now = time.time() if now is None else now
+        return [self._gateway(g, now) for g in self.routing.board(now)]
+
+    def _gateway(self, g: GatewayStatus, now: float) -> dict[str, Any]:
+        r = g.record
+        since = (r.beating_since or r.first_seen) if g.alive else r.last_seen
+        place = None if r.north is None or r.east is None else (r.north, r.east, r.depth or 0.0)
+        outage = None if r.outage_s is None else (r.outage_s, r.outage_ended, r.outage_backlog)
+        return {
+            "name": r.name, "alive": g.alive, "state": "up" if g.alive else "silent", "since": since,
+            "for_s": round(max(0.0, now - since), 1), "first_seen": r.first_seen, "last_seen": r.last_seen,
+            "place": None if place is None else dict(zip(("north", "east", "depth"), place, strict=True)),
+            "latlon": None if place is None else self.latlon(place[0], place[1]),
+            "address": r.address, "modem": r.modem or None, "outbox": r.outbox,
+            "last_outage": None if outage is None else dict(zip(("lasted_s", "ended", "backlog"), outage, strict=True)),
+            "frames": g.frames, "colour": fleet.gateway_colour(g.alive),
+            "vehicles": [{"id": i, "name": name, "pinned": pinned} for i, name, pinned in g.vehicles],
+        }  # fmt: skip
+
+    def latlon(self, north: float, east: float) -> list[float] | None:
         """A point of the fleet's frame in latitude and longitude, when the origin is known."""
         origin = self.settings.origin
         return None if origin is None else [round(x, 7) for x in Origin(*origin).to_global(north, east)]
@@ -264,6 +297,14 @@ def _heard(vehicle: Vehicle, channel: Channel, heard: list[float], now: float) -
         **{k: link.get(k) for k in ("last_heard", "snr_in", "snr_out", "range_m")},
         "overdue": last is None or (limit is not None and now - last > limit),
         "overdue_after_s": None if limit is None else round(limit, 1),
+    }
+
+
+def _gateway(assignment: Assignment | None) -> dict[str, Any]:
+    """The vehicle's gateway (a center's) and whether an operator pinned it there."""
+    return {
+        "gateway": None if assignment is None else assignment.gateway,
+        "gateway_pinned": assignment is not None and assignment.pinned,
     }
 
 

@@ -29,13 +29,14 @@ def packets(
     limit: int = Query(100, ge=1, le=1000),
     offset: Offset = 0,
 ) -> Page[PacketOut]:
-    """Vehicle packets, newest first, with their trust (``auth``)."""
+    """Vehicle packets, newest first, with their trust (``auth``) and how their frame was heard: its SNR
+    and, from a center, each gateway that heard it with its SNR (the kept copy marked)."""
     total, rows = reader.packets(vehicle_id, type, Window(since, until), limit, offset)
     return Page(
         total=total,
         limit=limit,
         offset=offset,
-        items=[PacketOut.model_validate(r, from_attributes=True) for r in rows],
+        items=[PacketOut.model_validate(r) for r in rows],
     )
 
 

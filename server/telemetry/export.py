@@ -24,6 +24,7 @@ FLAGS = list(SampleTrust)  # a sample's NetCDF verification flag is its trust's 
 # coordinate): the flags of ``certain`` and ``verification``; the channels' fill value
 NETCDF_EXTRA: dict[str, dict[str, object]] = {
     "tick": {},
+    "in_tick": {},
     "certain": {"flag_values": np.array([0, 1], "i1"), "flag_meanings": "uncertain certain"},
     "verification": {
         "flag_values": np.arange(len(FLAGS), dtype="i1"),
@@ -32,15 +33,21 @@ NETCDF_EXTRA: dict[str, dict[str, object]] = {
 }
 CHANNEL_EXTRA = {"_FillValue": np.float64(np.nan), "ancillary_variables": "certain verification"}
 
-Row = tuple[float, int, bool, SampleTrust, list[float | None]]
+Row = tuple[float, int, int, bool, SampleTrust, list[float | None]]
 
 
 def rows(spec: StreamSpec, samples: Iterator[Sample]) -> Iterator[Row]:
-    """(time, tick, certain, trust, one value per channel: None where the sample is absent)."""
+    """(time, tick, its place among the samples of its time, certain, trust, one value per channel: None
+    where the sample is absent). A tick may hold several samples (``tacit.codec.grid``), all dated at its
+    time: each is a row, numbered in the order the vehicle measured them (``samples`` come in time and
+    then id order), so a second sample of a tick never reads as a copy of the first."""
     n = len(spec.channels)
+    last, place = None, 0
     for sample, trust in samples:
+        place = place + 1 if sample.time == last else 0
+        last = sample.time
         values = list(sample.values or [])[:n]
-        yield sample.time, sample.tick, sample.certain, trust, values + [None] * (n - len(values))
+        yield sample.time, sample.tick, place, sample.certain, trust, values + [None] * (n - len(values))
 
 
 def csv_lines(d: Dataset, samples: Iterator[Sample]) -> Iterator[str]:
@@ -49,8 +56,8 @@ def csv_lines(d: Dataset, samples: Iterator[Sample]) -> Iterator[str]:
     out = io.StringIO()
     writer = csv.writer(out)
     writer.writerow(metadata.csv_header(d.spec))
-    for n, (at, tick, certain, trust, values) in enumerate(rows(d.spec, samples)):
-        writer.writerow([at, tick, int(certain), trust.value, *values])
+    for n, (at, tick, place, certain, trust, values) in enumerate(rows(d.spec, samples)):
+        writer.writerow([at, tick, place, int(certain), trust.value, *values])
         if n % 1000 == 999:
             yield out.getvalue()
             out.seek(0)
@@ -63,7 +70,13 @@ def parquet(d: Dataset, samples: Iterator[Sample]) -> bytes:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    types = {"time": pa.float64(), "tick": pa.int64(), "certain": pa.bool_(), "verification": pa.string()}
+    types = {
+        "time": pa.float64(),
+        "tick": pa.int64(),
+        "in_tick": pa.int32(),
+        "certain": pa.bool_(),
+        "verification": pa.string(),
+    }
     schema = pa.schema(
         [
             pa.field(name, types.get(name, pa.float64()), metadata=_strings(attrs))
@@ -77,8 +90,8 @@ def parquet(d: Dataset, samples: Iterator[Sample]) -> bytes:
             columns = list(
                 zip(
                     *(
-                        (at, tick, certain, trust.value, *values)
-                        for at, tick, certain, trust, values in chunk
+                        (at, tick, place, certain, trust.value, *values)
+                        for at, tick, place, certain, trust, values in chunk
                     ),
                     strict=True,
                 )
@@ -96,8 +109,9 @@ def netcdf(d: Dataset, samples: Iterator[Sample]) -> bytes:
     """A CF-1.8 single trajectory (the vehicle's name its id) along dimension ``obs``, not ``time``: a
     forged sample may share a genuine one's time, and a CF coordinate variable must not repeat. NetCDF3
     (scipy's writer, no extra library): channels are doubles with NaN as ``_FillValue``, ``certain`` and
-    ``verification`` byte flags (``flag_values``/``flag_meanings``), ``tick`` a 32-bit int (NetCDF3 has no
-    64-bit one: 2^31 ticks are 17 years at 4 Hz)."""
+    ``verification`` byte flags (``flag_values``/``flag_meanings``), ``tick`` a double: it counts the
+    stream's periods since 1970 (over 2^32 at 4 Hz), NetCDF3 has no 64-bit integer, and a double holds
+    every integer up to 2^53 exactly."""
     from scipy.io import netcdf_file
 
     table = list(rows(d.spec, samples))
@@ -128,13 +142,14 @@ def _attributes(target: object, attrs: Mapping[str, object]) -> None:
 
 def _arrays(spec: StreamSpec, table: list[Row]) -> dict[str, np.ndarray]:
     """The columns as NetCDF3 types (NaN where a value is absent)."""
-    values = np.array([[np.nan if v is None else v for v in r[4]] for r in table], "f8")
+    values = np.array([[np.nan if v is None else v for v in r[5]] for r in table], "f8")
     values = values.reshape(len(table), len(spec.channels))
     return {
         "time": np.array([r[0] for r in table], "f8"),
-        "tick": np.array([r[1] for r in table], "i4"),
-        "certain": np.array([r[2] for r in table], "i1"),
-        "verification": np.array([FLAGS.index(r[3]) for r in table], "i1"),
+        "tick": np.array([r[1] for r in table], "f8"),
+        "in_tick": np.array([r[2] for r in table], "i4"),
+        "certain": np.array([r[3] for r in table], "i1"),
+        "verification": np.array([FLAGS.index(r[4]) for r in table], "i1"),
         **{channel: values[:, i] for i, channel in enumerate(spec.channels)},
     }
 

@@ -40,6 +40,11 @@ CERTAIN = (
     "1: the value is within error_bound of what the sensor read; 0: a span the shore lost and "
     "cannot vouch for (no values)"
 )
+IN_TICK = (
+    "0: the first (almost always the only) sample of its tick; 1, 2, ...: a further sample the vehicle "
+    "measured within the same tick (a sensor faster than the stream's period, or jitter), in the order "
+    "it measured them: a sample of its own, not a copy"
+)
 TRUST_MEANINGS = {
     SampleTrust.VERIFIED: "a check-point's MAC vouched for the packet it came in and for the packets "
     "it was decoded on",
@@ -79,6 +84,10 @@ def columns(spec: StreamSpec) -> dict[str, Attributes]:
         },  # fmt: skip
         "tick": {
             "long_name": "the codec's tick number (time dates a sample within half the stream's period)"
+        },
+        "in_tick": {
+            "long_name": "the sample's place among the samples dated at its time",
+            "comment": IN_TICK,
         },
         "certain": {"long_name": "whether the value is within error_bound", "comment": CERTAIN},
         "verification": {"long_name": "how far the sample may be believed", "comment": VERIFICATION},

@@ -46,6 +46,24 @@ def add_packet_rows(s: Session, rows: list[dict[str, Any]]) -> None:
         s.execute(insert(Packet), rows)
 
 
+def decoded_later(s: Session, rows: list[dict[str, Any]]) -> None:
+    """Stored packets decoded after they were stored: each row's ``id``, new ``body`` and ``origin``."""
+    if rows:
+        s.execute(update(Packet), rows)
+
+
+def decoded_frames(s: Session, frame_ids: Sequence[int], chunk: int = 500) -> set[int]:
+    """Of the frames, those with packets, none of them left undecoded (an ``error`` in its body)."""
+    bodies: dict[int, list[dict[str, Any]]] = {}
+    for i in range(0, len(frame_ids), chunk):
+        query = sa_select(col(Packet.frame_id), col(Packet.body)).where(
+            col(Packet.frame_id).in_(frame_ids[i : i + chunk])
+        )
+        for frame_id, body in s.execute(query).all():
+            bodies.setdefault(int(frame_id), []).append(body)
+    return {f for f, packets in bodies.items() if not any("error" in body for body in packets)}
+
+
 def packet_states(s: Session, packet_ids: Sequence[int]) -> dict[int, dict[str, Any]]:
     """Each stored packet's ``body``, ``origin``, ``auth`` and ``trusted``, by id (columns, not objects:
     a batch reads hundreds)."""
@@ -125,13 +143,24 @@ def trust_data(s: Session, packet_ids: Sequence[int]) -> None:
 
 
 def checkpoints(s: Session, vehicle_id: int, n: int = 1, until: float | None = None) -> list[Packet]:
-    """The vehicle's last ``n`` verified check-points, newest first (received at or before ``until``)."""
+    """The vehicle's last ``n`` verified check-points, newest first by when they were heard (a late one,
+    stored after newer ones, takes its place among them), received at or before ``until``."""
     query = select(Packet).where(
         Packet.vehicle_id == vehicle_id, Packet.type == "checkpoint", Packet.auth == PacketTrust.VERIFIED
     )
     if until is not None:
         query = query.where(Packet.at <= until)
-    return list(s.exec(query.order_by(col(Packet.id).desc()).limit(n)).all())
+    return list(s.exec(query.order_by(col(Packet.at).desc(), col(Packet.id).desc()).limit(n)).all())
+
+
+def checkpoint_stored(s: Session, vehicle_id: int, body: dict[str, Any]) -> bool:
+    """Whether the vehicle's check-point ``body`` (the same seq, time and MAC) was stored and verified
+    before."""
+    query = select(Packet.body).where(
+        Packet.vehicle_id == vehicle_id, Packet.type == "checkpoint", Packet.seq == body["seq"],
+        Packet.auth == PacketTrust.VERIFIED,
+    )  # fmt: skip
+    return any(b.get("mac") == body["mac"] and b.get("time") == body["time"] for b in s.exec(query))
 
 
 def _window(
@@ -166,6 +195,14 @@ def packet_page(
     return _page(s, query, limit, offset)
 
 
+def snr_of_frames(s: Session, frame_ids: Sequence[int]) -> dict[int, float | None]:
+    """The frames' SNR in (dB; the kept copy's, for a frame several gateways heard), by frame id."""
+    if not frame_ids:
+        return {}
+    query = select(Frame.id, Frame.snr_in).where(col(Frame.id).in_(frame_ids))
+    return {int(i): snr for i, snr in s.exec(query) if i is not None}
+
+
 def _samples(
     vehicle_id: int | None, stream: str | None, since: float | None, until: float | None
 ) -> SelectOfScalar[Telemetry]:
@@ -189,8 +226,8 @@ def sample_page(
 def all_samples(
     s: Session, vehicle_id: int, stream: str, since: float | None, until: float | None
 ) -> Iterator[tuple[Telemetry, PacketTrust | None]]:
-    """Every sample in the window with its packet's trust (None: no packet on record), oldest first,
-    fetched ``EXPORT_ROWS`` at a time."""
+    """Every sample in the window with its packet's trust (None: no packet on record), oldest first (the
+    samples of one tick in the order they were stored: measured), fetched ``EXPORT_ROWS`` at a time."""
     query = (
         select(Telemetry, Packet.auth)
         .outerjoin(Packet, col(Telemetry.packet_id) == Packet.id)
@@ -198,7 +235,7 @@ def all_samples(
             Telemetry.stream == stream,
             *_window(Telemetry.vehicle_id, Telemetry.time, vehicle_id, since, until),
         )
-        .order_by(col(Telemetry.time))
+        .order_by(col(Telemetry.time), col(Telemetry.id))
     )
     for sample, auth in s.exec(query.execution_options(yield_per=EXPORT_ROWS)):
         yield sample, None if auth is None else PacketTrust(auth)

@@ -5,9 +5,12 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import Any
 
 from sqlalchemy import Engine
 
+from server.backhaul import repository as relayed
+from server.backhaul.models import RelayedFrame
 from server.core.db import Tx, reading
 from server.core.errors import Refused
 from server.telemetry import clock
@@ -53,12 +56,17 @@ class TelemetryReader:
 
     def packets(
         self, vehicle_id: int | None, kind: str | None, window: Window, limit: int, offset: int
-    ) -> tuple[int, list[Packet]]:
+    ) -> tuple[int, list[dict[str, Any]]]:
+        """A page of packets, each with how it was heard: its frame's SNR (the best copy's) and, from a
+        center, every gateway that heard the frame with its SNR, the kept copy marked."""
         window.check()
         with reading(self.db) as s:
             if vehicle_id is not None:
                 vehicles.get(s, vehicle_id)
-            return repo.packet_page(s, vehicle_id, kind, window.since, window.until, limit, offset)
+            total, rows = repo.packet_page(s, vehicle_id, kind, window.since, window.until, limit, offset)
+            frames = sorted({r.frame_id for r in rows})
+            snr, copies = repo.snr_of_frames(s, frames), relayed.copies_of(s, frames)
+        return total, [_heard(r, snr.get(r.frame_id), copies.get(r.frame_id, [])) for r in rows]
 
     def samples(
         self, vehicle_id: int | None, stream: str | None, window: Window, limit: int, offset: int
@@ -101,3 +109,9 @@ class TelemetryReader:
                         yield sample, trust
 
         return Dataset(vehicle_id, vehicle.name, spec), rows()
+
+
+def _heard(packet: Packet, snr: float | None, copies: list[RelayedFrame]) -> dict[str, Any]:
+    """A packet's row with its frame's reception (``copies``: ``relayedframe`` rows)."""
+    heard = [{"gateway": c.gateway, "snr": c.snr_in, "kept": c.kept} for c in copies]
+    return {**{name: getattr(packet, name) for name in Packet.model_fields}, "snr": snr, "heard": heard}

@@ -62,6 +62,15 @@ def take_seq(s: Session, vehicle_id: int) -> int:
     return int(s.exec(statement).one()[0]) - 1
 
 
+def raise_next_seq(s: Session, vehicle_id: int, next_seq: int) -> None:
+    """Never issue a sequence number below ``next_seq`` (a number the vehicle has already accepted)."""
+    s.execute(
+        update(Vehicle)
+        .where(col(Vehicle.id) == vehicle_id, col(Vehicle.next_seq) < next_seq)
+        .values(next_seq=next_seq)
+    )
+
+
 def confirm_key(s: Session, vehicle_id: int) -> None:
     """The staged rotation is over: the vehicle proved it holds the new key."""
     s.execute(

@@ -176,7 +176,7 @@ class PacketDecoder:
                 prediction = predictor.predict()
             ticks.append(index)
             phases.append(phase)
-            rows.append(_reconstruct(predictor, prediction, read_sample(coder, decoder), spec.step))
+            rows.append(_reconstruct(predictor, prediction, read_sample(coder, decoder)))
             cursor = index
             if len(rows) > CODE_BITS * 64:
                 raise CodecError("more samples than a packet can hold")
@@ -187,11 +187,11 @@ class PacketDecoder:
         return span, Position(predictor.state(), coder, cursor, phase)
 
 
-def _reconstruct(
-    predictor: Dual, prediction: np.ndarray, q: list[int | None], step: np.ndarray
-) -> np.ndarray:
-    """A sample's values from its q's (NaN: absent), fed back into the predictor as the vehicle did."""
-    n, fine = len(q), predictor.fine()
+def _reconstruct(predictor: Dual, prediction: np.ndarray, q: list[int | None]) -> np.ndarray:
+    """A sample's values from its q's (NaN: absent), fed back into the predictor as the vehicle did.
+    The arithmetic is on Python floats, the same IEEE operations as on numpy's scalars, without them."""
+    n = len(q)
+    predicted, fine, step = prediction.tolist(), predictor.fine().tolist(), predictor.step.tolist()
     values, z, raw = np.full(n, np.nan), np.zeros(n), np.zeros(n, dtype=bool)
     for c, v in enumerate(q):
         if v is None:
@@ -200,7 +200,7 @@ def _reconstruct(
             values[c], raw[c] = v.value, True
         else:
             correction = predictor.correction(c, z)
-            values[c] = prediction[c] + (correction + v * fine[c]) * step[c]
+            values[c] = predicted[c] + (correction + v * fine[c]) * step[c]
             z[c] = correction + v * fine[c]
     predictor.update(values, z, raw)
     return values

@@ -58,12 +58,18 @@ class Dual:
         n = len(spec.channels)
         self.base, self.step, self.cross = spec.predictor(), spec.step, spec.cross and n > 1
         self.sums, self.beta, self.count = np.zeros((2 * n, 2 * n)), np.zeros((n, 2 * n)), 0
+        self.lower = np.zeros((n, n))  # beta's part on the sample's own earlier channels, strictly lower
         self.raw_before = np.zeros(n, dtype=bool)
         self.previous = np.zeros(n)  # the previous sample's z (across a gap too)
         self.errors = np.zeros((2, n))  # per channel, forgotten squared error: without, with the correction
         self.held = np.full(n, np.nan)  # per channel, hold's prediction (NaN: no value yet)
         self.misses = np.zeros((2, n))  # per channel, forgotten count of misses: own predictor, hold
         self.own = np.zeros(n)  # the own predictor's prediction for the sample being coded
+        self.use: list[bool] | None = None  # per channel, whether it uses the correction (until an update)
+        self.miss_by, self.near = HOLD_MISS * self.step, self.step / 4  # ``_score``'s bounds
+        # ``_refit``'s regressors per channel: the channels before it and the previous residuals
+        used = [np.r_[0:c, n : 2 * n] for c in range(n)]
+        self.fits = [(u, np.ix_(u, u), np.eye(len(u))) for u in used]
 
     def predict(self) -> np.ndarray:
         self.own = self.base.predict()
@@ -93,7 +99,9 @@ class Dual:
         """Channel c's predicted residual, in steps, from the earlier channels' ``z``."""
         if not self.cross:
             return 0.0
-        if not self.errors[1, c] < CROSS_USE * self.errors[0, c]:
+        if self.use is None:
+            self.use = (self.errors[1] < CROSS_USE * self.errors[0]).tolist()
+        if not self.use[c]:
             return 0.0
         n = len(z)
         return float(self.beta[c, :c] @ z[:c] + self.beta[c, n:] @ self.previous)
@@ -108,10 +116,9 @@ class Dual:
         if not self.cross:
             return
         zz = np.concatenate([np.clip(z, -CROSS_CLIP, CROSS_CLIP), self.previous])
-        candidate = (
-            np.tril(self.beta[:, : len(z)], -1) @ zz[: len(z)] + self.beta[:, len(z) :] @ self.previous
-        )
+        candidate = self.lower @ zz[: len(z)] + self.beta[:, len(z) :] @ self.previous
         self.errors = self.errors * CROSS_FORGET + np.where(present, np.array([z, z - candidate]) ** 2, 0.0)
+        self.use = None
         self.previous = zz[: len(z)]
         self.sums = self.sums * CROSS_FORGET + np.outer(zz, zz)
         self.count += 1
@@ -127,8 +134,8 @@ class Dual:
         exact value does not."""
         seen = ~np.isnan(fed)
         with np.errstate(over="ignore", invalid="ignore"):
-            missed = np.abs(fed - np.array([self.own, self.held])) > HOLD_MISS * self.step
-            kept = np.clip(self.held, fed - self.step / 4, fed + self.step / 4)
+            missed = np.abs(fed - np.array([self.own, self.held])) > self.miss_by
+            kept = np.clip(self.held, fed - self.near, fed + self.near)
         missed &= ~np.isnan(self.held)  # a channel's first value: neither predicted it
         self.misses = self.misses * HOLD_FORGET + np.where(seen, missed, 0.0)
         self.held = np.where(seen, np.where(np.isnan(self.held), fed, kept), self.held)
@@ -136,14 +143,14 @@ class Dual:
     def _refit(self) -> None:
         n = len(self.step)
         ridge = CROSS_RIDGE * float(np.trace(self.sums)) / (2 * n) + 1e-9
-        for c in range(n):
-            used = np.r_[0:c, n : 2 * n]
-            a = self.sums[np.ix_(used, used)] + ridge * np.eye(len(used))
+        for c, (used, square, eye) in enumerate(self.fits):
+            a = self.sums[square] + ridge * eye
             b = self.sums[used, c]
             beta = np.linalg.solve(a, b)
             explained = float(beta @ b) / (self.sums[c, c] + 1e-12)  # R^2 of the fit
             self.beta[c, used] = beta if explained >= CROSS_MIN_R2 else 0.0
         self.beta[:, :n] = np.tril(self.beta[:, :n], -1)
+        self.lower = np.tril(self.beta[:, :n], -1)
 
     def state(self) -> Any:
         return (
@@ -164,5 +171,7 @@ class Dual:
         self.previous, self.errors = np.array(previous, dtype=np.float64), np.array(errors, dtype=np.float64)
         self.base.restore(base)
         self.sums, self.beta = np.array(sums, dtype=np.float64), np.array(beta, dtype=np.float64)
+        self.lower = np.tril(self.beta[:, : len(self.step)], -1)
         self.count = int(count)
+        self.use = None
         self.raw_before = np.array(raw_before, dtype=bool)

@@ -3,17 +3,23 @@ tests of the MAC): simulated time runs 1000x and no SYNC falls due unless a test
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Any
 
 from server.core.config import Settings
 from server.core.db import make_engine, migrate, writing
+from server.link.state import IncomingFrame
 from server.shore import Shore
 from server.vehicles.models import Vehicle
+from tacit import auth
+from tacit import modem as mm
+from tacit.packets import CheckpointPacket, MissionState
 
 
 def scripted_shore(tmp_path: Path, keys: list[str], **overrides: Any) -> Shore:
-    """The shore with one vehicle per key (``rov1`` at modem address 2, ``rov2`` at 3, ...), loaded."""
+    """The shore with one vehicle per key (``rov1`` at modem address 2, ``rov2`` at 3, ...), loaded, each
+    heard: a synced check-point of each has come (the shore commands no vehicle before it heard it)."""
     defaults: dict[str, Any] = {
         "database_url": f"sqlite:///{tmp_path}/tacit.db",
         "modem_url": "",
@@ -29,4 +35,28 @@ def scripted_shore(tmp_path: Path, keys: list[str], **overrides: Any) -> Shore:
         s.commit()
     shore = Shore.build(settings, db)
     shore.ingest.load_vehicles()
+    for i, key in enumerate(keys):
+        packet = CheckpointPacket(seq=1, time=int(time.time()), state=MissionState.WAITING)
+        frame = auth.sign_checkpoint(packet, bytes.fromhex(key), 1, 2 + i, [])
+        shore.ingest.handle(IncomingFrame(src=2 + i, dest=settings.modem_address, data=frame))
     return shore
+
+
+class AckingModem:
+    """A shore modem whose every transmission is acknowledged at once; it counts what it was asked."""
+
+    state = mm.LinkState.READY
+
+    def __init__(self) -> None:
+        self.sent: list[bytes] = []
+        self.polls = 0
+
+    async def send(self, dest: int, frames: list[bytes], **_: object) -> mm.TransmitResult:
+        self.sent += frames
+        return mm.TransmitResult(dest, len(frames), True, frozenset(range(len(frames))))
+
+    async def poll(self, dest: int, **_: object) -> None:
+        self.polls += 1
+
+    async def ping(self, dest: int, **_: object) -> None:
+        return None  # no range measured

@@ -55,6 +55,20 @@ def test_move_command_is_executed_within_tolerance(system_factory, fix: bool) ->
     assert history.count("acknowledged") == 1 and history[-1] == "executed"
 
 
+def test_a_new_vehicles_first_command_executes_on_its_first_round(system_factory) -> None:
+    """Queued before the shore heard the new (unsynced) vehicle: it waits for the vehicle's first
+    check-point and the SYNC answering it, then goes once; the vehicle refuses nothing as unsynced."""
+    system = system_factory()
+    command = system.command(command="move", distance=4.0, angle=0.0, depth=1.0)
+    wait_for(lambda: system.status(command) == "executed", timeout=90, what="command executed")
+    history = [
+        e["status"] for e in system.client.get(f"/api/v1/commands/{command}", headers=OP).json()["history"]
+    ]
+    assert history.count("sent") == 1 and history.count("acknowledged") == 1, history
+    log = system.agent_log()
+    assert "SYNC" in log and "Unsynced" not in log
+
+
 def test_out_of_limits_command_is_refused_by_the_vehicle(system_factory) -> None:
     system = system_factory(agent={"limits": {"max_depth": 5.0}})
     wait_for(lambda: system.checkpoint(), what="first check-point")

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from server.core.db import migrate
 from tests.support.nats import NatsServer
 
 
@@ -19,3 +20,11 @@ def broker(tmp_path: Path) -> Iterator[NatsServer]:
         yield server
     finally:
         server.stop()
+
+
+@pytest.fixture
+def sqlite_url(tmp_path: Path) -> str:
+    """A center's store: a migrated SQLite file of the test's own."""
+    url = f"sqlite:///{tmp_path}/center.db"
+    migrate(url)
+    return url

@@ -56,6 +56,12 @@ def status_of(client: TestClient, command_id: int) -> str:
     return client.get(f"/api/v1/commands/{command_id}", headers=OBS).json()["status"]
 
 
+def heard(client: TestClient, vehicle: VehicleSide, seq: int) -> None:
+    """The vehicle's first check-point (synced) reaches the shore: commands may go to it from now."""
+    vehicle.send(vehicle.signed(CheckpointPacket(seq=seq, time=int(time.time()), state=MissionState.WAITING)))
+    wait_for(lambda: client.get("/api/v1/link", headers=OBS).json()["vehicles"]["rov1"]["checkpoint"])
+
+
 def test_command_crosses_the_channel_and_a_priority_packet_is_stored(
     tmp_path: Path, database_url: str
 ) -> None:
@@ -64,6 +70,7 @@ def test_command_crosses_the_channel_and_a_priority_packet_is_stored(
             created = client.post("/api/v1/vehicles", json={"name": "rov1", "address": 2}, headers=OP).json()
             vehicle = VehicleSide(str(tmp_path / "vehicle"), 2, bytes.fromhex(created["key"]))
             try:
+                heard(client, vehicle, 1)
                 command = client.post(
                     f"/api/v1/vehicles/{created['id']}/commands",
                     json={"command": "move", "distance": 12.5, "angle": -30, "depth": 1.5},
@@ -80,7 +87,7 @@ def test_command_crosses_the_channel_and_a_priority_packet_is_stored(
                 assert history[0] == "queued" and "sent" in history and history[-1] == "acknowledged"
 
                 report = CheckpointPacket(
-                    seq=1,
+                    seq=2,
                     time=int(time.time()),
                     state=MissionState.COMMANDED,
                     depth=6.5,
@@ -88,9 +95,9 @@ def test_command_crosses_the_channel_and_a_priority_packet_is_stored(
                     command_status=CommandStatus.EXECUTED,
                 )
                 vehicle.send(vehicle.signed(report))
-                wait_for(lambda: client.get("/api/v1/packets", headers=OBS).json()["total"] >= 1)
-                listed = client.get("/api/v1/packets?type=checkpoint", headers=OBS).json()["items"][0]
-                assert listed["body"]["depth"] == 6.5 and listed["seq"] == 1
+                wait_for(lambda: client.get("/api/v1/packets", headers=OBS).json()["total"] >= 2)
+                listed = client.get("/api/v1/packets?type=checkpoint", headers=OBS).json()["items"]
+                assert any(p["body"]["depth"] == 6.5 and p["seq"] == 2 for p in listed)
                 wait_for(lambda: status_of(client, command["id"]) == "executed")
                 wait_for(lambda: vehicle.results == [True])  # the shore modem's ACK reached the vehicle
                 link = client.get("/api/v1/link", headers=OBS).json()
@@ -106,6 +113,7 @@ def test_stopping_the_shore_modem_loses_nothing(tmp_path: Path, database_url: st
             created = client.post("/api/v1/vehicles", json={"name": "rov1", "address": 2}, headers=OP).json()
             key = bytes.fromhex(created["key"])
             vehicle = VehicleSide(str(tmp_path / "vehicle"), 2, key)
+            heard(client, vehicle, 4)
             first = client.post(
                 f"/api/v1/vehicles/{created['id']}/commands", json={"command": "hold"}, headers=OP
             ).json()
@@ -113,7 +121,7 @@ def test_stopping_the_shore_modem_loses_nothing(tmp_path: Path, database_url: st
             vehicle.send(
                 vehicle.signed(CheckpointPacket(seq=5, time=int(time.time()), state=MissionState.HOLDING))
             )
-            wait_for(lambda: client.get("/api/v1/packets", headers=OBS).json()["total"] == 1)
+            wait_for(lambda: client.get("/api/v1/packets", headers=OBS).json()["total"] == 2)
         # the simulator (both modems) is gone: the server keeps serving and queues
         wait_for(lambda: client.get("/api/v1/link", headers=OBS).json()["modem"] != "ready", timeout=30)
         second = client.post(
@@ -122,7 +130,7 @@ def test_stopping_the_shore_modem_loses_nothing(tmp_path: Path, database_url: st
             headers=OP,
         ).json()
         assert status_of(client, second["id"]) in ("queued", "sent")
-        assert client.get("/api/v1/packets", headers=OBS).json()["total"] == 1
+        assert client.get("/api/v1/packets", headers=OBS).json()["total"] == 2
         with tacit_process("sim", "--config", str(config)):
             wait_for(lambda: client.get("/api/v1/link", headers=OBS).json()["modem"] == "ready", timeout=30)
             wait_for(lambda: status_of(client, second["id"]) in ("acknowledged",), timeout=90)
@@ -131,7 +139,7 @@ def test_stopping_the_shore_modem_loses_nothing(tmp_path: Path, database_url: st
     with TestClient(
         create_app(app_settings(tmp_path, database_url=database_url))
     ) as client:  # a restart keeps all
-        assert client.get("/api/v1/packets", headers=OBS).json()["total"] == 1
+        assert client.get("/api/v1/packets", headers=OBS).json()["total"] == 2
         assert [c["status"] for c in client.get("/api/v1/vehicles/1/commands", headers=OBS).json()] == [
             "acknowledged",
             "acknowledged",

@@ -37,13 +37,6 @@ ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.skipif(not Path(NATS_SERVER).exists(), reason="nats-server is not installed")
 
 
-@pytest.fixture
-def sqlite_url(tmp_path: Path) -> str:
-    url = f"sqlite:///{tmp_path}/center.db"
-    migrate(url)
-    return url
-
-
 def ingest_on(url: str) -> RelayIngest:
     """A center's ingest on the store at ``url`` (a new one: as a restarted center process)."""
     ingest = RelayIngest(make_engine(url), Bus(), default_streams(), Settings(stranger_frames_kept=10_000))
@@ -149,8 +142,7 @@ def test_a_center_dying_before_its_acks_loses_and_doubles_nothing(
         try:
             heard = hear(outbox, 1, 10)
             await until(lambda: outbox.depth() == 0, lambda: asyncio.sleep(0.05))
-            assert first.sub is not None
-            msgs = await first.sub.fetch(6, timeout=2)  # consumed and stored ...
+            msgs = await first.subs[subjects.partition(1)].fetch(6, timeout=2)  # consumed and stored ...
             first.ingest.handle_batch([RelayedIncoming.of(FrameMessage.decode(m.data)) for m in msgs])
             assert len(stored(sqlite_url)) == 6
         finally:
@@ -181,7 +173,7 @@ def test_a_retry_after_the_broker_window_is_still_stored_once(broker: NatsServer
 
             def publish() -> Awaitable[PubAck]:
                 return center.js.publish(
-                    subjects.frames("ship"), frame.encode(), headers={subjects.MSG_ID: frame.id}
+                    subjects.frames("ship", 4), frame.encode(), headers={subjects.MSG_ID: frame.id}
                 )
 
             assert not (await publish()).duplicate
@@ -286,6 +278,25 @@ def test_the_outbox_ids_survive_a_restart_and_published_frames_are_pruned(tmp_pa
     assert again.prune() == 1 and again.stored() == 3
     other = Outbox(tmp_path / "new.db", "ship")  # a lost file: new ids, not the old ones again
     assert other.add_frame(1, 0, b"x") != first[0]
+
+
+def test_frames_of_the_previous_wire_left_in_an_outbox_go_on_their_partitions(tmp_path: Path) -> None:
+    """A gateway upgraded with frames stored on its gateway's subject (no partition) and not published:
+    opening the outbox moves them to their partitions' subjects; published ones stay as they were."""
+    outbox = Outbox(tmp_path / "ship.db", "ship")
+    ids = [outbox.add_frame(src, 0, b"x") for src in (3, 20, 5)]
+    outbox.mark_published(outbox.pending()[0].seq)
+    outbox.close()
+    with sqlite3.connect(tmp_path / "ship.db") as db:
+        db.execute("UPDATE outbox SET subject = 'tacit.v1.frames.ship'")
+    again = Outbox(tmp_path / "ship.db", "ship")
+    assert [(p.id, p.subject) for p in again.pending()] == [
+        (ids[1], subjects.frames("ship", 4)),
+        (ids[2], subjects.frames("ship", 5)),
+    ]
+    with sqlite3.connect(tmp_path / "ship.db") as db:
+        published = db.execute("SELECT subject FROM outbox WHERE published = 1").fetchall()
+    assert published == [("tacit.v1.frames.ship",)]
 
 
 def test_the_gateway_loads_no_web_stack() -> None:
@@ -416,9 +427,9 @@ def test_a_frame_on_another_gateways_subject_is_refused(broker: NatsServer, sqli
         try:
             forged = FrameMessage("buoy-0a0b0c0d-1", "buoy", 4, 0, b"passed off", at=time.time())
             await center.js.publish(
-                subjects.frames("ship"), forged.encode(), headers={subjects.MSG_ID: forged.id}
+                subjects.frames("ship", 4), forged.encode(), headers={subjects.MSG_ID: forged.id}
             )
-            await center.js.publish(subjects.frames("ship"), b"not json", headers={subjects.MSG_ID: "x"})
+            await center.js.publish(subjects.frames("ship", 4), b"not json", headers={subjects.MSG_ID: "x"})
             await until(lambda: center.counters["malformed"] == 2, center.step)
             assert stored(sqlite_url) == []
         finally:

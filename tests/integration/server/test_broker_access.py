@@ -115,11 +115,11 @@ def test_a_gateway_cannot_publish_as_another_or_send_commands(secured: Secured, 
         js = ship.jetstream(timeout=0.5)
         try:
             own = FrameMessage("ship-0a0b0c0d-1", "ship", 3, 0, b"the ship's", at=time.time())
-            await js.publish(subjects.frames("ship"), own.encode(), headers={subjects.MSG_ID: own.id})
+            await js.publish(subjects.frames("ship", 3), own.encode(), headers={subjects.MSG_ID: own.id})
             forged = FrameMessage("buoy-0a0b0c0d-1", "buoy", 3, 0, b"passed off", at=time.time())
             command = CommandMessage("cmd-9-1", "ship", address=3, data=b"unsigned")
             for subject, payload in (
-                (subjects.frames("buoy"), forged.encode()),
+                (subjects.frames("buoy", 3), forged.encode()),
                 (subjects.events("buoy"), EventMessage("buoy-x-1", "buoy", "modem", time.time()).encode()),
                 (subjects.commands("ship"), command.encode()),
                 (subjects.commands("buoy"), command.encode()),
@@ -253,9 +253,10 @@ def test_a_gateway_cannot_read_another_gateways_schedule(
 def test_bad_input_across_the_broker_is_a_logged_refusal(
     open_broker: NatsServer, sqlite_url: str, caplog: pytest.LogCaptureFixture
 ) -> None:
-    """Malformed messages, a frame on its own gateway's subject with a name no subject has, a stranger's
-    frame (stored, not decoded) and a frame the pipeline fails on (stored undecoded, alone: the rest of
-    its batch decoded): the center goes on, and every frame is stored, in order."""
+    """Malformed messages, a frame on its own gateway's subject with a name no subject has, a frame on
+    another partition's subject than its source's, a stranger's frame (stored, not decoded) and a frame
+    the pipeline fails on (stored undecoded, alone: the rest of its batch decoded): the center goes on,
+    and every frame is stored, in order (each vehicle's: their partitions are consumed side by side)."""
 
     async def main() -> None:
         center = Center(ingest_on(sqlite_url), open_broker.url, batch=4)
@@ -275,6 +276,7 @@ def test_bad_input_across_the_broker_is_a_logged_refusal(
             FrameMessage("ship-1-5", "ship.x", 2, 0, b"a name no subject has", at=time.time()).encode(),
         ]
         stranger = FrameMessage("ship-0a0b0c0d-9", "ship", 77, 0, b"an unknown vehicle", at=time.time())
+        astray = FrameMessage("ship-0a0b0c0d-7", "ship", 3, 0, b"on partition 2", at=time.time())
         poison = FrameMessage("ship-0a0b0c0d-8", "ship", 2, 0, b"poison", at=time.time())
         handle_batch = center.ingest.handle_batch
 
@@ -285,23 +287,26 @@ def test_bad_input_across_the_broker_is_a_logged_refusal(
 
         center.ingest.handle_batch = picky  # type: ignore[method-assign]
         try:
-            await center.js.publish(subjects.frames("ship"), good[0].encode())
+            await center.js.publish(subjects.frames("ship", 2), good[0].encode())
             for i, payload in enumerate(bad):
                 await center.js.publish(
-                    subjects.frames("ship"), payload, headers={subjects.MSG_ID: f"bad-{i}"}
+                    subjects.frames("ship", 2), payload, headers={subjects.MSG_ID: f"bad-{i}"}
                 )
+            await center.js.publish(subjects.frames("ship", 2), astray.encode())
             for frame in (stranger, poison, *good[1:]):
-                await center.js.publish(subjects.frames("ship"), frame.encode())
-            await until(lambda: center.counters["messages"] >= len(bad) + 5, center.step)
-            assert [d for _, d, _ in stored(sqlite_url)] == [
+                part = subjects.partition(frame.src)
+                await center.js.publish(subjects.frames("ship", part), frame.encode())
+            await until(lambda: center.counters["messages"] >= len(bad) + 6, center.step)
+            rows = stored(sqlite_url)
+            assert [d for s, d, _ in rows if s == 2] == [
                 good[0].data,
-                stranger.data,
                 poison.data,
                 good[1].data,
                 good[2].data,
             ]
-            assert center.guard.refused == {"malformed": 6, "foreign": 1}
-            assert center.counters["malformed"] == 7
+            assert [d for s, d, _ in rows if s != 2] == [stranger.data]
+            assert center.guard.refused == {"malformed": 6, "foreign": 1, "partition": 1}
+            assert center.counters["malformed"] == 8
             assert center.ingest.stats["undecoded"] == 1
             # no vehicle is known here: every frame stored, none decoded
             assert center.ingest.stats["unknown_vehicle"] == 4
@@ -310,8 +315,8 @@ def test_bad_input_across_the_broker_is_a_logged_refusal(
 
     with caplog.at_level("WARNING"):
         asyncio.run(main())
-    assert sum("dropped" in r.getMessage() for r in caplog.records) == 7
-    assert any("ship-0a0b0c0d-8 (stream seq 10) failed" in r.getMessage() for r in caplog.records)
+    assert sum("dropped" in r.getMessage() for r in caplog.records) == 8
+    assert any("ship-0a0b0c0d-8 (stream seq 11) failed" in r.getMessage() for r in caplog.records)
     assert any("unknown modem address 77" in r.getMessage() for r in caplog.records)
 
 

@@ -19,7 +19,7 @@ from server.app import create_app
 from server.core.db import writing
 from server.telemetry import repository
 from server.telemetry.models import PacketTrust, Telemetry
-from tacit.streams import ENV_PERIOD
+from tacit.streams import ENV_PERIOD, IMU_PERIOD
 from tests.support.api import OP, offline_settings
 
 OBS = {"Authorization": "Bearer observer-token"}
@@ -27,6 +27,7 @@ T0 = 1_700_000_000.0
 HEADER = [
     "time (seconds since 1970-01-01T00:00:00Z)",
     "tick",
+    "in_tick",
     "certain",
     "verification",
     "temperature (degree_Celsius)",
@@ -105,6 +106,7 @@ def client(tmp_path: Path):
             rows[4] = env(4, [], certain=False, packet="pending", ids=ids)  # a lost span
             rows.append(env(9, [66.0, 6.6, 6.6], packet="forged", ids=ids))  # a forgery beside a genuine one
             rows.append(env(5, [99.0, 9.0, 9.0], vehicle_id=2))  # another vehicle's
+            rows.append(env(5, [99.5, 9.0, 9.0], vehicle_id=2))  # ... and a second sample of its tick
             rows.append({**env(6, [1.0] * 9), "stream": "imu"})  # another stream
             s.execute(insert(Telemetry), rows)
             s.commit()
@@ -124,7 +126,7 @@ def test_csv_of_a_vehicle_stream_and_window(client: TestClient, tmp_path: Path) 
     with path.open(newline="") as f:
         rows = list(csv.DictReader(f))
     assert list(rows[0]) == HEADER  # one plain header row: each name with its units
-    time, temperature, depth = HEADER[0], HEADER[4], HEADER[5]
+    time, temperature, depth = HEADER[0], HEADER[5], HEADER[6]
     assert len(rows) == 11_999 and [int(r["tick"]) for r in rows[:5]] == [0, 1, 2, 3, 4]  # less the forged
     assert float(rows[2][time]) == T0 + 2 and float(rows[2][temperature]) == pytest.approx(20.02)
     assert rows[3][depth] == "" and rows[3][temperature] == "20.5"  # absent: an empty cell
@@ -140,6 +142,30 @@ def test_csv_of_a_vehicle_stream_and_window(client: TestClient, tmp_path: Path) 
     )
     with window.open(newline="") as f:
         assert [int(r["tick"]) for r in csv.DictReader(f)] == list(range(10, 20))
+
+
+@pytest.mark.parametrize("suffix", ["csv", "parquet", "nc"])
+def test_two_samples_of_one_tick_are_two_rows_numbered_in_it(
+    client: TestClient, tmp_path: Path, suffix: str
+) -> None:
+    """A tick may hold several samples (a sensor faster than the stream's period): each is its own row at
+    the tick's time, in the order measured, and ``in_tick`` says it is not a copy of the one before."""
+    path = download(
+        client, tmp_path / f"rov2.{suffix}", f"/api/v1/telemetry.{suffix}", vehicle_id=2, stream="env"
+    )
+    if suffix == "csv":
+        with path.open(newline="") as f:
+            rows = list(csv.DictReader(f))
+        places = [int(r["in_tick"]) for r in rows]
+        temperatures = [float(r[HEADER[5]]) for r in rows]
+    elif suffix == "parquet":
+        data = pq.read_table(path).to_pydict()
+        places, temperatures = data["in_tick"], data["temperature"]
+    else:
+        with netcdf_file(path, mmap=False) as f:
+            places = list(f.variables["in_tick"][:])
+            temperatures = list(f.variables["temperature"][:])
+    assert places == [0, 1] and temperatures == [99.0, 99.5]
 
 
 @pytest.mark.parametrize("suffix", ["csv", "parquet", "nc"])
@@ -185,7 +211,16 @@ def read_verification(path: Path) -> tuple[list[int], list[str]]:
 def test_parquet_of_a_vehicle_stream_and_window(client: TestClient, tmp_path: Path) -> None:
     path = download(client, tmp_path / "env.parquet", "/api/v1/telemetry.parquet", vehicle_id=1, stream="env")
     table = pq.read_table(path)
-    assert table.column_names == ["time", "tick", "certain", "verification", "temperature", "depth", "oxygen"]
+    assert table.column_names == [
+        "time",
+        "tick",
+        "in_tick",
+        "certain",
+        "verification",
+        "temperature",
+        "depth",
+        "oxygen",
+    ]
     assert str(table.schema.field("depth").type) == "double" and table.num_rows == 11_999
     assert pq.ParquetFile(path).metadata.num_row_groups >= 2
     data = table.to_pydict()
@@ -204,7 +239,7 @@ def test_parquet_of_a_vehicle_stream_and_window(client: TestClient, tmp_path: Pa
             until=T0 + 100,
         )
     )
-    assert window.to_pydict()["temperature"] == [99.0]
+    assert window.to_pydict()["temperature"] == [99.0, 99.5]
 
 
 def test_parquet_says_what_its_values_mean(client: TestClient, tmp_path: Path) -> None:
@@ -313,3 +348,30 @@ def test_mistakes_in_an_export_are_errors_not_empty_files(client: TestClient, su
     assert empty.status_code == 422 and "they span" in empty.json()["detail"]
     never = client.get(url, params={"vehicle_id": 2, "stream": "imu"}, headers=OBS)
     assert never.status_code == 422 and "no imu samples yet" in never.json()["detail"]
+
+
+@pytest.mark.parametrize("suffix", ["csv", "parquet", "nc"])
+def test_ticks_as_a_vehicle_counts_them_come_back_exact(
+    client: TestClient, tmp_path: Path, suffix: str
+) -> None:
+    """A stream's tick counts its periods since 1970: the IMU's (4 Hz) are over 2^32 today, past any
+    32-bit integer (the NetCDF export once failed on every real stream with a 500)."""
+    vehicle = client.post("/api/v1/vehicles", json={"name": "rov3", "address": 4}, headers=OP).json()
+    first = int(T0 / IMU_PERIOD)
+    with writing(client.app.state.shore.db) as s:  # type: ignore[attr-defined]
+        rows = [
+            {**env(0, [0.1 * i] * 9, vehicle_id=vehicle["id"], packet=None), "stream": "imu"}
+            | {"tick": first + i, "time": (first + i) * IMU_PERIOD}
+            for i in range(3)
+        ]
+        s.execute(insert(Telemetry), rows)
+        s.commit()
+    path = download(
+        client,
+        tmp_path / f"imu.{suffix}",
+        f"/api/v1/telemetry.{suffix}",
+        vehicle_id=vehicle["id"],
+        stream="imu",
+    )
+    ticks, _ = read_verification(path)
+    assert first > 2**32 and [int(t) for t in ticks] == [first, first + 1, first + 2]

@@ -16,30 +16,10 @@ from tacit import modem as mm
 from tacit.packets import SYNC_RESTART_CHAINS, Stream, with_seq
 from tacit.streams import default_streams
 from tests.support.api import OP, offline_settings
-from tests.support.shore import scripted_shore
+from tests.support.shore import AckingModem, scripted_shore
 from vehicle_agent.compressor import Compressor
 
 KEY = bytes.fromhex("11" * 32)
-
-
-class AckingModem:
-    """A shore modem whose every transmission is acknowledged at once; it counts what it was asked."""
-
-    state = mm.LinkState.READY
-
-    def __init__(self) -> None:
-        self.sent: list[bytes] = []
-        self.polls = 0
-
-    async def send(self, dest: int, frames: list[bytes], **_: object) -> mm.TransmitResult:
-        self.sent += frames
-        return mm.TransmitResult(dest, len(frames), True, frozenset(range(len(frames))))
-
-    async def poll(self, dest: int, **_: object) -> None:
-        self.polls += 1
-
-    async def ping(self, dest: int, **_: object) -> None:
-        return None  # no range measured
 
 
 def test_polls_keep_their_share_while_many_commands_wait(tmp_path: Path) -> None:
@@ -112,6 +92,7 @@ def test_forged_packets_with_an_unknown_base_neither_stop_polling_nor_flood_rest
     link, modem = shore.link, CollidingModem()
     link.driver = modem  # type: ignore[assignment]
     (vehicle,) = shore.ingest.states()
+    heard = shore.ingest.stats["packets"]  # its check-point
 
     async def slots(forged: list[bytes]) -> None:
         for packet in forged:  # one forged packet before every slot
@@ -120,5 +101,47 @@ def test_forged_packets_with_an_unknown_base_neither_stop_polling_nor_flood_rest
 
     asyncio.run(slots(unknown_bases(20)))
     restarts = [f for f in modem.sent if auth.verify(f, KEY, 2).param_id & SYNC_RESTART_CHAINS]
-    assert shore.ingest.stats["packets"] == 20 and modem.polls == link.counters["polls"] == 20
+    assert shore.ingest.stats["packets"] == heard + 20 and modem.polls == link.counters["polls"] == 20
     assert len(restarts) == settings.restart_sends and not vehicle.link.needs_restart
+
+
+class HeldPoll(AckingModem):
+    """A shore modem whose poll is on the air until the test lets it go."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.on_air = asyncio.Event()
+        self.release = asyncio.Event()
+
+    async def poll(self, dest: int, **_: object) -> None:
+        await super().poll(dest)
+        self.on_air.set()
+        await self.release.wait()
+
+
+def test_a_command_queued_during_an_unanswered_poll_goes_next_not_after_the_idle_pause(
+    tmp_path: Path,
+) -> None:
+    """A poll nobody answers ends the round with nothing heard, and the engine pauses for the poll interval:
+    a command queued while that poll was on the air must end the pause (it once waited the whole of it,
+    30 s by default: bench_link's commands at 3 km took 39 s instead of 9)."""
+    shore = scripted_shore(tmp_path, [KEY.hex()], poll_interval=1e7)  # a pause of 1e4 s at 1000x
+    link = shore.link
+
+    async def scenario() -> HeldPoll:
+        modem = HeldPoll()
+        link.driver = modem  # type: ignore[assignment]
+        link._loop = asyncio.get_running_loop()
+        runner = asyncio.create_task(link._run())
+        try:
+            await modem.on_air.wait()
+            shore.commands.submit(1, CommandIn(command="hold"), "tester")  # wakes the engine
+            modem.release.set()  # nobody answers: the poll's window runs out
+            while not link.delivery.counters["commands_sent"]:
+                await asyncio.sleep(0.01)
+            return modem
+        finally:
+            runner.cancel()
+
+    modem = asyncio.run(asyncio.wait_for(scenario(), 60))  # the pause would be 1e4 s: TimeoutError
+    assert modem.release.is_set() and link.delivery.counters["commands_sent"] == 1

@@ -150,3 +150,14 @@ def test_a_move_abandoned_for_a_newer_one_is_superseded(client: TestClient) -> N
         client, first["seq"], CommandStatus.EXECUTED
     )  # a late copy of an old check-point changes nothing
     assert client.get(f"/api/v1/commands/{first['id']}", headers=OBS).json()["status"] == "superseded"
+
+
+def test_a_shore_behind_the_vehicle_issues_after_what_the_vehicle_accepted(client: TestClient) -> None:
+    """The shore's database restored from an older backup (here: new) while the vehicle accepted commands
+    up to seq 41: its verified check-point says so, and the next command takes seq 42, where seq 1 would
+    have been refused by the vehicle as a replay."""
+    checkpoint(client, 41, CommandStatus.EXECUTED, north=0.0, east=0.0, depth=1.0)
+    command = client.post("/api/v1/vehicles/1/commands", json={"command": "hold"}, headers=OP).json()
+    assert command["seq"] == 42
+    checkpoint(client, 42, CommandStatus.EXECUTED, north=0.0, east=0.0, depth=1.0)
+    assert client.get(f"/api/v1/commands/{command['id']}", headers=OBS).json()["status"] == "executed"

@@ -42,7 +42,7 @@ def syncs(shore: Shore, n: int) -> list[bytes]:
     settings = shore.settings
     counter = itertools.count(1)
     heartbeat = Heartbeat(
-        settings, LinkStore(shore.db), Timing(settings), shore.vehicles, lambda v: next(counter)
+        settings, LinkStore(shore.db), Timing(settings), shore.vehicles, lambda v, floor: next(counter)
     )
     modem, vehicle = AckingModem(), VehicleState(1, "rov1", 2, None)  # type: ignore[arg-type]
 

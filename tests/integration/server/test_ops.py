@@ -119,6 +119,7 @@ def test_metrics_in_prometheus_format(broker: NatsServer, sqlite_url: str, tmp_p
             assert started <= m["tacit_gateway_state_since_timestamp_seconds"][ship] <= time.time()
             assert m["tacit_backhaul_up"][()] == 1
             assert m["tacit_backhaul_pending_frames"][()] == 0
+            assert m["tacit_center_partitions"][()] == 16 and m["tacit_center_coordinator"][()] == 1
             assert m["tacit_ingest_total"][(("counter", "frames"),)] == 3
             assert m["tacit_decode_errors_total"][(("kind", "rejected"),)] == 0
             assert m["tacit_retention_pruned_total"][()] == 0

@@ -212,7 +212,8 @@ def test_attack_4_a_shore_clock_stepped_back_an_hour_keeps_sending_syncs(
 ) -> None:
     """SYNC intervals run on the monotonic clock: a wall clock stepped back must not stop them."""
     ingest, heartbeat = shore()
-    heartbeat.settings = Settings(time_scale=1000.0)  # a SYNC every 60 ms
+    ingest.handle(IncomingFrame(ADDRESS, 1, checkpoint(time.time())))  # heard: SYNCs are due from now
+    heartbeat.settings = Settings(time_scale=100.0)  # a SYNC every 0.6 s
     v = ingest.vehicles[ADDRESS]
     sync(heartbeat, ingest)
     assert not heartbeat.due(v)
@@ -251,11 +252,33 @@ def test_a_version_2_vehicle_is_refused_with_a_clear_reason_logged_once_and_coun
     assert agent.link.counters["rejected"] == 1
 
 
+class SilentModem:
+    """A cycle on the air that the vehicle's modem never acknowledges."""
+
+    async def send(self, dest: int, frames: list[bytes], **_: object) -> mm.TransmitResult:
+        return mm.TransmitResult(dest, len(frames), True)
+
+
 class BusyModem(AckingModem):
     """Our own modem refusing the cycle (still acknowledging a frame it received)."""
 
     async def send(self, dest: int, frames: list[bytes], **_: object) -> mm.TransmitResult:
         return mm.TransmitResult(dest, len(frames), False, error="BUSY")
+
+
+def test_no_sync_before_the_first_checkpoint_and_commands_wait_for_its_answer(shore, tmp_path: Path) -> None:
+    """A new vehicle is unsynced: a SYNC sent before its first check-point was heard answers none of
+    them, and it refuses any command before the answer; the answer goes again until its modem ACKs it."""
+    ingest, heartbeat = shore()
+    v = ingest.vehicles[ADDRESS]
+    assert not heartbeat.due(v) and not heartbeat.synced(v)
+    frame = challenge(make_agent(tmp_path))
+    ingest.handle(IncomingFrame(ADDRESS, 1, frame))
+    assert heartbeat.due(v) and not heartbeat.synced(v)
+    asyncio.run(heartbeat.sync(SilentModem(), v))  # type: ignore[arg-type]
+    assert heartbeat.due(v) and not heartbeat.synced(v)
+    assert auth.verify(sync(heartbeat, ingest), KEY, ADDRESS).echo == frame[28:]
+    assert heartbeat.synced(v) and not heartbeat.due(v)
 
 
 def test_an_answer_our_modem_refused_goes_out_at_the_next_slot(shore, tmp_path: Path) -> None:

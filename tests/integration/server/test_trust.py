@@ -167,12 +167,12 @@ def test_forged_checkpoints_change_nothing(shore) -> None:
     genuine = vehicle.checkpoint(north=20.0)
     send(ingest, genuine)
     send(ingest, vehicle.checkpoint(north=30.0))
-    ingest.vehicles[
-        ADDRESS
-    ].link.seen.recent.clear()  # the duplicate window forgot it: the time stamp still holds
+    ingest.vehicles[ADDRESS].link.seen.recent.clear()  # the duplicate window forgot them
+    send(ingest, genuine)  # the same bytes again: a replay
     older = CheckpointPacket(seq=99, time=int(time.time()) - 60, state=MissionState.PREPROGRAMMED, north=-1.0)
-    send(ingest, auth.sign_checkpoint(older, KEY, 1, ADDRESS, []))
-    assert ingest.vehicles[ADDRESS].link.checkpoint["north"] == 30.0 and ingest.stats["replayed"] == 1
+    send(ingest, auth.sign_checkpoint(older, KEY, 1, ADDRESS, []))  # genuine, never heard: late, not applied
+    assert ingest.vehicles[ADDRESS].link.checkpoint["north"] == 30.0
+    assert ingest.stats["replayed"] == 1 and ingest.stats["late"] == 1
 
 
 def test_a_checkpoint_signed_with_another_vehicles_key_says_whose(shore) -> None:

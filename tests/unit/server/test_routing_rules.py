@@ -64,6 +64,23 @@ def test_slots_go_round_the_gateways_within_their_guards() -> None:
         plan.next_start("pier", 1000.0, 1.0)
 
 
+def test_a_sync_is_stamped_for_the_opening_of_the_gateways_next_slot_as_its_gateway_will_send_it() -> None:
+    schedule = Schedule()
+    assert schedule.opening("ship", 5.0) == 5.0  # no plan: at will, at once
+    schedule.receive(SlotPlan(epoch=0.0, slot=10.0, guard=1.0, order=("ship", "buoy")), now=5.0)
+    schedule.receive(SlotPlan(epoch=40.0, slot=10.0, guard=1.0, order=("buoy", "pier", "ship")), now=6.0)
+    assert schedule.opening("ship", 1.0) == 1.0  # a slot opening then
+    assert schedule.opening("ship", 6.0) == 21.0  # its slot opened already: the next one's opening
+    assert schedule.opening("buoy", 6.0) == 11.0
+    assert schedule.opening("ship", 27.0) == 61.0  # the new plan's slot
+    for after in (6.0, 12.5, 27.0, 45.0):  # the slot the gateway's MAC picks when it comes to it
+        opening = schedule.opening("ship", after)
+        assert schedule.start("ship", opening - 0.5, 3.0) == opening
+    later = Schedule()  # only a plan to come: its first slot of the gateway's
+    later.receive(SlotPlan(epoch=40.0, slot=10.0, guard=1.0, order=("buoy", "ship")), now=5.0)
+    assert later.opening("ship", 6.0) == 51.0 == later.start("ship", 6.0, 3.0)
+
+
 def test_the_guard_covers_half_the_travel_time_and_the_clock_error() -> None:
     assert guard_for(3000.0, 0.1) == pytest.approx(1.1)
     assert guard_for(3000.0, 1e-6, sound_speed=1500.0) == pytest.approx(1.0, abs=1e-5)
@@ -79,6 +96,17 @@ def test_a_new_plan_applies_at_its_epoch_and_no_transmission_straddles_it() -> N
     assert schedule.start("ship", 27.0, 3.0) == 61.0  # its next slot (40) is the new plan's buoy's
     assert schedule.start("ship", 45.0, 3.0) == 61.0
     assert schedule.current is not None and schedule.current.epoch == 40.0 and schedule.coming is None
+
+
+def test_a_gateway_with_only_a_plan_to_come_transmits_nothing_before_its_epoch() -> None:
+    """A gateway that starts after the center handed out a plan for a later epoch: until then the others
+    follow a plan it does not know, so it waits (before, it took the plan at once, on a grid that could
+    give it the others' slots)."""
+    schedule = Schedule()
+    schedule.receive(SlotPlan(epoch=40.0, slot=10.0, guard=1.0, order=("buoy", "ship")), now=6.0)
+    assert schedule.current is None and schedule.start("ship", 6.0, 3.0) == 51.0  # its first slot
+    assert schedule.start("pier", 6.0, 3.0) == 40.0  # not in it: at will, from the epoch on
+    assert schedule.plan(39.0) is None and schedule.plan(40.0) is not None
 
 
 def test_a_second_plan_from_the_same_epoch_is_not_taken_for_a_duplicate() -> None:

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tacit import packets
+from tacit import auth, packets
 from tacit.packets import (
     PACKET_SIZE,
     CheckpointPacket,
@@ -251,3 +251,15 @@ def test_as_dict_is_json_friendly() -> None:
     cp = CheckpointPacket(seq=1, time=2, state=MissionState.HOLDING)
     view = packets.as_dict(cp)
     assert view["type"] == "checkpoint" and view["state"] == "holding"
+
+
+def test_only_a_sync_is_scheduled() -> None:
+    """The scheduled flag (a SYNC pre-signed for its time) on any other command is refused both ways."""
+    key = bytes(range(32))
+    hold = ControlPacket(Command.HOLD, seq=1, time=1, flags=ControlFlag.SCHEDULED)
+    with pytest.raises(PacketError, match="only a SYNC"):
+        auth.sign(hold, key, 2)
+    sync = auth.sign(ControlPacket(Command.SYNC, seq=1, time=1, flags=ControlFlag.SCHEDULED), key, 2)
+    assert packets.decode_control(sync).flags == ControlFlag.SCHEDULED
+    with pytest.raises(PacketError, match="HOLD is flagged scheduled"):
+        packets.decode_control(sync[:1] + bytes([Command.HOLD]) + sync[2:])

@@ -177,6 +177,20 @@ def test_status_survives_a_round_trip_through_json() -> None:
     assert restored == m.status
 
 
+def test_a_restored_mission_the_plans_no_longer_have_holds_where_the_vehicle_is() -> None:
+    """A state file saved while mission 1 ran, restored with plans that lost it (the configuration
+    changed): the vehicle holds, and says so in its next check-point, instead of failing every tick."""
+    saved = fsm()
+    saved.on_control(control(Command.START_MISSION, 1, param_id=1), HOME, 0)
+    status = MissionProgress.from_dict(saved.status.to_dict())
+    m = MissionFSM(
+        {2: MissionPlan.square(2, side=5.0, depth=1.0, duration_s=60)}, Limits(max_depth=20), status
+    )
+    target = m.step(5, Pose(3, 4, 2, 0), None, 5)
+    assert m.state is MissionState.HOLDING and target == Target(3, 4, 2)
+    assert m.status.mission is None and m.checkpoint_due
+
+
 def test_dead_reckoning_integrates_the_gap_of_a_restart() -> None:
     """Killed at 0.95 m/s under cruise thrust: ArduSub keeps that thrust 3 s, then the hull coasts."""
     config = NavConfig()
