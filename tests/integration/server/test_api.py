@@ -99,7 +99,8 @@ def test_command_crosses_the_channel_and_a_priority_packet_is_stored(
                 listed = client.get("/api/v1/packets?type=checkpoint", headers=OBS).json()["items"]
                 assert any(p["body"]["depth"] == 6.5 and p["seq"] == 2 for p in listed)
                 wait_for(lambda: status_of(client, command["id"]) == "executed")
-                wait_for(lambda: vehicle.results == [True])  # the shore modem's ACK reached the vehicle
+                # the shore modem's ACKs of both check-points' frames reached the vehicle
+                wait_for(lambda: vehicle.results == [True, True])
                 link = client.get("/api/v1/link", headers=OBS).json()
                 assert link["modem"] == "ready" and link["vehicles"]["rov1"]["snr_in"] is not None
             finally:
