@@ -21,7 +21,9 @@ hands out the slots, so it knows when that gateway transmits next, and the gatew
 ``SYNC_WINDOW`` of that stamp, so the vehicle's clock is set to within seconds of the shore's. One that
 misses its window comes back expired and is signed anew (with the same answer, if it carried one). A
 vehicle accepts no command before a SYNC has answered its check-points, so its commands wait here until
-the center has heard one of its check-points and sent the SYNC answering a challenge in it. For when
+the center has heard one of its check-points and sent the SYNC answering a challenge in it: of several
+center processes, the one that decodes the vehicle (it alone holds its link state) sends its SYNCs and
+its commands. For when
 SYNCs stop coming (the backhaul cut, the center down), the vehicle's gateway holds a budget of SYNCs
 signed ahead (``server.backhaul.budget``), which the dispatcher keeps after the routes.
 
@@ -122,9 +124,9 @@ class Dispatcher:
                 pass
 
     async def step(self, now: float | None = None) -> None:
-        """Re-assign vehicles, hand out slots if the gateways changed, renew the SYNC budgets, dispatch
-        what waits: while this process coordinates. SYNCs in every center process, to the vehicles whose
-        states it holds."""
+        """Re-assign vehicles, hand out slots if the gateways changed, renew the SYNC budgets: while this
+        process coordinates. SYNCs and commands in every center process, to the vehicles whose states it
+        holds (those it decodes)."""
         now = time.time() if now is None else now
         coordinating = self.coordinating()
         if coordinating:
@@ -138,12 +140,11 @@ class Dispatcher:
         if not coordinating:
             if self.budgets.issued or self.budgets.started:  # the role lost: its next holder withdraws them
                 self.budgets = self._budgets()
-            return
-        if self.heartbeat is not None:  # a center that sends SYNCs: its budgets too (the coordinator's)
+        elif self.heartbeat is not None:  # a center that sends SYNCs: its budgets too (the coordinator's)
             await self.budgets.update(routes, {s.address: s.link.sync_counter for s in self.states()}, now)
-        held = self._unsynced()
+        ready = self._commandable(routes, coordinating)
         for route in routes:
-            if route.vehicle.address not in held:
+            if route.vehicle.address in ready:
                 await self._vehicle(route.vehicle, now)
 
     # --- SYNCs down ------------------------------------------------------------------------------
@@ -185,18 +186,21 @@ class Dispatcher:
 
     # --- commands down ---------------------------------------------------------------------------
 
-    def _unsynced(self) -> set[int]:
-        """The addresses whose commands wait: not heard yet, a challenge of theirs not answered
-        (``Heartbeat.synced``: the vehicle would refuse them), or its answer's slot not opened yet (a
-        command sent before the answer would be refused, and one stamped before the answer's time less
-        ``FLOOR_SLACK`` is older than the floor that answer sets)."""
+    def _commandable(self, routes: list[Route], coordinating: bool) -> set[int]:
+        """The addresses whose commands this process sends now. Where SYNCs are sent, the vehicles it
+        decodes (their states are here: of several center processes, only the one that decodes a
+        vehicle's check-points knows whether a SYNC has answered them), unless not heard yet, a
+        challenge of theirs is not answered (``Heartbeat.synced``: the vehicle would refuse them), or its
+        answer's slot has not opened yet (a command sent before the answer would be refused, and one
+        stamped before the answer's time less ``FLOOR_SLACK`` is older than the floor that answer sets).
+        Where none are, every routed vehicle's, by the coordinating process."""
         if self.heartbeat is None:
-            return set()
+            return {r.vehicle.address for r in routes} if coordinating else set()
         now = time.time()
         return {
             s.address
             for s in self.states()
-            if not self.heartbeat.synced(s) or now < self._answer_at.get(s.address, 0.0)
+            if self.heartbeat.synced(s) and now >= self._answer_at.get(s.address, 0.0)
         }
 
     async def _vehicle(self, vehicle: Vehicle, now: float) -> None:

@@ -199,7 +199,7 @@ async def _scenario(centers: list[CenterProcess], url: str, broker: NatsServer, 
             return {e["vehicle"] for e in shown} == {f"auv{a}" for a in ADDRESSES}
 
         await until(every_vehicle_shown, "bravo's browser to be shown alpha's vehicles' packets too")
-        first = await command(bravo, 2)  # through either process's API: the coordinator dispatches it
+        first = await command(bravo, 2)  # through either API: the process decoding auv2 dispatches it
 
         async def first_arrived() -> bool:
             return at_the_gateway() == [f"cmd-{first}-1"]

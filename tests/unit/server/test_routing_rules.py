@@ -143,3 +143,40 @@ def test_a_second_plan_from_the_same_epoch_is_not_taken_for_a_duplicate() -> Non
         ("tacit.v1.schedule.ship", ("buoy", "ship"), 1020.0),
     ]
     assert len({m.id for _, m in sent}) == 3
+
+
+def test_a_vehicle_is_commanded_by_the_process_that_decodes_it_once_a_sync_answered_it() -> None:
+    """Of several center processes only the one holding a vehicle's link state knows whether a SYNC has
+    answered its check-points: another, the coordinator too, does not send it commands (the vehicle
+    would refuse one that came before the answer). A center that sends no SYNCs commands from its
+    coordinator alone."""
+    import time
+
+    from server.backhaul.dispatch import Dispatcher
+    from server.core.config import Settings
+    from server.link.heartbeat import Heartbeat
+    from server.link.state import VehicleState
+    from server.routing.service import Route
+    from server.vehicles.models import Vehicle
+
+    states: list[VehicleState] = []
+    heartbeat = Heartbeat(Settings(), None, None, None, lambda state, floor: floor)  # type: ignore[arg-type]
+
+    async def publish(subject: str, payload: bytes, message_id: str) -> None:
+        raise AssertionError("nothing is published here")
+
+    dispatcher = Dispatcher(None, None, Settings(), publish, heartbeat, lambda: states)  # type: ignore[arg-type]
+    routes = [Route(Vehicle(id=1, name="auv2", address=2, key_hex="00" * 32), "ship", False, None, "best")]
+    assert dispatcher._commandable(routes, coordinating=True) == set()  # another process decodes it
+    state = VehicleState(1, "auv2", 2, {})  # type: ignore[arg-type]
+    states.append(state)
+    assert dispatcher._commandable(routes, coordinating=False) == set()  # decoded here, not heard yet
+    state.link.checkpoint, state.link.echo = {"seq": 1}, b"challenge"
+    assert dispatcher._commandable(routes, coordinating=False) == set()  # its challenge waits for its answer
+    state.link.echo = None
+    assert dispatcher._commandable(routes, coordinating=False) == {2}
+    dispatcher._answer_at[2] = time.time() + 60.0
+    assert dispatcher._commandable(routes, coordinating=False) == set()  # the answer's slot is still ahead
+    no_syncs = Dispatcher(None, None, Settings(), publish)  # type: ignore[arg-type]
+    assert no_syncs._commandable(routes, coordinating=True) == {2}
+    assert no_syncs._commandable(routes, coordinating=False) == set()
