@@ -221,6 +221,12 @@ class Dispatcher:
         options = [
             g for g in await asyncio.to_thread(self.routing.candidates, vehicle, now) if g not in tried
         ]
+        if not options and round_ and command.status == CommandState.ACKNOWLEDGED:
+            # sent again for want of a check-point, through every gateway in vain: it stays acknowledged
+            # (the vehicle's modem did ACK it; it cannot fail), sent again once a confirmation is overdue again
+            if round_[-1].updated_at > deadline:
+                return
+            options = await asyncio.to_thread(self.routing.candidates, vehicle, now)
         if options:
             await self._dispatch(command, vehicle, options[0], len(tries) + 1, now)
         elif round_:

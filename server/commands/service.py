@@ -320,7 +320,7 @@ class CommandDesk:
             and latest.status == CommandState.ACKNOWLEDGED
             and latest.updated_at < confirm_deadline
         ):
-            log.info(
+            log.debug(  # asked again every tick until it is sent: the sender logs the attempt
                 "vehicle %d: command seq %d acknowledged but never confirmed: sending again",
                 vehicle_id,
                 latest.seq,

@@ -253,14 +253,17 @@ class Routing:
         return report.dispatch if report is not None and report.moved else None
 
     def report(self, dispatch_id: str, state: DispatchState | None, attempt: int) -> Report | None:
-        """What a gateway said of a dispatch: its state moved forward, and whether attempt number
-        ``attempt`` is news (an event delivered twice is counted once). None for an unknown dispatch."""
+        """What a gateway said of a dispatch: its state moved forward (or from unanswered to acked: the
+        ACK came after the center had given up on the gateway), and whether attempt number ``attempt`` is
+        news (an event delivered twice is counted once). None for an unknown dispatch."""
         with writing(self.db) as s:
             row = repo.dispatch(s, dispatch_id)
             if row is None:
                 return None
             fresh = attempt > row.attempts
-            moved = state is not None and not row.final and _RANK[state] > _RANK[row.state]
+            # the center took the gateway for down, but it got the vehicle's ACK: its word wins
+            late_ack = row.state == DispatchState.UNANSWERED and state == DispatchState.ACKED
+            moved = state is not None and (late_ack or (not row.final and _RANK[state] > _RANK[row.state]))
             if fresh:
                 row.attempts = attempt
             if moved and state is not None:
