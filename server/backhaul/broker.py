@@ -21,6 +21,10 @@ from server.backhaul import subjects
 from server.backhaul.access import BrokerAuth
 
 log = logging.getLogger("tacit.backhaul.broker")
+# A link that goes silent (a cellular or satellite backhaul lost, no reset) is taken for down after this
+# many unanswered pings, one every PING_INTERVAL s (the client's default waits four minutes).
+PING_INTERVAL = 5.0
+MAX_OUTSTANDING_PINGS = 2
 
 
 async def connect(
@@ -62,6 +66,8 @@ async def connect(
                 max_reconnect_attempts=-1,
                 reconnect_time_wait=0.5,
                 connect_timeout=2,
+                ping_interval=PING_INTERVAL,
+                max_outstanding_pings=MAX_OUTSTANDING_PINGS,
                 allow_reconnect=True,
                 disconnected_cb=down,
                 reconnected_cb=up,

@@ -157,11 +157,14 @@ class Gateway:
 
     def _state(self, up: bool) -> None:
         """The broker connection came or went: an outage is timed, and the heartbeat after it says how
-        long it lasted and what waited in the outbox."""
+        long it lasted and what waited in the outbox. A silent cut (no reset: a radio link gone) is
+        noticed by the client's pings only some seconds on: the outage began at the first publish
+        that failed since."""
         self.backhaul = up
         now = time.time()
         if not up:
-            self.down_since = now
+            failing = self.publisher.failing_since if self.publisher is not None else None
+            self.down_since = min(now, failing or now)
             return
         if self.down_since is not None:
             self.outage = Outage(now - self.down_since, now, self.outbox.depth())

@@ -308,6 +308,7 @@ class Publisher:
         self.retry = retry
         self.wake = asyncio.Event()
         self.healthy = False  # the last publish was acknowledged
+        self.failing_since: float | None = None  # the first failure since the last acknowledged publish
         self.counters = {"published": 0, "duplicates": 0, "failures": 0}
         loop = asyncio.get_running_loop()
 
@@ -349,6 +350,7 @@ class Publisher:
                         self.outbox.depth(),
                     )
                 self.healthy = False
+                self.failing_since = self.failing_since or time.time()
                 self.counters["failures"] += 1
                 return False
             self.outbox.mark_published(item.seq)
@@ -356,5 +358,5 @@ class Publisher:
             self.counters["duplicates"] += int(bool(ack.duplicate))
             if not self.healthy:
                 log.info("backhaul: publishing (from %s)", item.id)
-            self.healthy = True
+            self.healthy, self.failing_since = True, None
         return True

@@ -130,6 +130,76 @@ def test_a_backhaul_outage_loses_nothing_and_doubles_nothing(
     asyncio.run(main())
 
 
+class SilentLink:
+    """A TCP relay to the broker that can go silent: while ``silent``, it forwards nothing and closes
+    nothing (a radio backhaul lost: no reset, no FIN), and new connections hang the same way."""
+
+    def __init__(self, target: str) -> None:
+        host, port = target.removeprefix("nats://").rsplit(":", 1)
+        self.target = (host, int(port))
+        self.silent = False
+        self.server: asyncio.Server | None = None
+
+    async def start(self) -> str:
+        self.server = await asyncio.start_server(self._join, "127.0.0.1", 0)
+        return f"nats://127.0.0.1:{self.server.sockets[0].getsockname()[1]}"
+
+    async def _join(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        upstream, downstream = await asyncio.open_connection(*self.target)
+        await asyncio.gather(self._pipe(reader, downstream), self._pipe(upstream, writer))
+
+    async def _pipe(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        try:
+            while data := await reader.read(65536):
+                while self.silent:
+                    await asyncio.sleep(0.1)
+                writer.write(data)
+                await writer.drain()
+        except (ConnectionError, OSError):
+            pass
+        finally:
+            writer.close()
+
+    async def close(self) -> None:
+        if self.server is not None:
+            self.server.close()
+
+
+def test_a_silent_backhaul_cut_is_timed_from_its_start_and_loses_nothing(
+    broker: NatsServer, sqlite_url: str, tmp_path: Path
+) -> None:
+    """The backhaul goes silent (no reset: the client's pings notice it some seconds on): the outage the
+    gateway reports lasted as long as the cut (from its first failed publish), and its frames arrive."""
+    cut = 20.0
+
+    async def main() -> None:
+        link = SilentLink(broker.url)
+        outbox = Outbox(tmp_path / "buoy.db", "buoy")
+        gateway = Gateway(outbox, await link.start())
+        center = Center(ingest_on(sqlite_url), broker.url, batch=4)
+        await gateway.start()
+        await center.connect()
+        try:
+            heard = hear(outbox, 1, 3)
+            await until(lambda: len(stored(sqlite_url)) == 3, center.step)
+            link.silent = True
+            heard += hear(outbox, 1, 4, start=3)
+            await asyncio.sleep(cut)
+            assert gateway.down_since is not None  # noticed within the cut
+            link.silent = False
+            await until(lambda: len(stored(sqlite_url)) == 7, center.step, timeout=30)
+            await until(lambda: gateway.outage is not None, lambda: asyncio.sleep(0.2))
+            assert gateway.outage is not None and cut - 3.0 <= gateway.outage.lasted <= cut + 15.0
+            assert gateway.outage.backlog == 4
+            assert per_vehicle(stored(sqlite_url), 1) == heard
+        finally:
+            await center.close()
+            await gateway.stop()
+            await link.close()
+
+    asyncio.run(main())
+
+
 def test_a_center_dying_before_its_acks_loses_and_doubles_nothing(
     broker: NatsServer, sqlite_url: str, tmp_path: Path
 ) -> None:
