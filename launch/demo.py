@@ -204,7 +204,7 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
         plan = "travel.json" if plans[member.index] is split.TRAVEL else "mission.json"
         stack.write_agent_config(
             member.index,
-            checkpoint_interval=20,
+            checkpoint_interval=split.CHECKPOINT_INTERVAL if args.gateways else 20,
             missions=[{"file": f"missions/{plan}"}],
             **({"link_lost_timeout": split.LINK_LOST_TIMEOUT} if args.gateways else {}),
             **({"plume_threshold": 1e6} if plans[member.index] is split.TRAVEL else {}),  # no detours

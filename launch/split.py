@@ -32,6 +32,11 @@ SLOT_S = 9.0  # simulated s: a rate-0 poll or command and its answer at 1 km (7.
 DATABASE = "tacit_demo"  # each data folder's database is this, then a hash of the folder's path
 MARKER = "center-database"  # in a split demo's folder: its database's URL
 SYNC_INTERVAL = 240.0  # simulated s between a vehicle's SYNCs: a slot's exchange each, on two gateways' slots
+# simulated s between a vehicle's check-points: each gateway polls the vehicles in turn, one per slot of
+# its own, and a rate-0 answer is one packet: three vehicles on two gateways' slots each send about one
+# packet a minute, which a check-point every 20 s (the one-shore demo's) would outrun, its reports
+# reaching the shore ever later; this leaves room for the priority packets
+CHECKPOINT_INTERVAL = 120.0
 LINK_LOST_TIMEOUT = 5 * SYNC_INTERVAL  # the agents': five SYNC intervals, as the defaults (60 s and 300 s)
 TRAVEL = {  # the last vehicle's: 500 m east of its home, from the first gateway's water to the second's
     "name": "travel",
