@@ -213,8 +213,13 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
     overrides = {"host": args.host, "port": args.port, "map_port": args.map_port, "poll_interval": 2.0}
     if args.gateways:
         database = await asyncio.to_thread(split.database, args.postgres, data)
-        values = split.center_settings(stack, database, args.time_scale)
-        app = split.center_app(Settings(**{**values, **overrides}), args.nats)
+        values = {
+            **split.center_settings(stack, database, args.time_scale),
+            **overrides,
+            "nats_url": args.nats,
+        }
+        split.write_center_config(stack, values)
+        app = split.center_app(Settings(**values), args.nats)
     else:
         app = create_app(Settings(**stack.server_settings(**overrides)))
     server = uvicorn.Server(uvicorn.Config(app, host=args.host, port=args.port, log_config=None))

@@ -25,12 +25,15 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
-from launch.stack import Stack
+from launch.stack import Stack, write_private
+from tacit.config import dump_toml
 
 NOISE_DB = 137.0  # a busy harbour: rate 0 reaches about 600 m, so each gateway hears its end
 SLOT_S = 9.0  # simulated s: a rate-0 poll or command and its answer at 1 km (7.5 s), with the guards
 DATABASE = "tacit_demo"  # each data folder's database is this, then a hash of the folder's path
 MARKER = "center-database"  # in a split demo's folder: its database's URL
+CENTER_CONFIG = "center.toml"  # in a split demo's folder: its center's settings, to run it alone
+DURABLE = "tacit-demo"  # the demo's center's consumers (a `tacit center` of its own has others)
 SYNC_INTERVAL = 240.0  # simulated s between a vehicle's SYNCs: a slot's exchange each, on two gateways' slots
 # simulated s between a vehicle's check-points: each gateway polls the vehicles in turn, one per slot of
 # its own, and a rate-0 answer is one packet: three vehicles on two gateways' slots each send about one
@@ -155,13 +158,22 @@ def center_settings(stack: Stack, database_url: str, time_scale: float) -> dict[
     )
 
 
+def write_center_config(stack: Stack, values: dict[str, Any]) -> Path:
+    """The demo's center's settings in its folder (owner-only: its tokens), for ``tacit center --config
+    <it> --durable tacit-demo`` after the demo's process was killed: the issue's check restarts the
+    center alone while the gateways, agents and simulator go on (docs/backhaul.md)."""
+    path = stack.dir / CENTER_CONFIG
+    write_private(path, dump_toml(values))
+    return path
+
+
 def center_app(settings: Any, nats_url: str) -> Any:
     """The center's FastAPI app: the shore's API with the backhaul's consumers and dispatcher."""
     from server.app import create_app
     from server.backhaul.center import serve
     from server.backhaul.relay import RelayIngest
 
-    return create_app(settings, RelayIngest, [lambda shore: serve(shore, nats_url, durable="tacit-demo")])
+    return create_app(settings, RelayIngest, [lambda shore: serve(shore, nats_url, durable=DURABLE)])
 
 
 async def watch_routes(http: Any, say: Callable[[str], None], every: float = 2.0) -> None:

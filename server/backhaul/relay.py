@@ -46,6 +46,8 @@ class RelayedIncoming(IncomingFrame):
 
 
 class RelayIngest(Ingest):
+    relayed = True
+
     def __init__(
         self,
         db: Engine,

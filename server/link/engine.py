@@ -75,7 +75,8 @@ class LinkEngine:
         await asyncio.to_thread(self.ingest.load_vehicles)  # rebuilding decoders can take seconds
         self._worker = asyncio.create_task(self._ingest())
         if not self.settings.modem_url:
-            log.warning("no shore modem configured (TACIT_MODEM_URL): API and storage only")
+            if not self.ingest.relayed:  # a center has no modem of its own: its gateways have them
+                log.warning("no shore modem configured (TACIT_MODEM_URL): API and storage only")
             return
         scale = self.settings.time_scale
         self.driver = mm.ModemDriver(

@@ -54,6 +54,8 @@ log = logging.getLogger("tacit.server.ingest")
 
 
 class Ingest:
+    relayed = False  # frames come from the shore's own modem (a center's come from its gateways)
+
     def __init__(self, db: Engine, bus: Bus, streams: dict[Stream, StreamSpec], settings: Settings) -> None:
         self.db = db
         self.bus = bus

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from launch import split
 from launch.stack import Stack, StackConfig, StackError
 from tests.support.nats import free_port
 
@@ -40,3 +41,17 @@ def test_a_split_stack_puts_one_modem_per_gateway_and_tells_the_agents(tmp_path:
     assert [m["address"] for m in sim["modems"] if "attach" in m] == [2, 3, 4]
     with pytest.raises(StackError, match="101"):
         StackConfig(tmp_path, vehicles=1, gateways=2, addresses=[101]).members()
+
+
+def test_the_demos_center_settings_are_kept_for_running_the_center_alone(tmp_path: Path) -> None:
+    """What `tacit center --config center.toml` reads back is the demo's own center's settings (its
+    slots, time scale, tokens, database and broker), in a file only its owner reads."""
+    from server.core.config import Settings
+
+    stack = Stack(StackConfig(tmp_path, vehicles=3, gateways=2, write_tokens=["op"], read_tokens=["obs"]))
+    url = "postgresql+psycopg://postgres@127.0.0.1:5432/tacit_demo_0123abcd"
+    values = {**split.center_settings(stack, url, 4.0), "port": 8123, "nats_url": "nats://127.0.0.1:4299"}
+    path = split.write_center_config(stack, values)
+    assert path.stat().st_mode & 0o777 == 0o600
+    assert Settings.load(path, env={}) == Settings(**values)
+    assert Settings.load(path, env={}).tdma_slot == split.SLOT_S / 4.0
