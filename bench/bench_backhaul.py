@@ -75,6 +75,7 @@ from tacit.streams import default_streams
 
 POSTGRES = os.environ.get("TACIT_TEST_POSTGRES", "postgresql+psycopg://postgres@127.0.0.1:5432/test")
 LEASE = 5.0  # s: the center processes' leases (the setting's default)
+SPACING = 25.0  # m between the simulated vehicles' places, north and east: none within the separation
 
 
 def free_port() -> int:
@@ -114,7 +115,8 @@ def fleet(
     addresses: dict[str, list[int]] = {name: [] for name in by_gateway}
     checkpoints = 0
     for address, key in tqdm(keys.items(), desc="vehicles' frames", unit="vehicle"):
-        made, cps = frames(per_vehicle, 0.5, key, address, progress=False)
+        apart = (SPACING * (address // 100), SPACING * (address % 100))  # no separation warnings
+        made, cps = frames(per_vehicle, 0.5, key, address, progress=False, place=apart)
         gateway = f"gw{address % gateways}"
         by_gateway[gateway].append(made)
         addresses[gateway].append(address)
@@ -398,8 +400,8 @@ def report(
         )
     check_measured(stats, checkpoints, url)
     print(
-        f"\n{options.vehicles} vehicles on {options.gateways} gateways, {total} frames (half priority, "
-        f"{checkpoints} check-points), PostgreSQL, batches of {options.batch}, {figures.centers} center "
+        f"\n{options.vehicles} vehicles on {options.gateways} gateways, {total} frames ({total - checkpoints} "
+        f"priority, {checkpoints} check-points), PostgreSQL, batches of {options.batch}, {figures.centers} center "
         f"process(es); load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"
     )
     print(

@@ -42,12 +42,17 @@ ADDRESS = 2
 
 
 def frames(
-    count: int, priority_share: float, key: bytes, address: int = ADDRESS, progress: bool = True
+    count: int,
+    priority_share: float,
+    key: bytes,
+    address: int = ADDRESS,
+    progress: bool = True,
+    place: tuple[float, float] = (0.0, 0.0),
 ) -> tuple[list[bytes], int]:
     """Check-points and real codec output (a noisy IMU stream), in the order a vehicle sends them and
     signed as the agent signs them: each check-point covers the priority packets sent since the last one
-    (a check-point is due before 12 are uncovered, as on the vehicle). Returns the frames and how many are
-    check-points."""
+    (a check-point is due before 12 are uncovered, as on the vehicle), its position ``place`` (north,
+    east). Returns the frames and how many are check-points."""
     streams = list(default_streams().values())  # the server decodes every stream of a packet
     spec = streams[0]
     encoder = PacketEncoder(streams, max_latency=1.0)
@@ -73,6 +78,8 @@ def frames(
                 seq=seq,
                 time=int(t0) + len(out),
                 state=MissionState.PREPROGRAMMED,
+                north=place[0],
+                east=place[1],
                 depth=float(len(out) % 100),
                 temperature=20.0,
                 covered=cover_bitmap(seq, [q for q, _ in uncovered]),
