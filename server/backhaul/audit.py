@@ -1,7 +1,8 @@
 """``tacit backhaul-audit``: issue 24's own check, counted. Per gateway, the frames its modem heard (its
 outbox file), those it published, and at the center those stored, merged with another gateway's copy of
-the same transmission (stored once: spatial diversity) and decoded; every frame heard and published but
-not stored is named. ``tacit demo --gateways N`` prints it at exit.
+the same transmission (stored once: spatial diversity) and decoded, or resent (a retransmission: the
+same packets as an earlier frame, dropped as duplicates); every frame heard and published but not stored
+is named. ``tacit demo --gateways N`` prints it at exit.
 
 An outbox keeps the newest ``Outbox.keep`` published messages (and every unpublished one): the count is
 of the frames it still holds.
@@ -34,6 +35,7 @@ class Count:
     stored: int = 0
     merged: int = 0  # stored as another gateway's copy of the same frame, or the kept copy of one
     decoded: int = 0  # stored, and every packet of its frame decoded
+    resent: int = 0  # stored, not decoded: a retransmission, its packets stored from an earlier frame
     missing: list[str] = field(default_factory=list)  # published, not stored
 
     def line(self) -> str:
@@ -44,6 +46,7 @@ class Count:
             + (f" ({waiting} waiting in its outbox)" if waiting else "")
             + f"; center: {self.stored} stored ({self.merged} merged with another gateway's copy), "
             f"{self.decoded} decoded"
+            + (f", {self.resent} resent (their packets stored before)" if self.resent else "")
             + (f"; HEARD BUT NOT STORED: {len(self.missing)} ({named})" if self.missing else "")
         )
 
@@ -90,6 +93,8 @@ def _count(s: Tx, gateway: str, held: list[tuple[str, bool]]) -> Count:
     count.stored = len(stored)
     count.merged = sum(copies.get(f, 0) > 1 for f in stored.values() if f is not None)
     count.decoded = sum(f in decoded for f in stored.values() if f is not None)
+    resent = telemetry.resent_frames(s, [f for f in frame_ids if f not in decoded])
+    count.resent = sum(f in resent for f in stored.values() if f is not None)
     return count
 
 

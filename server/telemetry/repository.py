@@ -11,6 +11,7 @@ from sqlmodel import Session, SQLModel, col, select
 from sqlmodel.sql.expression import SelectOfScalar
 
 from server.telemetry.models import Frame, Packet, PacketTrust, Telemetry
+from tacit.packets import PACKET_SIZE
 
 EXPORT_ROWS = 5000  # rows per database fetch of an export
 
@@ -62,6 +63,32 @@ def decoded_frames(s: Session, frame_ids: Sequence[int], chunk: int = 500) -> se
         for frame_id, body in s.execute(query).all():
             bodies.setdefault(int(frame_id), []).append(body)
     return {f for f, packets in bodies.items() if not any("error" in body for body in packets)}
+
+
+def resent_frames(s: Session, frame_ids: Sequence[int]) -> set[int]:
+    """Of the incoming frames, those that only carried packets an earlier frame of the same vehicle
+    carried: a retransmission (the vehicle did not get the shore modem's ACK), whose packets the decoder
+    dropped as duplicates."""
+    wanted = set(frame_ids)
+    if not wanted:
+        return set()
+    rows = s.execute(
+        sa_select(col(Frame.src), func.max(Frame.id))
+        .where(col(Frame.id).in_(wanted))
+        .group_by(col(Frame.src))
+    )
+    out: set[int] = set()
+    for src, last in rows.all():
+        seen: set[bytes] = set()
+        query = sa_select(col(Frame.id), col(Frame.data)).where(
+            col(Frame.src) == src, col(Frame.direction) == "in", col(Frame.id) <= last
+        )
+        for frame_id, data in s.execute(query.order_by(col(Frame.id))).all():
+            chunks = {bytes(data[i : i + PACKET_SIZE]) for i in range(0, len(data), PACKET_SIZE)}
+            if frame_id in wanted and chunks <= seen:
+                out.add(int(frame_id))
+            seen |= chunks
+    return out
 
 
 def packet_states(s: Session, packet_ids: Sequence[int]) -> dict[int, dict[str, Any]]:

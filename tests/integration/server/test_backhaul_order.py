@@ -32,6 +32,7 @@ from server.backhaul.slots import SlotPlan
 from server.backhaul.subjects import EventMessage
 from server.core.db import make_engine, migrate, reading
 from server.telemetry import repository as telemetry
+from server.telemetry.models import Frame
 from server.vehicles.models import Vehicle
 from tacit import auth
 from tacit.packets import CheckpointPacket, MissionState, Stream, cover_bitmap, with_seq
@@ -181,6 +182,19 @@ def test_a_vehicle_heard_through_a_gateway_behind_an_outage_is_stored_verified_a
     buoy.mark_published(buoy.pending()[0].seq)
     again = audit(files, store_url)[0]
     assert again.missing == [lost] and "HEARD BUT NOT STORED: 1" in again.line()
+
+
+def test_a_frame_that_only_resent_stored_packets_is_counted_as_resent(sqlite_url: str) -> None:
+    """The audit tells a retransmission (the vehicle missed the ACK and sent the same packets again: the
+    decoder drops them as duplicates) from a frame that was not decoded."""
+    x, y = bytes(32), bytes(range(32))
+    frames = [(2, x), (2, x), (2, x + y), (3, x), (2, y + x)]  # resent, new y, another vehicle, resent
+    with Session(make_engine(sqlite_url)) as s:
+        rows = [Frame(direction="in", src=src, dest=1, data=data) for src, data in frames]
+        s.add_all(rows)
+        s.commit()
+        ids = [row.id for row in rows]
+        assert telemetry.resent_frames(s, ids) == {ids[1], ids[4]}
 
 
 def pose(center: Center, db: object) -> tuple[int, int]:
