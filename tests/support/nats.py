@@ -29,23 +29,45 @@ class NatsServer:
         self.folder = folder
         self.url = f"nats://127.0.0.1:{self.port}"
         self.proc: subprocess.Popen[bytes] | None = None
+        self.started = False  # it ran once: a restart keeps its port
 
     def arguments(self) -> list[str]:
         return ["-js", "-a", "127.0.0.1", "-p", str(self.port), "-sd", str(self.folder / "jetstream")]
 
     def start(self) -> None:
-        self.proc = subprocess.Popen(
+        """Start it and wait until it listens. The first start moves to another free port if this one
+        was taken meanwhile (another test process's server: ``free_port`` only reserves it while asked);
+        a restart keeps its port (the clients reconnect to it)."""
+        for _ in range(5):
+            if self._started():
+                self.started = True
+                return
+            if self.started:
+                break
+            self._rebind()
+        raise RuntimeError(f"nats-server did not start on port {self.port}")
+
+    def _started(self) -> bool:
+        """Whether this server (not another on its port) listens within 20 s."""
+        proc = subprocess.Popen(
             [NATS_SERVER, *self.arguments()], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
         )
-        deadline = time.monotonic() + 10
-        while time.monotonic() < deadline:
+        self.proc = proc
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and proc.poll() is None:
             with (
                 contextlib.suppress(OSError),
                 socket.create_connection(("127.0.0.1", self.port), timeout=0.2),
             ):
-                return
+                time.sleep(0.1)  # one that could not bind the port exits at once: not taken for listening
+                return proc.poll() is None
             time.sleep(0.05)
-        raise RuntimeError("nats-server did not start")
+        self.stop()
+        return False
+
+    def _rebind(self) -> None:
+        self.port = free_port()
+        self.url = f"nats://127.0.0.1:{self.port}"
 
     def stop(self) -> None:
         if self.proc is not None:
@@ -60,9 +82,19 @@ class Secured(NatsServer):
 
     def __init__(self, folder: Path, gateways: list[str], tls: tuple[str, str] | None = None) -> None:
         super().__init__(folder)
-        access.write(folder, gateways, f"127.0.0.1:{self.port}", str(folder / "jetstream"), tls)
-        if tls is not None:
+        self.gateways, self.tls = gateways, tls
+        self._configure()
+
+    def _configure(self) -> None:
+        access.write(
+            self.folder, self.gateways, f"127.0.0.1:{self.port}", str(self.folder / "jetstream"), self.tls
+        )
+        if self.tls is not None:
             self.url = f"tls://127.0.0.1:{self.port}"
+
+    def _rebind(self) -> None:
+        super()._rebind()
+        self._configure()
 
     def arguments(self) -> list[str]:
         return ["-c", str(self.folder / "nats-server.conf")]
