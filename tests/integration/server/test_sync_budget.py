@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import time
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -76,14 +77,17 @@ def register(client: TestClient) -> int:
     return int(answer.json()["id"])
 
 
-def test_a_backhaul_cut_longer_than_the_link_lost_timeout_keeps_the_vehicle_hearing_authentic_syncs(
-    broker: NatsServer, tmp_path: Path
-) -> None:
-    """The ship's gateway and the vehicle's agent 300 m apart on simulated Micro-Modems; the broker
-    stopped for one and a half link-lost timeouts (the gateway and the center both cut off). The agent
-    hears the center's SYNCs, then the ship's pre-signed ones, never silent for a timeout, each within the
-    window of its clock and none before its time, and its clock stays as the center's SYNCs left it; then
-    the center's again."""
+@contextmanager
+def ship_and_rov1(
+    broker: NatsServer,
+    tmp_path: Path,
+    slot: float,
+    prepare: Callable[[Agent], None],
+    heard: Callable[[Agent, ControlPacket], None],
+) -> Iterator[tuple[TestClient, Gateway, Outbox, Agent]]:
+    """The center (time scaled by ``SCALE``, ``slot`` s slots), the ship's gateway and rov1's agent on
+    simulated Micro-Modems 300 m apart: the agent ``prepare``d before its modem starts, ``heard`` told
+    every control packet it takes (after its link did)."""
     from simulators.run import ModemSpec, SimConfig, SimWorld
 
     world = SimWorld(
@@ -94,9 +98,8 @@ def test_a_backhaul_cut_longer_than_the_link_lost_timeout_keeps_the_vehicle_hear
         )
     )
     app = center_app(
-        f"sqlite:///{tmp_path}/center.db", broker, time_scale=SCALE, tdma_slot=2.5, tdma_guard=0.3
+        f"sqlite:///{tmp_path}/center.db", broker, time_scale=SCALE, tdma_slot=slot, tdma_guard=0.3
     )
-    heard: list[tuple[float, ControlPacket]] = []  # (the vehicle's clock, what its agent accepted)
     with TestClient(app) as client:
         assert client.portal is not None
         client.portal.call(world.start)
@@ -106,34 +109,50 @@ def test_a_backhaul_cut_longer_than_the_link_lost_timeout_keeps_the_vehicle_hear
         gateway = Gateway(outbox, broker.url, driver, heartbeat=0.2)
         register(client)
         agent = make_agent(tmp_path, ptys["rov1"])
-        answered(agent, time.time() - 5)  # as the center's answer to its first check-point would have
+        prepare(agent)
         handle = agent.link.on_control
 
         def hear(packet: ControlPacket) -> None:
-            heard.append((time.time(), packet))
             handle(packet)
+            heard(agent, packet)
 
         agent.link.on_control = hear
         try:
             client.portal.call(agent.driver.start)
             client.portal.call(gateway.start)
-            agent._send_checkpoint()
-            report = agent.link.queue.pop().data  # the ship hears its check-point: it is the ship's
-            outbox.add_frame(ADDRESS, 0, report, snr_in=20.0)  # (and heard: the center's SYNCs may go)
-            until(lambda: outbox.budget_left(ADDRESS)[0] > 0, what="the ship's budget for rov1")
-            until(lambda: heard, what="the center's first SYNC")
-            broker.stop()
-            cut = time.time()
-            time.sleep(1.5 * LINK_LOST)
-            broker.start()
-            back = time.time()
-            until(
-                lambda: heard[-1][0] > back and not scheduled(heard[-1][1]), what="the center's SYNCs again"
-            )
+            yield client, gateway, outbox, agent
         finally:
             client.portal.call(gateway.stop)
             client.portal.call(agent.driver.stop)
             client.portal.call(world.stop)
+
+
+def test_a_backhaul_cut_longer_than_the_link_lost_timeout_keeps_the_vehicle_hearing_authentic_syncs(
+    broker: NatsServer, tmp_path: Path
+) -> None:
+    """The ship's gateway and the vehicle's agent 300 m apart on simulated Micro-Modems; the broker
+    stopped for one and a half link-lost timeouts (the gateway and the center both cut off). The agent
+    hears the center's SYNCs, then the ship's pre-signed ones, never silent for a timeout, each within the
+    window of its clock and none before its time, and its clock stays as the center's SYNCs left it; then
+    the center's again."""
+    heard: list[tuple[float, ControlPacket]] = []  # (the vehicle's clock, what its agent accepted)
+
+    def synced(agent: Agent) -> None:
+        answered(agent, time.time() - 5)  # as the center's answer to its first check-point would have
+
+    with ship_and_rov1(broker, tmp_path, 2.5, synced, lambda _, p: heard.append((time.time(), p))) as rig:
+        _, _, outbox, agent = rig
+        agent._send_checkpoint()
+        report = agent.link.queue.pop().data  # the ship hears its check-point: it is the ship's
+        outbox.add_frame(ADDRESS, 0, report, snr_in=20.0)  # (and heard: the center's SYNCs may go)
+        until(lambda: outbox.budget_left(ADDRESS)[0] > 0, what="the ship's budget for rov1")
+        until(lambda: heard, what="the center's first SYNC")
+        broker.stop()
+        cut = time.time()
+        time.sleep(1.5 * LINK_LOST)
+        broker.start()
+        back = time.time()
+        until(lambda: heard[-1][0] > back and not scheduled(heard[-1][1]), what="the center's SYNCs again")
     assert all(p.command is Command.SYNC for _, p in heard)
     quiet = 2 * Settings.model_fields["sync_interval"].default / SCALE  # the center's last SYNCs are out
     during = [(at, p) for at, p in heard if cut + quiet < at < back]

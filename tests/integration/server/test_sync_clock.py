@@ -15,18 +15,12 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from server.backhaul.gateway import Gateway
-from server.backhaul.outbox import Outbox
-from tacit import modem as mm
 from tacit.packets import ControlPacket
 from tests.integration.server.test_sync_budget import (
     ADDRESS,
-    SCALE,
     answered,
-    center_app,
-    make_agent,
-    register,
     scheduled,
+    ship_and_rov1,
     until,
 )
 from tests.support.nats import NATS_SERVER, NatsServer
@@ -45,34 +39,12 @@ def rig(
     client, the agent, what makes the ship hear the agent's next check-point just after the ship's slot
     opened (a SYNC signed then waits most of a slot), and each packet the agent accepted with its clock
     offset then."""
-    from simulators.run import ModemSpec, SimConfig, SimWorld
-
-    world = SimWorld(
-        SimConfig(
-            time_scale=SCALE,
-            channel={"fading_sigma_db": 0.0},
-            modems=[ModemSpec(1, "ship", (0.0, 0.0, 1.0)), ModemSpec(ADDRESS, "rov1", (300.0, 0.0, 5.0))],
-        )
-    )
-    app = center_app(
-        f"sqlite:///{tmp_path}/center.db", broker, time_scale=SCALE, tdma_slot=SLOT, tdma_guard=0.3
-    )
     accepted: list[tuple[ControlPacket, float]] = []
-    with TestClient(app) as client:
-        assert client.portal is not None
-        client.portal.call(world.start)
-        ptys = {m["name"]: m["pty"] for m in world.describe()["modems"]}
-        driver = mm.ModemDriver(mm.DriverSettings(url=ptys["ship"], address=1, keepalive=10.0))
-        outbox = Outbox(tmp_path / "ship.db", "ship")
-        gateway = Gateway(outbox, broker.url, driver, heartbeat=0.2)
-        register(client)
-        agent = make_agent(tmp_path, ptys["rov1"])
-        prepare(agent)
-        handle = agent.link.on_control
 
-        def hear(packet: ControlPacket) -> None:
-            handle(packet)
-            accepted.append((packet, agent.link.offset))
+    def heard(agent: Agent, packet: ControlPacket) -> None:
+        accepted.append((packet, agent.link.offset))
+
+    with ship_and_rov1(broker, tmp_path, SLOT, prepare, heard) as (client, gateway, outbox, agent):
 
         def checkpoint_heard() -> None:
             plan = gateway.schedule.plan(time.time())
@@ -82,16 +54,8 @@ def rig(
             report = agent.link.queue.pop().data
             outbox.add_frame(ADDRESS, 0, report, snr_in=20.0)
 
-        agent.link.on_control = hear
-        try:
-            client.portal.call(agent.driver.start)
-            client.portal.call(gateway.start)
-            until(lambda: gateway.schedule.plan(time.time()) is not None, what="the ship's slots")
-            yield client, agent, checkpoint_heard, accepted
-        finally:
-            client.portal.call(gateway.stop)
-            client.portal.call(agent.driver.stop)
-            client.portal.call(world.stop)
+        until(lambda: gateway.schedule.plan(time.time()) is not None, what="the ship's slots")
+        yield client, agent, checkpoint_heard, accepted
 
 
 def test_the_centers_sync_sets_the_vehicles_clock_to_within_seconds_after_waiting_for_its_slot(
