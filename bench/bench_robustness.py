@@ -338,23 +338,7 @@ def late_checkpoints(ingest: Any, cases: int, make: Callable[[int], bytes]) -> N
 
 
 def api(examples: int) -> None:
-    result = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "pytest",
-            "-q",
-            "-p",
-            "no:cacheprovider",
-            "tests/integration/server/test_schemathesis.py",
-        ],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        env={**os.environ, "TACIT_API_EXAMPLES": str(examples)},
-    )
-    passed = int(m.group(1)) if (m := re.search(r"(\d+) passed", result.stdout)) else 0
-    failed = int(m.group(1)) if (m := re.search(r"(\d+) failed", result.stdout)) else 0
+    passed, failed = pytest_counts("test_schemathesis.py", {"TACIT_API_EXAMPLES": str(examples)})
     row(
         "api",
         "schemathesis, every operation",
@@ -362,6 +346,18 @@ def api(examples: int) -> None:
         f"{failed} failed",
         "test_schemathesis",
     )
+    passed, failed = pytest_counts("test_bad_input.py")
+    row(
+        "api",
+        "NaN/Infinity/1e999 in every float, 100 kB keys, partial PUT",
+        f"{passed + failed} tests (150 property examples)",
+        f"{failed} failed",
+        "test_bad_input",
+    )
+
+
+def pytest_counts(test_file: str, env: dict[str, str] | None = None) -> tuple[int, int]:
+    """Run one file of the server's integration tests; how many passed and how many failed."""
     result = subprocess.run(
         [
             sys.executable,
@@ -370,21 +366,16 @@ def api(examples: int) -> None:
             "-q",
             "-p",
             "no:cacheprovider",
-            "tests/integration/server/test_bad_input.py",
+            f"tests/integration/server/{test_file}",
         ],
         cwd=ROOT,
         capture_output=True,
         text=True,
+        env={**os.environ, **(env or {})},
     )
     passed = int(m.group(1)) if (m := re.search(r"(\d+) passed", result.stdout)) else 0
     failed = int(m.group(1)) if (m := re.search(r"(\d+) failed", result.stdout)) else 0
-    row(
-        "api",
-        "NaN/Infinity/1e999 in every float, 100 kB keys, partial PUT",
-        f"{passed + failed} tests (150 property examples)",
-        f"{failed} failed",
-        "test_bad_input",
-    )
+    return passed, failed
 
 
 def faults() -> None:
