@@ -8,13 +8,25 @@ from pathlib import Path
 import pytest
 
 from server.core.db import migrate
-from tests.support.nats import NatsServer
+from tests.support.nats import NatsServer, Secured
 
 
 @pytest.fixture
 def broker(tmp_path: Path) -> Iterator[NatsServer]:
     """A nats-server of the test's own (JetStream, its own port and folder), stopped afterwards."""
     server = NatsServer(tmp_path)
+    server.start()
+    try:
+        yield server
+    finally:
+        server.stop()
+
+
+@pytest.fixture
+def secured(tmp_path: Path) -> Iterator[Secured]:
+    """A nats-server with the users and permissions ``tacit broker-config`` writes for the gateways
+    ``ship`` and ``buoy`` (and the center)."""
+    server = Secured(tmp_path / "broker", ["ship", "buoy"])
     server.start()
     try:
         yield server

@@ -31,16 +31,6 @@ pytestmark = pytest.mark.skipif(not Path(NATS_SERVER).exists(), reason="nats-ser
 
 
 @pytest.fixture
-def secured(tmp_path: Path) -> Iterator[Secured]:
-    server = Secured(tmp_path / "broker", ["ship", "buoy"])
-    server.start()
-    try:
-        yield server
-    finally:
-        server.stop()
-
-
-@pytest.fixture
 def open_broker(tmp_path: Path) -> Iterator[NatsServer]:
     server = NatsServer(tmp_path / "open")
     server.start()

@@ -259,17 +259,17 @@ def test_a_budget_moves_with_its_vehicle(layout: tuple[TestClient, dict[str, Out
     assert scheduled(packet) and packet.seq == packet.time == budget[0]
 
 
-def test_a_gateway_reads_no_other_gateways_budgets(secured_broker: Secured, tmp_path: Path) -> None:
+def test_a_gateway_reads_no_other_gateways_budgets(secured: Secured, tmp_path: Path) -> None:
     migrate(url := f"sqlite:///{tmp_path}/center.db")
 
     async def main() -> None:
-        center = Center(ingest_on(url), secured_broker.url, auth=secured_broker.credentials("center"))
+        center = Center(ingest_on(url), secured.url, auth=secured.credentials("center"))
         await center.connect()
         errors: list[str] = []
-        ship = await broker_client(secured_broker, "gateway-ship", errors)
+        ship = await broker_client(secured, "gateway-ship", errors)
         js = ship.jetstream(timeout=0.5)
         outbox = Outbox(tmp_path / "buoy.db", "buoy")
-        buoy = Gateway(outbox, secured_broker.url, auth=secured_broker.credentials("gateway-buoy"))
+        buoy = Gateway(outbox, secured.url, auth=secured.credentials("gateway-buoy"))
         row = VehicleRow(name="rov1", address=ADDRESS, key_hex=KEY.hex())
         budget = SyncBudgetMessage(
             "syncs-buoy-2-1", "buoy", ADDRESS, tuple(scheduled_syncs(row, 10**9, 60.0, 3))
@@ -291,16 +291,6 @@ def test_a_gateway_reads_no_other_gateways_budgets(secured_broker: Secured, tmp_
             await center.close()
 
     asyncio.run(main())
-
-
-@pytest.fixture
-def secured_broker(tmp_path: Path) -> Iterator[Secured]:
-    server = Secured(tmp_path / "broker", ["ship", "buoy"])
-    server.start()
-    try:
-        yield server
-    finally:
-        server.stop()
 
 
 def test_a_bad_budget_is_a_logged_refusal(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
