@@ -7,6 +7,9 @@ import time
 from pathlib import Path
 from typing import Any
 
+from sqlalchemy import Engine
+from sqlmodel import SQLModel
+
 from server.core.config import Settings
 from server.core.db import make_engine, migrate, writing
 from server.link.state import IncomingFrame
@@ -15,6 +18,19 @@ from server.vehicles.models import Vehicle
 from tacit import auth
 from tacit import modem as mm
 from tacit.packets import CheckpointPacket, MissionState
+
+
+def store_with(tmp_path: Path, *rows: SQLModel) -> Engine:
+    """A migrated SQLite store of the test's own (``tacit.db``), holding ``rows`` (a vehicle first)."""
+    url = f"sqlite:///{tmp_path}/tacit.db"
+    migrate(url)
+    db = make_engine(url)
+    with writing(db) as s:
+        for row in rows:
+            s.add(row)
+            s.flush()
+        s.commit()
+    return db
 
 
 def scripted_shore(tmp_path: Path, keys: list[str], **overrides: Any) -> Shore:

@@ -16,7 +16,6 @@ from sqlmodel import Session, col, select
 
 from analysis import tlog
 from server.core.config import Settings
-from server.core.db import make_engine, migrate
 from server.core.events import Bus
 from server.link.ingest import Ingest
 from server.link.state import IncomingFrame
@@ -26,6 +25,7 @@ from tacit import auth
 from tacit.packets import Stream, with_seq
 from tacit.sampletime import boot_seconds
 from tacit.streams import default_streams
+from tests.support.shore import store_with
 from vehicle_agent.agent import Agent, AgentConfig
 
 DIVE = Path(__file__).resolve().parents[2] / "data" / "ardusub" / "small.tlog"
@@ -67,12 +67,7 @@ def measured(messages: list) -> dict[str, list[tuple[float, list[float | None]]]
 
 @pytest.fixture
 def ingest(tmp_path: Path):
-    url = f"sqlite:///{tmp_path}/tacit.db"
-    migrate(url)
-    db = make_engine(url)
-    with Session(db) as s:
-        s.add(Vehicle(name="rov1", address=ADDRESS, key_hex=KEY.hex()))
-        s.commit()
+    db = store_with(tmp_path, Vehicle(name="rov1", address=ADDRESS, key_hex=KEY.hex()))
     shore = Ingest(db, Bus(), default_streams(), Settings())
     shore.load_vehicles()
     yield shore

@@ -14,13 +14,11 @@ from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
-from sqlmodel import Session
 
 from launch.stack import wait_for
 from launch.stepped_clock import stepped
 from server.app import create_app
 from server.core.config import Settings
-from server.core.db import make_engine, migrate
 from server.core.events import Bus
 from server.link.heartbeat import Heartbeat
 from server.link.ingest import Ingest
@@ -33,6 +31,7 @@ from tacit import auth
 from tacit import modem as mm
 from tacit.packets import CheckpointPacket, Command, ControlPacket, MissionState, decode
 from tacit.streams import default_streams
+from tests.support.shore import store_with
 from vehicle_agent.agent import Agent, AgentConfig
 
 KEY = bytes(range(32))
@@ -100,12 +99,7 @@ class AckingModem:
 
 @pytest.fixture
 def shore(tmp_path: Path):
-    url = f"sqlite:///{tmp_path}/tacit.db"
-    migrate(url)
-    db = make_engine(url)
-    with Session(db) as s:
-        s.add(Vehicle(name="rov1", address=ADDRESS, key_hex=KEY.hex()))
-        s.commit()
+    db = store_with(tmp_path, Vehicle(name="rov1", address=ADDRESS, key_hex=KEY.hex()))
 
     def start() -> tuple[Ingest, Heartbeat]:
         settings = Settings()

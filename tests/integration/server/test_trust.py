@@ -14,7 +14,6 @@ from sqlmodel import Session, delete, select
 
 from server.commands.models import CommandRecord as Command
 from server.core.config import Settings
-from server.core.db import make_engine, migrate
 from server.core.events import Bus as EventBus
 from server.core.events import PacketHeard, PacketsSettled, TelemetryDecoded
 from server.link import repository as link_repo
@@ -35,6 +34,7 @@ from tacit.packets import (
     with_seq,
 )
 from tacit.streams import default_streams
+from tests.support.shore import store_with
 from vehicle_agent.compressor import Compressor
 
 KEY = bytes(range(32))
@@ -90,15 +90,10 @@ class Vehicle_:
 
 @pytest.fixture
 def shore(tmp_path: Path):
-    url = f"sqlite:///{tmp_path}/tacit.db"
-    migrate(url)
-    db = make_engine(url)
-    with Session(db) as s:
-        s.add(Vehicle(name="rov1", address=ADDRESS, key_hex=KEY.hex(), next_seq=8))
-        s.commit()
-        for seq in range(1, 8):
-            s.add(Command(vehicle_id=1, seq=seq, command="hold", frame=b"", status="acknowledged"))
-        s.commit()
+    commands = [
+        Command(vehicle_id=1, seq=n, command="hold", frame=b"", status="acknowledged") for n in range(1, 8)
+    ]
+    db = store_with(tmp_path, Vehicle(name="rov1", address=ADDRESS, key_hex=KEY.hex(), next_seq=8), *commands)
 
     def start(settings: Settings | None = None) -> Ingest:
         ingest = Ingest(db, EventBus(), default_streams(), settings or Settings())
