@@ -16,8 +16,9 @@ newer ones.
 Several center processes share one broker and database: each holds the partitions it has a lease on
 (``server.backhaul.leases``; their vehicles' states loaded and replayed when it takes one, saved and
 forgotten when it lets go), and the one holding the coordinator's lease runs the singletons: the
-gateways' events, the command dispatcher, the routing, the TDMA schedules and retention. Every process
-serves the REST API and the dashboard from the database.
+gateways' events, the routing, the TDMA schedules, the SYNC budgets and retention. Each process sends
+the SYNCs and commands of the vehicles it decodes; every one serves the REST API and the dashboard from
+the database.
 
 The gateways' events (attempt outcomes, heartbeats) come through another durable consumer
 (``tacit-center-events``) to ``on_event`` (the command dispatcher, ``server.backhaul.dispatch``), acked
@@ -105,7 +106,7 @@ class Center:
         self.leases: Leases | None = None
         self.live = None if instance is None else Live(ingest.bus, instance)  # the others' live events
         self.subs: dict[int, JetStreamContext.PullSubscription] = {}  # the partitions consumed here
-        self.coordinator = instance is None  # runs the singletons (the events, the dispatcher, retention)
+        self.coordinator = instance is None  # runs the singletons (the events, routing, slots, retention)
         self.gateways: dict[str, dict[str, Any]] = {}  # each gateway's last heartbeat
         self.on_event: Callable[[EventMessage], Awaitable[None]] | None = None
         self.events: JetStreamContext.PullSubscription | None = None
@@ -196,6 +197,13 @@ class Center:
         """This process decodes the vehicle at ``address``: it consumes its partition."""
         return subjects.partition(address) in self.subs
 
+    def decoding(self, address: int) -> bool:
+        """This process decodes the vehicle at ``address`` and no other can have taken it: its partition's
+        lease was renewed less than a lease ago. Only then are its SYNCs and commands sent from here (two
+        processes would sign SYNCs with the same counter, or dispatch one command twice)."""
+        part = subjects.partition(address)
+        return part in self.subs and (self.leases is None or self.leases.fresh(partition_key(part)))
+
     async def _renewing(self) -> None:
         while self.leases is not None:
             await asyncio.sleep(self.lease / 3)
@@ -255,7 +263,7 @@ class Center:
         """Take up the singletons (the events' consumer first), or let go of them."""
         if coordinator and self.events is None:
             self.events = await self._subscribe_events(js)
-            log.info("center %s: coordinating (events, dispatch, routing, slots, retention)", self.instance)
+            log.info("center %s: coordinating (events, routing, slots, budgets, retention)", self.instance)
         elif not coordinator and self.events is not None:
             events, self.events = self.events, None
             with contextlib.suppress(NatsError, TimeoutError):
@@ -526,8 +534,8 @@ async def serve(
     instance: str | None = None,
 ) -> None:
     """The center's backhaul in a shore's app: the consumers of its share of the partitions into its
-    ingest and the dispatcher of its command desk (a queued command wakes it; it dispatches while this
-    process coordinates), with the retention and ``/metrics`` (``server.ops``). Several processes may
+    ingest and the dispatcher of its command desk (a queued command wakes it; it dispatches the commands
+    of the vehicles this process decodes), with the retention and ``/metrics`` (``server.ops``). Several processes may
     serve one broker and database, each under its own ``instance`` name."""
     from server.backhaul.dispatch import Dispatcher
     from server.ops.process import operate
@@ -550,6 +558,7 @@ async def serve(
         shore.ingest.states,
         coordinating=lambda: center.coordinator,
         kept=center.kept_schedules,
+        decoding=center.decoding,
     )
     center.on_event = dispatcher.on_event
     shore.commands.wake = dispatcher.wake

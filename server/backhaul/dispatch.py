@@ -78,6 +78,7 @@ class Dispatcher:
         tick: float = 0.5,
         kept: Kept | None = None,
         coordinating: Callable[[], bool] = lambda: True,
+        decoding: Callable[[int], bool] = lambda address: True,
     ) -> None:
         self.desk = desk
         self.routing = routing
@@ -86,7 +87,8 @@ class Dispatcher:
         self.heartbeat = heartbeat  # the link's: when a vehicle's SYNC is due, and signing it
         self.states = states  # the vehicles' link states (ingest's), by which SYNCs are due
         self.tick = tick
-        self.coordinating = coordinating  # this process runs the routing, the slots and the commands
+        self.coordinating = coordinating  # this process runs the routing, the slots and the SYNC budgets
+        self.decoding = decoding  # by address: this process decodes the vehicle, its lease fresh
         self.handed: tuple[tuple[str, ...], tuple[int, ...]] = ((), ())  # the last schedule's gateways, polls
         self.kept = kept
         self.inherited: tuple[float, set[str], float] | None = None  # (read at, gateways, slot) of kept plans
@@ -144,7 +146,7 @@ class Dispatcher:
             await self.budgets.update(routes, {s.address: s.link.sync_counter for s in self.states()}, now)
         ready = self._commandable(routes, coordinating)
         for route in routes:
-            if route.vehicle.address in ready:
+            if route.vehicle.address in ready and self.decoding(route.vehicle.address):  # still
                 await self._vehicle(route.vehicle, now)
 
     # --- SYNCs down ------------------------------------------------------------------------------
@@ -156,7 +158,7 @@ class Dispatcher:
         gateways = {r.vehicle.address: r.gateway for r in routes if r.gateway is not None}
         for state in self.states():
             gateway = gateways.get(state.address)
-            if gateway is None or not self.heartbeat.due(state):
+            if gateway is None or not self.decoding(state.address) or not self.heartbeat.due(state):
                 continue
             at = round(self.slots.opening(gateway, time.time() + SYNC_LEAD))
             sync = await self.heartbeat.signed(state, floor=at, at=at)  # counter at least its time
@@ -200,7 +202,9 @@ class Dispatcher:
         return {
             s.address
             for s in self.states()
-            if self.heartbeat.synced(s) and now >= self._answer_at.get(s.address, 0.0)
+            if self.decoding(s.address)
+            and self.heartbeat.synced(s)
+            and now >= self._answer_at.get(s.address, 0.0)
         }
 
     async def _vehicle(self, vehicle: Vehicle, now: float) -> None:
@@ -212,21 +216,26 @@ class Dispatcher:
         acked = [i for i, d in enumerate(tries) if d.state == DispatchState.ACKED]
         round_ = tries[acked[-1] + 1 :] if acked else tries  # an unconfirmed command sent again: anew
         latest = round_[-1] if round_ else None
+        ended = latest.updated_at if latest is not None else now  # when the round's last try ended
         if latest is not None and not latest.final:
             if not await self._overdue(latest, now):
                 if latest.state == DispatchState.PUBLISHED and latest.id not in self._published:
                     await self._publish(latest, command, vehicle)  # a restart cut it: the same id
                 return
+            ended = now
         tried = {d.gateway for d in round_}
         options = [
             g for g in await asyncio.to_thread(self.routing.candidates, vehicle, now) if g not in tried
         ]
         if not options and round_ and command.status == CommandState.ACKNOWLEDGED:
             # sent again for want of a check-point, through every gateway in vain: it stays acknowledged
-            # (the vehicle's modem did ACK it; it cannot fail), sent again once a confirmation is overdue again
-            if round_[-1].updated_at > deadline:
+            # (the vehicle's modem did ACK it; it cannot fail), sent again once a confirmation is overdue
+            # again, through any gateway alive then
+            if ended > deadline:
                 return
             options = await asyncio.to_thread(self.routing.candidates, vehicle, now)
+            if not options:
+                return
         if options:
             await self._dispatch(command, vehicle, options[0], len(tries) + 1, now)
         elif round_:

@@ -47,7 +47,7 @@ from nats.js.errors import NotFoundError
 
 from server.backhaul import access, broker, subjects
 from server.backhaul.access import BrokerAuth
-from server.backhaul.outbox import Outbox, Publisher
+from server.backhaul.outbox import PUBLISH_TIMEOUT, Outbox, Publisher
 from server.backhaul.slots import ATTEMPT_AIRTIME, SYNC_WINDOW, Schedule, SlotPlan
 from server.backhaul.subjects import (
     CommandMessage,
@@ -164,7 +164,8 @@ class Gateway:
         now = time.time()
         if not up:
             failing = self.publisher.failing_since if self.publisher is not None else None
-            self.down_since = min(now, failing or now)
+            noticed = broker.PING_INTERVAL * (broker.MAX_OUTSTANDING_PINGS + 1) + PUBLISH_TIMEOUT
+            self.down_since = max(failing or now, now - noticed)  # not an older failure of another cause
             return
         if self.down_since is not None:
             self.outage = Outage(now - self.down_since, now, self.outbox.depth())

@@ -5,8 +5,8 @@ do not share theirs), whose entries' age limit is the lease.
 * ``member.<instance>``: each live center process, written at every renewal; a dead one's expires.
 * ``partition.<p>``: the process that consumes frames partition ``p`` (``subjects.partition``) and
   decodes its vehicles.
-* ``coordinator``: the process that runs the singletons (the command dispatcher, the routing, the TDMA
-  schedules, the gateways' events, retention).
+* ``coordinator``: the process that runs the singletons (the routing, the TDMA schedules, the SYNC
+  budgets, the gateways' events, retention).
 
 A lease is created only if absent and renewed with the revision this process last wrote (an update that
 expects it), so two processes never hold one at once; one a process failed to renew for a whole lease

@@ -295,12 +295,15 @@ class Outbox:
         return (at, frame) if now - at < budget.step else None
 
 
+PUBLISH_TIMEOUT = 2.0  # s: a publish JetStream has not acknowledged by then failed
+
+
 class Publisher:
     """Sends the outbox's unpublished messages in order, each acknowledged by JetStream before the next;
     on a failure (broker down, no stream, timeout) waits and tries the same message again."""
 
     def __init__(
-        self, outbox: Outbox, js: JetStreamContext, timeout: float = 2.0, retry: float = 0.5
+        self, outbox: Outbox, js: JetStreamContext, timeout: float = PUBLISH_TIMEOUT, retry: float = 0.5
     ) -> None:
         self.outbox = outbox
         self.js = js
@@ -337,6 +340,7 @@ class Publisher:
         from nats.errors import Error as NatsError
 
         for item in batch:
+            tried = time.time()
             try:
                 ack = await self.js.publish(
                     item.subject, item.payload, timeout=self.timeout, headers={subjects.MSG_ID: item.id}
@@ -350,7 +354,7 @@ class Publisher:
                         self.outbox.depth(),
                     )
                 self.healthy = False
-                self.failing_since = self.failing_since or time.time()
+                self.failing_since = self.failing_since or tried
                 self.counters["failures"] += 1
                 return False
             self.outbox.mark_published(item.seq)

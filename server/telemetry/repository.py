@@ -65,29 +65,51 @@ def decoded_frames(s: Session, frame_ids: Sequence[int], chunk: int = 500) -> se
     return {f for f, packets in bodies.items() if not any("error" in body for body in packets)}
 
 
-def resent_frames(s: Session, frame_ids: Sequence[int]) -> set[int]:
+RESEND_LOOKBACK = 2000  # frame ids: a retransmission comes within this many frames of the first copy
+
+
+def resent_frames(s: Session, frame_ids: Sequence[int], chunk: int = 500) -> set[int]:
     """Of the incoming frames, those that only carried packets an earlier frame of the same vehicle
-    carried: a retransmission (the vehicle did not get the shore modem's ACK), whose packets the decoder
-    dropped as duplicates."""
-    wanted = set(frame_ids)
-    if not wanted:
-        return set()
-    rows = s.execute(
-        sa_select(col(Frame.src), func.max(Frame.id))
-        .where(col(Frame.id).in_(wanted))
-        .group_by(col(Frame.src))
-    )
+    carried, within ``RESEND_LOOKBACK`` frames: a retransmission (the vehicle did not get the shore
+    modem's ACK), whose packets the decoder dropped as duplicates."""
+    ids = sorted(set(frame_ids))
+    by_src: dict[int, list[int]] = {}
+    for i in range(0, len(ids), chunk):
+        query = sa_select(col(Frame.src), col(Frame.id)).where(col(Frame.id).in_(ids[i : i + chunk]))
+        for src, frame_id in s.execute(query).all():
+            by_src.setdefault(int(src), []).append(int(frame_id))
     out: set[int] = set()
-    for src, last in rows.all():
-        seen: set[bytes] = set()
-        query = sa_select(col(Frame.id), col(Frame.data)).where(
-            col(Frame.src) == src, col(Frame.direction) == "in", col(Frame.id) <= last
-        )
-        for frame_id, data in s.execute(query.order_by(col(Frame.id))).all():
-            chunks = {bytes(data[i : i + PACKET_SIZE]) for i in range(0, len(data), PACKET_SIZE)}
-            if frame_id in wanted and chunks <= seen:
-                out.add(int(frame_id))
-            seen |= chunks
+    for src, wanted in by_src.items():
+        for low, high in _windows(sorted(wanted)):
+            out |= _resent_in(s, src, low, high, set(wanted))
+    return out
+
+
+def _windows(wanted: list[int]) -> list[tuple[int, int]]:
+    """The id spans to read for these frames: each with the lookback before it, overlapping ones merged."""
+    spans: list[tuple[int, int]] = []
+    for frame_id in wanted:
+        low = frame_id - RESEND_LOOKBACK
+        if spans and low <= spans[-1][1]:
+            spans[-1] = (spans[-1][0], frame_id)
+        else:
+            spans.append((low, frame_id))
+    return spans
+
+
+def _resent_in(s: Session, src: int, low: int, high: int, wanted: set[int]) -> set[int]:
+    seen: set[bytes] = set()
+    out: set[int] = set()
+    query = sa_select(col(Frame.id), col(Frame.data)).where(
+        col(Frame.id).between(low, high), col(Frame.src) == src, col(Frame.direction) == "in"
+    )
+    for frame_id, data in s.execute(query.order_by(col(Frame.id))).all():
+        chunks = {
+            bytes(data[i : i + PACKET_SIZE]) for i in range(0, len(data) - PACKET_SIZE + 1, PACKET_SIZE)
+        }
+        if frame_id in wanted and chunks and chunks <= seen:
+            out.add(int(frame_id))
+        seen |= chunks
     return out
 
 

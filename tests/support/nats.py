@@ -4,10 +4,12 @@ the users and permissions ``tacit broker-config`` writes (``Secured``)."""
 from __future__ import annotations
 
 import contextlib
+import json
 import shutil
 import socket
 import subprocess
 import time
+import uuid
 from pathlib import Path
 
 from server.backhaul import access
@@ -30,6 +32,7 @@ class NatsServer:
         self.url = f"nats://127.0.0.1:{self.port}"
         self.proc: subprocess.Popen[bytes] | None = None
         self.started = False  # it ran once: a restart keeps its port
+        self.name = f"tacit-test-{uuid.uuid4().hex[:12]}"  # told apart from another server on its port
 
     def arguments(self) -> list[str]:
         return ["-js", "-a", "127.0.0.1", "-p", str(self.port), "-sd", str(self.folder / "jetstream")]
@@ -50,20 +53,30 @@ class NatsServer:
     def _started(self) -> bool:
         """Whether this server (not another on its port) listens within 20 s."""
         proc = subprocess.Popen(
-            [NATS_SERVER, *self.arguments()], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+            [NATS_SERVER, *self.arguments(), "-n", self.name],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
         )
         self.proc = proc
         deadline = time.monotonic() + 20
         while time.monotonic() < deadline and proc.poll() is None:
-            with (
-                contextlib.suppress(OSError),
-                socket.create_connection(("127.0.0.1", self.port), timeout=0.2),
-            ):
-                time.sleep(0.1)  # one that could not bind the port exits at once: not taken for listening
-                return proc.poll() is None
+            name = self._listening()
+            if name == self.name:
+                return True
+            if name is not None:  # another server holds the port; ours cannot bind it
+                break
             time.sleep(0.05)
         self.stop()
         return False
+
+    def _listening(self) -> str | None:
+        """The name the server on this port gives in its INFO line; None if none answers."""
+        with contextlib.suppress(OSError, ValueError):
+            with socket.create_connection(("127.0.0.1", self.port), timeout=0.5) as conn:
+                line = conn.makefile("rb").readline()
+            if line.startswith(b"INFO "):
+                return str(json.loads(line[5:]).get("server_name", ""))
+        return None
 
     def _rebind(self) -> None:
         self.port = free_port()

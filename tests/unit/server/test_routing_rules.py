@@ -177,6 +177,9 @@ def test_a_vehicle_is_commanded_by_the_process_that_decodes_it_once_a_sync_answe
     assert dispatcher._commandable(routes, coordinating=False) == {2}
     dispatcher._answer_at[2] = time.time() + 60.0
     assert dispatcher._commandable(routes, coordinating=False) == set()  # the answer's slot is still ahead
+    dispatcher._answer_at.clear()
+    dispatcher.decoding = lambda address: False  # its partition's lease not renewed: another may hold it
+    assert dispatcher._commandable(routes, coordinating=False) == set()
     no_syncs = Dispatcher(None, None, Settings(), publish)  # type: ignore[arg-type]
     assert no_syncs._commandable(routes, coordinating=True) == {2}
     assert no_syncs._commandable(routes, coordinating=False) == set()
