@@ -610,8 +610,10 @@ function renderTimeline() {
   ctx.fillStyle = "#333"; ctx.strokeStyle = "#999"; ctx.beginPath(); ctx.moveTo(left, axis); ctx.lineTo(canvas.width - 10, axis); ctx.stroke();
   for (let k = 0; k <= 5; k++) {
     const t = now - span + k * span / 5;
-    ctx.fillText(utc(t).slice(0, 5), x(t) - 18, axis + 20);
+    ctx.textAlign = k === 5 ? "right" : "center";  // the last one ends at the axis' end, not past the canvas
+    ctx.fillText(utc(t).slice(0, 5), x(t), axis + 20);
   }
+  ctx.textAlign = "left";
   for (const e of state.timeline.filter((e) => now - e.at < span && names.includes(e.vehicle))) {
     const top = names.indexOf(e.vehicle) * lane + offsets[e.kind];
     ctx.fillStyle = colours[e.kind]; ctx.beginPath();
