@@ -23,7 +23,9 @@ misses its window comes back expired and is signed anew (with the same answer, i
 vehicle accepts no command before a SYNC has answered its check-points, so its commands wait here until
 the center has heard one of its check-points and sent the SYNC answering a challenge in it: of several
 center processes, the one that decodes the vehicle (it alone holds its link state) sends its SYNCs and
-its commands. For when
+its commands. A command is signed when it is dispatched: if the vehicle challenges again while its
+gateway holds the frame (the answer was lost), the SYNC answering it moves the vehicle's replay floor past
+the frame's stamp, so that dispatch is superseded and the command dispatched again, signed anew. For when
 SYNCs stop coming (the backhaul cut, the center down), the vehicle's gateway holds a budget of SYNCs
 signed ahead (``server.backhaul.budget``), which the dispatcher keeps after the routes.
 
@@ -57,6 +59,7 @@ from server.link.state import VehicleState
 from server.routing.models import Dispatch, DispatchState
 from server.routing.service import Route, Routing
 from server.vehicles.models import Vehicle
+from tacit import auth
 
 log = logging.getLogger("tacit.backhaul.dispatch")
 
@@ -217,13 +220,20 @@ class Dispatcher:
         round_ = tries[acked[-1] + 1 :] if acked else tries  # an unconfirmed command sent again: anew
         latest = round_[-1] if round_ else None
         ended = latest.updated_at if latest is not None else now  # when the round's last try ended
+        if latest is not None and not latest.final and self._stale(latest, vehicle.address):
+            await asyncio.to_thread(self.routing.set_dispatch, latest.id, DispatchState.SUPERSEDED)
+            log.info(
+                "vehicle %s: dispatch %s signed before its answering SYNC: anew", vehicle.name, latest.id
+            )
+            await self._dispatch(command, vehicle, latest.gateway, len(tries) + 1, now)
+            return
         if latest is not None and not latest.final:
             if not await self._overdue(latest, now):
                 if latest.state == DispatchState.PUBLISHED and latest.id not in self._published:
                     await self._publish(latest, command, vehicle)  # a restart cut it: the same id
                 return
             ended = now
-        tried = {d.gateway for d in round_}
+        tried = {d.gateway for d in round_ if d.state != DispatchState.SUPERSEDED}
         options = [
             g for g in await asyncio.to_thread(self.routing.candidates, vehicle, now) if g not in tried
         ]
@@ -241,6 +251,13 @@ class Dispatcher:
         elif round_:
             detail = f"no gateway reached it (tried {', '.join(sorted(tried))})"
             await asyncio.to_thread(self.desk.record, command, CommandState.FAILED, detail, "unreachable")
+
+    def _stale(self, dispatch: Dispatch, address: int) -> bool:
+        """The dispatch's frame was signed before the vehicle's replay floor as the SYNC answering its
+        challenge since sets it (the answer's time less ``FLOOR_SLACK``): the vehicle would refuse it,
+        though its modem ACKs it (a challenge again while the gateway held the frame: an answer lost)."""
+        answered = self._answer_at.get(address)
+        return answered is not None and dispatch.created_at < answered - auth.FLOOR_SLACK
 
     async def _overdue(self, dispatch: Dispatch, now: float) -> bool:
         """A dispatch whose receipt is late, whose gateway fell silent (no heartbeat), or that outlived
@@ -320,6 +337,8 @@ class Dispatcher:
         if report is None:
             log.warning("gateway %s reported an unknown command %s", event.gateway, detail.get("command"))
             return
+        if report.dispatch.state == DispatchState.SUPERSEDED:
+            return  # its frame, refused by the vehicle, says nothing of the command
         command, _ = self.desk.get(report.dispatch.command_id)
         if report.fresh_attempt:
             self.desk.record(

@@ -14,7 +14,9 @@ class DispatchState(enum.StrEnum):
     """Where one gateway's try of a command stands: ``published`` to the broker, ``stored`` by the
     gateway (its receipt came), ``sent`` (an attempt went on the air), then final: ``acked``, ``failed``
     (no ACK after its attempts), ``expired`` (it came after ``start_by``), ``unanswered`` (no receipt or
-    no outcome in time: the gateway is taken for down)."""
+    no outcome in time: the gateway is taken for down), ``superseded`` (signed before a SYNC that answered
+    the vehicle's challenge: the vehicle would refuse its frame, so it went again, signed anew; not the
+    gateway's failure, and what the gateway reports of it is ignored)."""
 
     PUBLISHED = "published"
     STORED = "stored"
@@ -23,6 +25,7 @@ class DispatchState(enum.StrEnum):
     FAILED = "failed"
     EXPIRED = "expired"
     UNANSWERED = "unanswered"
+    SUPERSEDED = "superseded"
 
     @property
     def final(self) -> bool:
@@ -31,6 +34,7 @@ class DispatchState(enum.StrEnum):
             DispatchState.FAILED,
             DispatchState.EXPIRED,
             DispatchState.UNANSWERED,
+            DispatchState.SUPERSEDED,
         )
 
 

@@ -285,7 +285,5 @@ _RANK = {
     DispatchState.PUBLISHED: 0,
     DispatchState.STORED: 1,
     DispatchState.SENT: 2,
-    **dict.fromkeys(
-        (DispatchState.ACKED, DispatchState.FAILED, DispatchState.EXPIRED, DispatchState.UNANSWERED), 3
-    ),
+    **dict.fromkeys((state for state in DispatchState if state.final), 3),
 }

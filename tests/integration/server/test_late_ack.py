@@ -1,32 +1,66 @@
-"""A gateway's ACK that comes after the center gave the gateway up (its backhaul was cut): the gateway's
-word wins, and a command the vehicle's modem acknowledged is never failed, only sent again, once per
-confirmation timeout, while no check-point confirms it. The center's dispatcher and routing on a real
-SQLite store; the gateway's reports as the broker delivers them (``Dispatcher.on_event``).
+"""The center's dispatcher and routing on a real SQLite store, the ship's reports as the broker delivers
+them (``Dispatcher.on_event``):
 
-Before, the late ACK left the dispatch "unanswered": the re-send found every gateway tried and asked to
-fail an acknowledged command, which the lifecycle refuses, twice a second for ever.
+- a gateway's ACK that comes after the center gave the gateway up (its backhaul was cut) wins, and a
+  command the vehicle's modem acknowledged is never failed, only sent again, once per confirmation
+  timeout, while no check-point confirms it (before, the late ACK left the dispatch "unanswered": the
+  re-send found every gateway tried and asked to fail an acknowledged command, twice a second for ever);
+- a command whose frame was signed before a SYNC that answered the vehicle's later challenge goes again,
+  signed anew (before, the vehicle refused it while its modem ACKed it, until the confirmation timeout).
 """
 
 from __future__ import annotations
 
 import asyncio
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from server.backhaul.dispatch import Dispatcher
 from server.backhaul.relay import RelayIngest
 from server.backhaul.subjects import CommandMessage, EventMessage, GatewayState
+from server.commands.models import CommandRecord
 from server.commands.schemas import CommandIn
 from server.core.config import Settings
 from server.core.db import make_engine, migrate, saved_id
 from server.routing.models import DispatchState
 from server.shore import Shore
+from server.vehicles.models import Vehicle
 from server.vehicles.schemas import VehicleIn
+from tacit import auth
 
 CONFIRM = 1.0  # s: the confirmation timeout (time scale 1)
 
 
-def test_a_late_ack_wins_and_an_acknowledged_command_is_sent_again_not_failed(tmp_path: Path) -> None:
+@dataclass
+class Center:
+    """The center's dispatcher and routing on a SQLite store, one vehicle pinned to the ship, one command
+    queued; what it published, by message id."""
+
+    shore: Shore
+    dispatcher: Dispatcher
+    vehicle: Vehicle
+    command: CommandRecord
+    published: list[str]
+
+    def dispatch(self, n: int) -> str:
+        return f"cmd-{saved_id(self.command)}-{n}"
+
+    def status(self) -> str:
+        return str(self.shore.commands.get(saved_id(self.command))[0].status)
+
+    def step(self) -> None:
+        asyncio.run(self.dispatcher._vehicle(self.vehicle, time.time()))
+
+    def reports(self, dispatch: str, *outcomes: tuple[str, bool]) -> None:
+        """The ship's attempt reports of ``dispatch`` (outcome, final), as the broker delivers them."""
+        for n, (outcome, final) in enumerate(outcomes):
+            detail = {"command": dispatch, "outcome": outcome, "final": final, "attempt": 1}
+            event = EventMessage(f"{dispatch}-e{n}", "ship", "attempt", time.time(), detail)
+            asyncio.run(self.dispatcher.on_event(event))
+
+
+def center(tmp_path: Path) -> Center:
     url = f"sqlite:///{tmp_path}/center.db"
     migrate(url)
     settings = Settings(database_url=url, map_enabled=False, confirm_timeout=CONFIRM, gateway_timeout=1e6)
@@ -42,33 +76,50 @@ def test_a_late_ack_wins_and_an_acknowledged_command_is_sent_again_not_failed(tm
     vehicle = shore.vehicles.create(VehicleIn(name="rov1", address=2))
     shore.routing.pin(saved_id(vehicle), "ship")
     command = shore.commands.submit(saved_id(vehicle), CommandIn(command="hold"), "operator")
-    one = f"cmd-{saved_id(command)}-1"
+    return Center(shore, dispatcher, vehicle, command, published)
 
-    def status() -> str:
-        return str(shore.commands.get(saved_id(command))[0].status)
 
-    def step() -> None:
-        asyncio.run(dispatcher._vehicle(vehicle, time.time()))
+def test_a_late_ack_wins_and_an_acknowledged_command_is_sent_again_not_failed(tmp_path: Path) -> None:
+    c = center(tmp_path)
+    one, two = c.dispatch(1), c.dispatch(2)
+    c.step()
+    assert c.published == [one]
+    c.shore.routing.set_dispatch(one, DispatchState.UNANSWERED)  # the ship's backhaul cut: given up
+    c.reports(one, ("sent", False), ("acked", True))  # the ship's reports, once its backhaul is back
+    assert [d.state for d in c.shore.routing.dispatches(saved_id(c.command))] == [DispatchState.ACKED]
+    assert c.status() == "acknowledged"
 
-    step()
-    assert published == [one]
-    shore.routing.set_dispatch(one, DispatchState.UNANSWERED)  # the ship's backhaul cut: given up
-    for n, (outcome, final) in enumerate([("sent", False), ("acked", True)]):  # the ship's reports, once
-        detail = {"command": one, "outcome": outcome, "final": final, "attempt": 1}  # its backhaul is back
-        asyncio.run(dispatcher.on_event(EventMessage(f"e{n}", "ship", "attempt", time.time(), detail)))
-    assert [d.state for d in shore.routing.dispatches(saved_id(command))] == [DispatchState.ACKED]
-    assert status() == "acknowledged"
-
-    step()  # no check-point yet, but not overdue: nothing
-    assert published == [one]
+    c.step()  # no check-point yet, but not overdue: nothing
+    assert c.published == [one]
     time.sleep(CONFIRM + 0.1)
-    step()  # no check-point confirmed it: sent again, through the ship
-    two = f"cmd-{saved_id(command)}-2"
-    assert published == [one, two]
-    shore.routing.set_dispatch(two, DispatchState.UNANSWERED)  # cut again: every gateway tried
-    step()
-    step()  # it waits, acknowledged (the vehicle's modem did ACK it): not failed, not sent
-    assert published == [one, two] and status() == "acknowledged"
+    c.step()  # no check-point confirmed it: sent again, through the ship
+    assert c.published == [one, two]
+    c.shore.routing.set_dispatch(two, DispatchState.UNANSWERED)  # cut again: every gateway tried
+    c.step()
+    c.step()  # it waits, acknowledged (the vehicle's modem did ACK it): not failed, not sent
+    assert c.published == [one, two] and c.status() == "acknowledged"
     time.sleep(CONFIRM + 0.1)
-    step()  # overdue once more: a fresh round
-    assert published == [one, two, f"cmd-{saved_id(command)}-3"] and status() == "acknowledged"
+    c.step()  # overdue once more: a fresh round
+    assert c.published == [one, two, c.dispatch(3)] and c.status() == "acknowledged"
+
+
+def test_a_command_signed_before_a_later_answering_sync_goes_again_signed_anew(tmp_path: Path) -> None:
+    """The ship holds the command's frame when the vehicle challenges again (its SYNC answer lost): the
+    SYNC answering the new challenge moves the vehicle's replay floor past the frame's stamp, so the
+    vehicle would refuse it though its modem ACKs it. The dispatch is superseded (not the ship's
+    failure: it goes through the ship again), and what the ship reports of the old frame moves nothing."""
+    c = center(tmp_path)
+    one, two = c.dispatch(1), c.dispatch(2)
+    c.step()
+    c.reports(one, ("stored", False))
+    c.dispatcher._answer_at[2] = time.time() + auth.FLOOR_SLACK + 1.0  # the answer to the new challenge
+    c.step()
+    states = [(d.gateway, d.state) for d in c.shore.routing.dispatches(saved_id(c.command))]
+    assert c.published == [one, two]
+    assert states == [("ship", DispatchState.SUPERSEDED), ("ship", DispatchState.PUBLISHED)]
+    c.reports(one, ("sent", False), ("acked", True))  # the old frame went out: refused, modem-ACKed
+    assert c.status() == "queued"
+    c.reports(two, ("sent", False), ("acked", True))
+    assert c.status() == "acknowledged"
+    c.step()
+    assert c.published == [one, two]  # once each
