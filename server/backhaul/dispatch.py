@@ -218,6 +218,8 @@ class Dispatcher:
         tries = await asyncio.to_thread(self.routing.dispatches, saved_id(command))
         acked = [i for i, d in enumerate(tries) if d.state == DispatchState.ACKED]
         round_ = tries[acked[-1] + 1 :] if acked else tries  # an unconfirmed command sent again: anew
+        if acked and not round_ and command.status != CommandState.ACKNOWLEDGED:
+            return  # its ACK is being recorded (the gateway's report, in the events' task): no new round
         latest = round_[-1] if round_ else None
         ended = latest.updated_at if latest is not None else now  # when the round's last try ended
         if latest is not None and not latest.final and self._stale(latest, vehicle.address):

@@ -123,3 +123,15 @@ def test_a_command_signed_before_a_later_answering_sync_goes_again_signed_anew(t
     assert c.status() == "acknowledged"
     c.step()
     assert c.published == [one, two]  # once each
+
+
+def test_an_ack_being_recorded_starts_no_new_round(tmp_path: Path) -> None:
+    """The gateway's final ACK is recorded in two steps (the dispatch, then the command), in the events'
+    task, beside the dispatcher's: between them the dispatcher must not take the command, still "sent",
+    for one to dispatch through a new round (it did, through a gateway just killed, under load)."""
+    c = center(tmp_path)
+    c.step()
+    c.reports(c.dispatch(1), ("sent", False))
+    c.shore.routing.set_dispatch(c.dispatch(1), DispatchState.ACKED)  # the first of the two steps
+    c.step()
+    assert c.published == [c.dispatch(1)] and c.status() == "sent"
