@@ -4,34 +4,36 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TypeVar
 
 import pytest
 
 from server.core.db import migrate
 from tests.support.nats import NatsServer, Secured
 
+Server = TypeVar("Server", bound=NatsServer)
 
-@pytest.fixture
-def broker(tmp_path: Path) -> Iterator[NatsServer]:
-    """A nats-server of the test's own (JetStream, its own port and folder), stopped afterwards."""
-    server = NatsServer(tmp_path)
+
+def running(server: Server) -> Iterator[Server]:
+    """The server started for the test, stopped afterwards."""
     server.start()
     try:
         yield server
     finally:
         server.stop()
+
+
+@pytest.fixture
+def broker(tmp_path: Path) -> Iterator[NatsServer]:
+    """A nats-server of the test's own (JetStream, its own port and folder), stopped afterwards."""
+    yield from running(NatsServer(tmp_path))
 
 
 @pytest.fixture
 def secured(tmp_path: Path) -> Iterator[Secured]:
     """A nats-server with the users and permissions ``tacit broker-config`` writes for the gateways
     ``ship`` and ``buoy`` (and the center)."""
-    server = Secured(tmp_path / "broker", ["ship", "buoy"])
-    server.start()
-    try:
-        yield server
-    finally:
-        server.stop()
+    yield from running(Secured(tmp_path / "broker", ["ship", "buoy"]))
 
 
 @pytest.fixture

@@ -10,7 +10,6 @@ import json
 import shutil
 import stat
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import nats
@@ -23,28 +22,10 @@ from server.backhaul.center import Center
 from server.backhaul.gateway import Gateway
 from server.backhaul.outbox import Outbox
 from server.backhaul.subjects import CommandMessage, EventMessage, FrameMessage, ScheduleMessage
-from server.core.db import migrate
 from tests.integration.server.test_backhaul import hear, ingest_on, stored, until
 from tests.support.nats import NATS_SERVER, NatsServer, Secured, certificates
 
 pytestmark = pytest.mark.skipif(not Path(NATS_SERVER).exists(), reason="nats-server is not installed")
-
-
-@pytest.fixture
-def open_broker(tmp_path: Path) -> Iterator[NatsServer]:
-    server = NatsServer(tmp_path / "open")
-    server.start()
-    try:
-        yield server
-    finally:
-        server.stop()
-
-
-@pytest.fixture
-def sqlite_url(tmp_path: Path) -> str:
-    url = f"sqlite:///{tmp_path}/center.db"
-    migrate(url)
-    return url
 
 
 async def client(server: Secured, user: str, errors: list[str] | None = None) -> Client:
@@ -241,7 +222,7 @@ def test_a_gateway_cannot_read_another_gateways_schedule(
 
 
 def test_bad_input_across_the_broker_is_a_logged_refusal(
-    open_broker: NatsServer, sqlite_url: str, caplog: pytest.LogCaptureFixture
+    broker: NatsServer, sqlite_url: str, caplog: pytest.LogCaptureFixture
 ) -> None:
     """Malformed messages, a frame on its own gateway's subject with a name no subject has, a frame on
     another partition's subject than its source's, a stranger's frame (stored, not decoded) and a frame
@@ -249,7 +230,7 @@ def test_bad_input_across_the_broker_is_a_logged_refusal(
     and every frame is stored, in order (each vehicle's: their partitions are consumed side by side)."""
 
     async def main() -> None:
-        center = Center(ingest_on(sqlite_url), open_broker.url, batch=4)
+        center = Center(ingest_on(sqlite_url), broker.url, batch=4)
         await center.connect()
         assert center.js is not None
         good = [
@@ -311,12 +292,12 @@ def test_bad_input_across_the_broker_is_a_logged_refusal(
 
 
 def test_a_gateway_announcing_itself_twice_is_refused_but_its_frames_are_stored(
-    open_broker: NatsServer, sqlite_url: str, tmp_path: Path, caplog: pytest.LogCaptureFixture
+    broker: NatsServer, sqlite_url: str, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     async def main() -> None:
-        first = Gateway(Outbox(tmp_path / "a.db", "ship"), open_broker.url, heartbeat=0.2)
-        second = Gateway(Outbox(tmp_path / "b.db", "ship"), open_broker.url, heartbeat=0.2)
-        center = Center(ingest_on(sqlite_url), open_broker.url)
+        first = Gateway(Outbox(tmp_path / "a.db", "ship"), broker.url, heartbeat=0.2)
+        second = Gateway(Outbox(tmp_path / "b.db", "ship"), broker.url, heartbeat=0.2)
+        center = Center(ingest_on(sqlite_url), broker.url)
         center.guard.heartbeat = 0.2
         await center.connect()
         await first.start()
