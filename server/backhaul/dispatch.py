@@ -222,37 +222,44 @@ class Dispatcher:
             return  # its ACK is being recorded (the gateway's report, in the events' task): no new round
         latest = round_[-1] if round_ else None
         ended = latest.updated_at if latest is not None else now  # when the round's last try ended
-        if latest is not None and not latest.final and self._stale(latest, vehicle.address):
-            await asyncio.to_thread(self.routing.set_dispatch, latest.id, DispatchState.SUPERSEDED)
-            log.info(
-                "vehicle %s: dispatch %s signed before its answering SYNC: anew", vehicle.name, latest.id
-            )
-            await self._dispatch(command, vehicle, latest.gateway, len(tries) + 1, now)
-            return
         if latest is not None and not latest.final:
-            if not await self._overdue(latest, now):
-                if latest.state == DispatchState.PUBLISHED and latest.id not in self._published:
-                    await self._publish(latest, command, vehicle)  # a restart cut it: the same id
+            if await self._in_flight(latest, command, vehicle, len(tries), now):
                 return
             ended = now
         tried = {d.gateway for d in round_ if d.state != DispatchState.SUPERSEDED}
-        options = [
-            g for g in await asyncio.to_thread(self.routing.candidates, vehicle, now) if g not in tried
-        ]
+        candidates = await asyncio.to_thread(self.routing.candidates, vehicle, now)
+        options = [g for g in candidates if g not in tried]
         if not options and round_ and command.status == CommandState.ACKNOWLEDGED:
             # sent again for want of a check-point, through every gateway in vain: it stays acknowledged
             # (the vehicle's modem did ACK it; it cannot fail), sent again once a confirmation is overdue
             # again, through any gateway alive then
-            if ended > deadline:
+            if ended > deadline or not candidates:
                 return
-            options = await asyncio.to_thread(self.routing.candidates, vehicle, now)
-            if not options:
-                return
+            options = candidates
         if options:
             await self._dispatch(command, vehicle, options[0], len(tries) + 1, now)
         elif round_:
             detail = f"no gateway reached it (tried {', '.join(sorted(tried))})"
             await asyncio.to_thread(self.desk.record, command, CommandState.FAILED, detail, "unreachable")
+
+    async def _in_flight(
+        self, latest: Dispatch, command: CommandRecord, vehicle: Vehicle, tries: int, now: float
+    ) -> bool:
+        """The command's dispatch not final yet: whether it is still in hand (published again if a
+        restart cut its publish; superseded and dispatched anew if its frame went stale), or overdue: its
+        gateway taken for down, for the next one to try."""
+        if self._stale(latest, vehicle.address):
+            await asyncio.to_thread(self.routing.set_dispatch, latest.id, DispatchState.SUPERSEDED)
+            log.info(
+                "vehicle %s: dispatch %s signed before its answering SYNC: anew", vehicle.name, latest.id
+            )
+            await self._dispatch(command, vehicle, latest.gateway, tries + 1, now)
+            return True
+        if await self._overdue(latest, now):
+            return False
+        if latest.state == DispatchState.PUBLISHED and latest.id not in self._published:
+            await self._publish(latest, command, vehicle)  # a restart cut it: the same id
+        return True
 
     def _stale(self, dispatch: Dispatch, address: int) -> bool:
         """The dispatch's frame was signed before the vehicle's replay floor as the SYNC answering its

@@ -17,12 +17,9 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from launch.split import throwaway_database as postgres_database
 from server.app import create_app
 from server.backhaul import subjects
-from server.backhaul.center import serve
 from server.backhaul.guard import Guard
-from server.backhaul.relay import RelayIngest
 from server.backhaul.subjects import EventMessage, Place
 from server.link.state import IncomingFrame
 from server.map.scene import OperatorMap
@@ -30,7 +27,7 @@ from server.screens.fleet import GATEWAY, PALETTE, rgb
 from tacit import auth
 from tacit.packets import CheckpointPacket, MissionState
 from tests.integration.server.test_map_panel import fake_server, panel_for
-from tests.integration.server.test_routing import OP, Layout, settings, until
+from tests.integration.server.test_routing import OP, Layout, running_center, until
 from tests.support.api import offline_settings
 from tests.support.nats import NATS_SERVER, NatsServer
 
@@ -41,21 +38,13 @@ PLACES = {"ship": (Place(0.0, -300.0, 1.0), 1), "buoy": (Place(0.0, 600.0, 1.0),
 @pytest.fixture
 def layout(broker: NatsServer, tmp_path: Path, postgres_server: str) -> Iterator[Layout]:
     """The center (the fleet's origin known) and its two gateways, each told its modem's place."""
-    with postgres_database(postgres_server) as url:
-        app = create_app(
-            settings(url, origin=(40.0, -74.0)), RelayIngest, [lambda shore: serve(shore, broker.url)]
-        )
-        with TestClient(app) as client:
-            layout = Layout(client, broker, tmp_path)
-            for name, (place, address) in PLACES.items():
-                layout.gateways[name].place, layout.gateways[name].address = place, address
-                layout.start(name)
-            try:
-                yield layout
-            finally:
-                for name, gateway in layout.gateways.items():
-                    if gateway.nc is not None:
-                        layout.stop(name)
+
+    def placed(layout: Layout) -> None:
+        for name, (place, address) in PLACES.items():
+            layout.gateways[name].place, layout.gateways[name].address = place, address
+
+    with running_center(broker, tmp_path, postgres_server, placed, origin=(40.0, -74.0)) as layout:
+        yield layout
 
 
 def gateways(layout: Layout) -> dict[str, dict[str, Any]]:

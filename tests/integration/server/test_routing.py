@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import time
 from collections.abc import Awaitable, Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -178,16 +179,21 @@ class Layout(Air):
         return str(self.client.get(f"/api/v1/commands/{command_id}", headers=OP).json()["status"])
 
 
-@pytest.fixture
-def center(
-    broker: NatsServer, tmp_path: Path, postgres_server: str, request: pytest.FixtureRequest
+@contextmanager
+def running_center(
+    broker: NatsServer,
+    tmp_path: Path,
+    postgres_server: str,
+    prepare: Callable[[Layout], None] = lambda layout: None,
+    **changes: Any,
 ) -> Iterator[Layout]:
-    """The layout on a fresh PostgreSQL database; ``settings`` changes through the test's parameters."""
-    changes = getattr(request, "param", {})
+    """The center on a fresh PostgreSQL database (``settings`` with ``changes``) and its gateways, each
+    ``prepare``d, then started; the gateways still running are stopped at the end."""
     with postgres_database(postgres_server) as url:
         app = create_app(settings(url, **changes), RelayIngest, [lambda shore: serve(shore, broker.url)])
         with TestClient(app) as client:
             layout = Layout(client, broker, tmp_path)
+            prepare(layout)
             for name in layout.gateways:
                 layout.start(name)
             try:
@@ -196,6 +202,15 @@ def center(
                 for name, gateway in layout.gateways.items():
                     if gateway.nc is not None:
                         layout.stop(name)
+
+
+@pytest.fixture
+def center(
+    broker: NatsServer, tmp_path: Path, postgres_server: str, request: pytest.FixtureRequest
+) -> Iterator[Layout]:
+    """The layout on a fresh PostgreSQL database; ``settings`` changes through the test's parameters."""
+    with running_center(broker, tmp_path, postgres_server, **getattr(request, "param", {})) as layout:
+        yield layout
 
 
 def test_a_command_reaches_the_vehicle_once_through_its_gateway_and_through_the_other_when_it_is_killed(

@@ -29,7 +29,6 @@ from server.backhaul.outbox import Outbox
 from server.backhaul.relay import RelayIngest
 from server.backhaul.subjects import SyncBudgetMessage
 from server.core.config import Settings
-from server.core.db import migrate
 from server.vehicles.models import Vehicle as VehicleRow
 from tacit import auth
 from tacit import modem as mm
@@ -259,11 +258,9 @@ def test_a_budget_moves_with_its_vehicle(layout: tuple[TestClient, dict[str, Out
     assert scheduled(packet) and packet.seq == packet.time == budget[0]
 
 
-def test_a_gateway_reads_no_other_gateways_budgets(secured: Secured, tmp_path: Path) -> None:
-    migrate(url := f"sqlite:///{tmp_path}/center.db")
-
+def test_a_gateway_reads_no_other_gateways_budgets(secured: Secured, sqlite_url: str, tmp_path: Path) -> None:
     async def main() -> None:
-        center = Center(ingest_on(url), secured.url, auth=secured.credentials("center"))
+        center = Center(ingest_on(sqlite_url), secured.url, auth=secured.credentials("center"))
         await center.connect()
         errors: list[str] = []
         ship = await broker_client(secured, "gateway-ship", errors)
