@@ -173,7 +173,7 @@ def center_app(settings: Any, nats_url: str) -> Any:
     from server.backhaul.center import serve
     from server.backhaul.relay import RelayIngest
 
-    return create_app(settings, RelayIngest, [lambda shore: serve(shore, nats_url, durable=DURABLE)])
+    return create_app(settings, RelayIngest, [lambda shore: serve(shore, nats_url)])
 
 
 async def watch_routes(http: Any, say: Callable[[str], None], every: float = 2.0) -> None:
