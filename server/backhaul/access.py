@@ -203,11 +203,16 @@ def gateway_exports(name: str, deployment: Deployment = UNNAMED) -> list[dict[st
     return exports
 
 
+def gateway_requests(name: str, deployment: Deployment = UNNAMED) -> list[str]:
+    """The subjects gateway ``name`` may publish to in its account: its imports of the center's exports."""
+    return [_imported(export["service"]) for export in gateway_exports(name, deployment)]
+
+
 def gateway_account(name: str, password: str, deployment: Deployment = UNNAMED) -> dict[str, Any]:
     """Gateway ``name``'s account: its user, who may publish only what it imports and receive only its
     own replies; no JetStream of its own."""
     center = user_name(deployment, CENTER)
-    local = [_imported(export["service"]) for export in gateway_exports(name, deployment)]
+    local = gateway_requests(name, deployment)
     imports = [
         {"service": {"account": center, "subject": export["service"]}, "to": _imported(export["service"])}
         for export in gateway_exports(name, deployment)
