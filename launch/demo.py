@@ -27,7 +27,7 @@ from typing import Any
 from urllib.parse import quote
 
 from launch import split
-from launch.stack import Member, Stack, StackConfig, StackError, write_private
+from launch.stack import Member, Stack, StackConfig, StackError, gateway_name, write_private
 from tacit.private import open_private, private_dir
 
 PLUME_RIVER = {
@@ -82,7 +82,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="a split shore: this many shore modems, each with its gateway, and a center (needs NATS and "
         "PostgreSQL; the last vehicle flies from the first gateway's water into the second's)",
     )
-    parser.add_argument("--nats", default="nats://127.0.0.1:4222", help="with --gateways: the broker")
+    parser.add_argument(
+        "--nats",
+        default=None,
+        help="with --gateways: a broker configured by `tacit broker-config --deployment demo` (with "
+        "--broker-dir); default: a nats-server of the demo's own, on a free port",
+    )
+    parser.add_argument(
+        "--broker-dir", type=Path, default=None, help="with --nats: the folder of its credentials files"
+    )
     parser.add_argument(
         "--postgres",
         default="postgresql+psycopg://postgres@127.0.0.1:5432/test",
@@ -134,6 +142,9 @@ def run(args: argparse.Namespace) -> int:
     if mixed:
         print(f"tacit demo: {mixed}", file=sys.stderr)
         return 2
+    if args.gateways and bool(args.nats) != bool(args.broker_dir):
+        print("tacit demo: --nats and --broker-dir go together", file=sys.stderr)
+        return 2
     if args.gateways:
         absent = split_missing(args)
         if absent:
@@ -167,12 +178,6 @@ def split_missing(args: argparse.Namespace) -> str | None:
 
 
 async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
-    import httpx
-    import uvicorn
-
-    from server.app import create_app
-    from server.core.config import Settings
-
     free_port(args.host, args.port)
     data = Path(args.data_dir).resolve()
     private_dir(private_dir(data, narrow=True) / "missions")
@@ -197,9 +202,33 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
         )
     )
     plans = {m.index: split.TRAVEL if _travels(m, args) else mission for m in stack.members}
+    names = [gateway_name(i) for i in range(args.gateways)]
+    broker = split.Broker(data, names, args.nats, args.broker_dir)
+    broker.start()  # on this thread: its server ends with this process, however that ends
+    try:
+        return await _run(args, secret, stack, plans, broker)
+    finally:
+        broker.stop()
+
+
+async def _run(
+    args: argparse.Namespace,
+    secret: dict[str, Any],
+    stack: Stack,
+    plans: dict[int, Any],
+    broker: split.Broker,
+) -> int:
+    """The children, the server and the missions, until stopped; the broker is started already."""
+    import httpx
+    import uvicorn
+
+    from server.app import create_app
+    from server.core.config import Settings
+
+    data = stack.dir
     sim_info = await asyncio.to_thread(stack.start_sim)
-    for index in range(args.gateways):
-        stack.start_gateway(index, args.nats)
+    for index, name in enumerate(gateway_name(i) for i in range(args.gateways)):
+        stack.start_gateway(index, broker.url, broker.credentials(f"gateway-{name}"), split.DEPLOYMENT.name)
     for member in stack.members:  # up before the server: a mission started at once finds its agent listening
         plan = "travel.json" if plans[member.index] is split.TRAVEL else "mission.json"
         stack.write_agent_config(
@@ -216,10 +245,12 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
         values = {
             **split.center_settings(stack, database, args.time_scale),
             **overrides,
-            "nats_url": args.nats,
+            "nats_url": broker.url,
+            "nats_credentials": str(broker.credentials("center")),
+            "deployment": split.DEPLOYMENT.name,
         }
         split.write_center_config(stack, values)
-        app = split.center_app(Settings(**values), args.nats)
+        app = split.center_app(Settings(**values), broker)
     else:
         app = create_app(Settings(**stack.server_settings(**overrides)))
     server = uvicorn.Server(uvicorn.Config(app, host=args.host, port=args.port, log_config=None))

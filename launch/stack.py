@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import IO, Any, TypeVar
 
 from launch.processes import stop
+from tacit.cli import PARENT
 from tacit.config import dump_toml
 from tacit.navigation import Origin
 from tacit.private import open_private, private_dir
@@ -272,12 +273,15 @@ class Stack:
         return self.server
 
     # a split shore's gateways -----------------------------------------------------------------------
-    def start_gateway(self, index: int, nats_url: str) -> subprocess.Popen[str]:
+    def start_gateway(
+        self, index: int, nats_url: str, credentials: Path, deployment: str
+    ) -> subprocess.Popen[str]:
         """``tacit gateway`` on the simulated modem of gateway ``index`` (told where it is, for the screens),
-        its outbox in the stack's folder."""
+        its outbox in the stack's folder, with its broker ``credentials`` in ``deployment``."""
         name = gateway_name(index)
         return self.spawn(
-            ["gateway", "--nats", nats_url, "--name", name, "--outbox", str(self.dir / f"gateway-{name}.db"),
+            ["gateway", "--nats", nats_url, "--nats-credentials", str(credentials), "--deployment", deployment,
+             "--name", name, "--outbox", str(self.dir / f"gateway-{name}.db"),
              "--modem-url", str(self.pty(name)), "--modem-address", str(gateway_address(index)),
              "--modem-log", str(self.dir / f"gateway-{name}-modem.log"),
              "--position=" + ",".join(f"{x:g}" for x in self.gateway_place(index))],
@@ -343,7 +347,8 @@ class Stack:
         clock: str = "",
     ) -> subprocess.Popen[str]:
         """``tacit ARGS`` as a child; stderr (and stdout unless captured) appended to ``log``. What the child
-        creates (its database, tlogs, modem logs) is owner-only as well (umask 077). ``clock``: the name
+        creates (its database, tlogs, modem logs) is owner-only as well (umask 077). It ends when this
+        process does, however this one ends (``tacit.cli``: ``TACIT_PARENT_PID``). ``clock``: the name
         its wall clock is stepped by (``step_clock``), in a stack with ``stepped_clocks``."""
         out: IO[str] | int = subprocess.PIPE if capture else open_private(self.dir / log)
         entry = ["-m", "tacit.cli"]
@@ -355,7 +360,7 @@ class Stack:
             stderr=open_private(self.dir / log),
             text=True,
             umask=0o077,
-            env={**os.environ, **(env or {}), "PYTHONUNBUFFERED": "1"},
+            env={**os.environ, **(env or {}), "PYTHONUNBUFFERED": "1", PARENT: str(os.getpid())},
         )
         self.procs.append(proc)
         return proc
