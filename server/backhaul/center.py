@@ -46,14 +46,17 @@ import time
 from collections import Counter
 from collections.abc import Awaitable, Callable
 from datetime import UTC, datetime
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import nats
 from nats.aio.client import Client
 from nats.aio.msg import Msg
 from nats.errors import Error as NatsError
 from nats.js import JetStreamContext
 from nats.js.api import AckPolicy, ConsumerConfig, DeliverPolicy
 from nats.js.errors import NotFoundError
+from sqlalchemy.engine import make_url
 from sqlalchemy.exc import InterfaceError, OperationalError
 
 from server.backhaul import access, broker, subjects
@@ -97,8 +100,11 @@ class Center:
         events_since: float = subjects.COMMAND_MAX_AGE,
         instance: str | None = None,
         lease: float = 5.0,
+        database: str = "",
     ) -> None:
+        """``database``: which database it stores into (``database_identity``), said to the others."""
         self.ingest = ingest
+        self.database = database
         self.events_since = events_since
         self.auth = auth
         self.url = url
@@ -141,7 +147,7 @@ class Center:
             for part in range(subjects.PARTITIONS):
                 self.subs[part] = await self._partition(self.js, part)
         else:
-            self.leases = Leases(self.js, self.durable, self.instance, self.lease)
+            self.leases = Leases(self.js, self.durable, self.instance, self.lease, self.database)
             await self.leases.open()
             await self.leases.renew()  # announced among the members
             await asyncio.to_thread(self.ingest.own, self.mine)  # none until it holds a partition
@@ -552,6 +558,50 @@ async def _pause(exc: Exception) -> None:
         await asyncio.sleep(0.5)
 
 
+def database_identity(url: str) -> str:
+    """Which database a URL names, told apart from another whatever the spelling: a SQLite file's path,
+    a server's address, port and database name (no user, no password)."""
+    parsed = make_url(url)
+    if parsed.get_backend_name() == "sqlite":
+        return f"sqlite:{Path(parsed.database or '').resolve()}"
+    try:
+        host = socket.gethostbyname(parsed.host or "localhost")
+    except OSError:
+        host = parsed.host or "localhost"
+    return f"{parsed.get_backend_name()}://{host}:{parsed.port or 5432}/{parsed.database}"
+
+
+async def refusal(
+    url: str, auth: BrokerAuth, deployment: Deployment, instance: str, database: str
+) -> str | None:
+    """Why this center process may not join its deployment's (one line), or None: another live process
+    has its instance name, or stores into another database (two databases would each hold half the
+    vehicles). A broker that does not answer yet refuses nothing: the process waits for it."""
+    try:
+        nc = await nats.connect(url, connect_timeout=2, allow_reconnect=False, max_reconnect_attempts=0,
+                                **auth.options())  # fmt: skip
+    except (NatsError, OSError, TimeoutError):
+        return None
+    try:
+        leases = Leases(nc.jetstream(), deployment.named(DURABLE), instance, 1.0)
+        entries = await leases.entries() if await leases.bind() else {}
+    except (NatsError, TimeoutError):
+        return None
+    finally:
+        await nc.close()
+    if instance in entries:
+        return (
+            f"a center process named {instance!r} runs already in deployment {deployment.name!r} (--instance)"
+        )
+    for name, entry in entries.items():
+        if entry.get("database") not in (None, "", database):
+            return (
+                f"deployment {deployment.name!r}'s center process {name!r} stores into {entry['database']}, "
+                f"this one into {database}: one database per deployment (--database-url, --deployment)"
+            )
+    return None
+
+
 def default_instance() -> str:
     """A center process's name unless given: its host's and its process id."""
     return f"{re.sub(r'[^A-Za-z0-9_-]', '-', socket.gethostname())[:40]}-{os.getpid()}"
@@ -579,6 +629,7 @@ async def serve(
         auth=auth,
         instance=instance or default_instance(),
         lease=shore.settings.center_lease,
+        database=database_identity(shore.settings.database_url),
     )
     dispatcher = Dispatcher(
         shore.commands,
@@ -663,6 +714,12 @@ def run(args: argparse.Namespace) -> int:
         )  # fmt: skip
     except (access.CredentialsError, ValueError) as exc:
         print(f"tacit center: {exc}", file=sys.stderr)
+        return 2
+    refused = asyncio.run(
+        refusal(settings.nats_url, auth, deployment, instance, database_identity(settings.database_url))
+    )
+    if refused:
+        print(f"tacit center: {refused}", file=sys.stderr)
         return 2
     app = create_app(
         settings,

@@ -23,11 +23,14 @@ from sqlalchemy import create_engine, text
 
 from launch.split import throwaway_database as postgres_database
 from server.backhaul import subjects
+from server.backhaul.center import Center, database_identity, refusal
 from server.backhaul.gateway import Gateway
 from server.backhaul.outbox import Outbox
+from server.backhaul.subjects import UNNAMED
 from server.core.db import migrate
 from tacit import auth
 from tacit.packets import CheckpointPacket, MissionState
+from tests.integration.server.test_backhaul import ingest_on
 from tests.support.nats import NATS_SERVER, Secured, free_port
 
 pytestmark = pytest.mark.skipif(not Path(NATS_SERVER).exists(), reason="nats-server is not installed")
@@ -246,3 +249,39 @@ async def _scenario(centers: list[CenterProcess], url: str, broker: Secured, tmp
         await gateway.stop()
         for center in centers:
             await center.api.aclose()
+
+
+def test_a_second_center_process_joins_its_deployment_or_refuses_in_one_line(
+    secured: Secured, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """With a process "alpha" of the (unnamed) deployment running on one database: another name on the
+    same database joins; alpha's name again, or another database, is refused in one line before
+    anything starts."""
+    from tacit.cli import main
+
+    ours, other = (f"sqlite:///{tmp_path}/{name}.db" for name in ("center", "other"))
+    migrate(ours)
+    auth = secured.credentials("center")
+
+    async def scenario() -> list[str | None]:
+        alpha = Center(
+            ingest_on(ours), secured.url, auth=auth, instance="alpha", database=database_identity(ours)
+        )
+        await alpha.connect()
+        try:
+            answers = [
+                await refusal(secured.url, auth, UNNAMED, name, database_identity(url))
+                for name, url in (("bravo", ours), ("alpha", ours), ("bravo", other))
+            ]
+            cli = ["center", "--nats", secured.url, "--nats-credentials", str(secured.credentials_file("center")),
+                   "--instance", "bravo", "--database-url", other, "--no-map"]  # fmt: skip
+            assert await asyncio.to_thread(main, cli) == 2
+            return answers
+        finally:
+            await alpha.close()
+
+    joins, same_name, other_database = asyncio.run(scenario())
+    assert joins is None
+    assert same_name is not None and "named 'alpha' runs already" in same_name
+    assert other_database is not None and "one database per deployment" in other_database
+    assert capsys.readouterr().err.count("\n") == 1
