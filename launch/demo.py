@@ -9,7 +9,8 @@ key, readable only by you). Ctrl-C or SIGTERM stops the agent, then the simulato
 closes the database cleanly.
 
 ``--gateways N`` runs the split shore instead (``launch.split``): N simulated shore modems, a
-``tacit gateway`` on each, and the center in this process, on this machine's NATS and PostgreSQL.
+``tacit gateway`` on each and ``tacit center``, children too, on a broker of the demo's own and this
+machine's PostgreSQL; ``--pid PART`` prints one part's process id, to stop or signal it alone.
 """
 
 from __future__ import annotations
@@ -96,6 +97,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="postgresql+psycopg://postgres@127.0.0.1:5432/test",
         help="with --gateways: a PostgreSQL server and a database on it to create the demo's database from",
     )
+    parser.add_argument(
+        "--pid",
+        metavar="PART",
+        help="print the process id of a running split demo's part (center, broker, gateway-gw1, relay-gw1, "
+        "sim, agent, agent-rov2, ...) in --data-dir, and exit",
+    )
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--headless", action="store_true", help="do not open a browser")
     parser.add_argument(
@@ -138,6 +145,13 @@ def run(args: argparse.Namespace) -> int:
         print("tacit demo: --gateways is 0 (one shore) .. 5", file=sys.stderr)
         return 2
     args.data_dir = args.data_dir or ("data/demo-gateways" if args.gateways else "data/demo")
+    if args.pid:
+        try:
+            print(split.part_pid(Path(args.data_dir), args.pid))
+        except LookupError as exc:
+            print(f"tacit demo: {exc}", file=sys.stderr)
+            return 1
+        return 0
     mixed = split.other_layout(Path(args.data_dir), bool(args.gateways))
     if mixed:
         print(f"tacit demo: {mixed}", file=sys.stderr)
@@ -240,7 +254,8 @@ async def _run(
         )
         stack.start_agent(member.index)
     overrides = {"host": args.host, "port": args.port, "map_port": args.map_port, "poll_interval": 2.0}
-    if args.gateways:
+    database = ""
+    if args.gateways:  # the center: a child of its own, to be killed and started again alone
         database = await asyncio.to_thread(split.database, args.postgres, data)
         values = {
             **split.center_settings(stack, database, args.time_scale),
@@ -249,18 +264,24 @@ async def _run(
             "nats_credentials": str(broker.credentials("center")),
             "deployment": split.DEPLOYMENT.name,
         }
-        split.write_center_config(stack, values)
-        app = split.center_app(Settings(**values), broker)
+        config = split.write_center_config(stack, values)
+        center = stack.spawn(["center", "--config", str(config), "--instance", "demo-center"], "center.log")
+        server, serving, map_port = None, None, args.map_port
+        split.write_parts(stack, broker)
     else:
         app = create_app(Settings(**stack.server_settings(**overrides)))
-    server = uvicorn.Server(uvicorn.Config(app, host=args.host, port=args.port, log_config=None))
-    serving = asyncio.create_task(server.serve())
+        server = uvicorn.Server(uvicorn.Config(app, host=args.host, port=args.port, log_config=None))
+        serving = asyncio.create_task(server.serve())
     try:
-        while not server.started:
-            if serving.done():
-                raise DemoError(f"the server did not start (is port {args.port} free?)")
-            await asyncio.sleep(0.05)
         api = f"http://{args.host}:{args.port}"
+        if server is None:
+            await _answering(api, center, stack.dir / "center.log")
+        else:
+            while not server.started:
+                if serving is not None and serving.done():
+                    raise DemoError(f"the server did not start (is port {args.port} free?)")
+                await asyncio.sleep(0.05)
+            map_port = app.state.map.port
         async with httpx.AsyncClient(
             base_url=api, headers={"Authorization": f"Bearer {secret['token']}"}
         ) as http:
@@ -268,7 +289,7 @@ async def _run(
             info = {
                 "api_url": api + "/api/v1",
                 "dashboard_url": api + "/",
-                "map_url": f"http://{args.host}:{app.state.map.port}",
+                "map_url": f"http://{args.host}:{map_port}",
                 "token": secret["token"],
                 "read_token": secret["read_token"],
                 "sign_in_url": f"{api}/#token={quote(secret['token'])}",
@@ -288,7 +309,7 @@ async def _run(
                 await http.post(f"/api/v1/missions/{mission_id}/start")
             watching = [asyncio.create_task(split.watch_routes(http, _say))] if args.gateways else []
             waiter = asyncio.create_task(interrupted.wait())
-            await asyncio.wait({waiter, serving}, return_when=asyncio.FIRST_COMPLETED)
+            await asyncio.wait({waiter, *([serving] if serving else [])}, return_when=asyncio.FIRST_COMPLETED)
             for task in watching:
                 task.cancel()
         return 0
@@ -298,6 +319,25 @@ async def _run(
             _channel(stack.sim_report())
             for line in await asyncio.to_thread(split.audit, stack, database):
                 _say(line)
+
+
+async def _answering(api: str, center: Any, log: Path, timeout: float = 120.0) -> None:
+    """Wait until the center's API answers; a center that exits first fails the demo (its log named)."""
+    import httpx
+
+    deadline = asyncio.get_running_loop().time() + timeout
+    async with httpx.AsyncClient(base_url=api, timeout=2) as http:
+        while True:
+            if center.poll() is not None:
+                raise DemoError(f"the center stopped at start; see {log}")
+            try:
+                if (await http.get("/api/v1/health")).status_code == 200:
+                    return
+            except httpx.HTTPError:
+                pass
+            if asyncio.get_running_loop().time() > deadline:
+                raise DemoError(f"the center did not answer in {timeout:.0f} s; see {log}")
+            await asyncio.sleep(0.2)
 
 
 def _plans(args: argparse.Namespace) -> str:
@@ -340,9 +380,12 @@ def free_port(host: str, port: int) -> None:
         raise DemoError(str(exc)) from None
 
 
-async def shutdown(stack: Stack, server: Any, serving: asyncio.Task) -> None:
-    """Children first (agent, then simulator), then the server, which closes the database cleanly."""
+async def shutdown(stack: Stack, server: Any, serving: asyncio.Task | None) -> None:
+    """Children first in reverse order of start (a split shore's center, agents, gateways, simulator),
+    then the server in this process, if any, which closes the database cleanly."""
     await asyncio.to_thread(stack.close)
+    if server is None or serving is None:
+        return
     server.should_exit = True
     try:
         await serving

@@ -23,7 +23,10 @@ from __future__ import annotations
 
 import asyncio
 import hashlib
+import json
+import os
 import socket
+import subprocess
 import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -42,6 +45,7 @@ SLOT_S = 9.0  # simulated s: a rate-0 poll or command and its answer at 1 km (7.
 DATABASE = "tacit_demo"  # each data folder's database is this, then a hash of the folder's path
 MARKER = "center-database"  # in a split demo's folder: its database's URL
 CENTER_CONFIG = "center.toml"  # in a split demo's folder: its center's settings, to run it alone
+PARTS = "parts.json"  # in a split demo's folder: its running parts' process ids
 DEPLOYMENT = Deployment("demo")  # the demo's names on its broker: `tacit center --config` joins it
 SYNC_INTERVAL = 240.0  # simulated s between a vehicle's SYNCs: a slot's exchange each, on two gateways' slots
 # simulated s between a vehicle's check-points: each gateway polls the vehicles in turn, one per slot of
@@ -199,6 +203,43 @@ class Broker:
         return path
 
 
+def write_parts(stack: Stack, broker: Broker) -> Path:
+    """The running demo's parts (``center``, ``broker``, ``gateway-gw1``, ``relay-gw1``, ``sim``, ``agent``,
+    ...), each its process id and command line, in its folder: ``tacit demo --pid NAME`` reads it."""
+    procs: dict[str, subprocess.Popen[Any]] = {**stack.parts}
+    if broker.server is not None and broker.server.proc is not None:
+        procs["broker"] = broker.server.proc
+    parts = {name: {"pid": p.pid, "args": _arguments(p)} for name, p in procs.items()}
+    path = stack.dir / PARTS
+    write_private(path, json.dumps(parts, indent=1))
+    return path
+
+
+def _arguments(proc: subprocess.Popen[Any]) -> list[str]:
+    """A child's command line, as /proc shows it."""
+    args: list[Any] = list(proc.args) if isinstance(proc.args, list | tuple) else [proc.args]
+    return [os.fsdecode(a) for a in args]
+
+
+def part_pid(data: Path, name: str) -> int:
+    """The process id of the running demo's part ``name`` (``write_parts``), if that process runs that
+    command still; raises LookupError saying why not."""
+    try:
+        parts = json.loads((data / PARTS).read_text())
+    except (OSError, ValueError):
+        raise LookupError(f"no running split demo in {data} ({PARTS} missing)") from None
+    if name not in parts:
+        raise LookupError(f"no part {name!r}; the parts: {', '.join(sorted(parts))}")
+    pid = int(parts[name]["pid"])
+    try:
+        running = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")[:-1]
+    except OSError:
+        running = []
+    if [a.decode() for a in running] != parts[name]["args"]:
+        raise LookupError(f"{name} (process {pid}) is not running")
+    return pid
+
+
 def write_center_config(stack: Stack, values: dict[str, Any]) -> Path:
     """The demo's center's settings in its folder (owner-only: its tokens; its broker, credentials and
     deployment), for ``tacit center --config <it>`` after the demo's process was killed: the check
@@ -207,16 +248,6 @@ def write_center_config(stack: Stack, values: dict[str, Any]) -> Path:
     path = stack.dir / CENTER_CONFIG
     write_private(path, dump_toml(values))
     return path
-
-
-def center_app(settings: Any, broker: Broker) -> Any:
-    """The center's FastAPI app: the shore's API with the backhaul's consumers and dispatcher."""
-    from server.app import create_app
-    from server.backhaul.center import serve
-    from server.backhaul.relay import RelayIngest
-
-    auth = access.BrokerAuth.load(broker.credentials(access.CENTER))
-    return create_app(settings, RelayIngest, [lambda shore: serve(shore, broker.url, DEPLOYMENT, auth)])
 
 
 async def watch_routes(http: Any, say: Callable[[str], None], every: float = 2.0) -> None:
