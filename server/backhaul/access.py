@@ -31,6 +31,7 @@ import stat
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
+from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +43,18 @@ log = logging.getLogger("tacit.backhaul.access")
 CENTER = "center"
 GATEWAY_API = "tacit.center.API"  # the center's JetStream API as a gateway's account imports it
 CONFIG = "nats-server.conf"
+
+
+class BrokerMode(StrEnum):
+    """How a center reaches its broker: with its account's credentials, or without (``--insecure``)."""
+
+    ACCOUNTS = "accounts"
+    INSECURE = "insecure"
+
+    @classmethod
+    def of(cls, credentials: str | None, insecure: bool) -> BrokerMode | None:
+        """None: no broker (``tacit serve``)."""
+        return cls.ACCOUNTS if credentials else cls.INSECURE if insecure else None
 
 
 class CredentialsError(ValueError):
