@@ -240,6 +240,23 @@ async def _run(
     from server.core.config import Settings
 
     data = stack.dir
+    overrides = {"host": args.host, "port": args.port, "map_port": args.map_port, "poll_interval": 2.0}
+    database = ""
+    server: Any = None
+    serving: asyncio.Task[None] | None = None
+    if args.gateways:  # the center first (stopped last: it stores what the gateways send to the end), a
+        # child of its own, to be killed and started again alone
+        database = await asyncio.to_thread(split.database, args.postgres, data)
+        values = {
+            **split.center_settings(stack, database, args.time_scale),
+            **overrides,
+            "nats_url": broker.url,
+            "nats_credentials": str(broker.credentials("center")),
+            "deployment": split.DEPLOYMENT.name,
+        }
+        config = split.write_center_config(stack, values)
+        center = stack.spawn(["center", "--config", str(config), "--instance", "demo-center"], "center.log")
+        map_port = args.map_port
     sim_info = await asyncio.to_thread(stack.start_sim)
     for index, name in enumerate(gateway_name(i) for i in range(args.gateways)):
         stack.start_gateway(index, broker.url, broker.credentials(f"gateway-{name}"), split.DEPLOYMENT.name)
@@ -253,20 +270,7 @@ async def _run(
             **({"plume_threshold": 1e6} if plans[member.index] is split.TRAVEL else {}),  # no detours
         )
         stack.start_agent(member.index)
-    overrides = {"host": args.host, "port": args.port, "map_port": args.map_port, "poll_interval": 2.0}
-    database = ""
-    if args.gateways:  # the center: a child of its own, to be killed and started again alone
-        database = await asyncio.to_thread(split.database, args.postgres, data)
-        values = {
-            **split.center_settings(stack, database, args.time_scale),
-            **overrides,
-            "nats_url": broker.url,
-            "nats_credentials": str(broker.credentials("center")),
-            "deployment": split.DEPLOYMENT.name,
-        }
-        config = split.write_center_config(stack, values)
-        center = stack.spawn(["center", "--config", str(config), "--instance", "demo-center"], "center.log")
-        server, serving, map_port = None, None, args.map_port
+    if args.gateways:
         split.write_parts(stack, broker)
     else:
         app = create_app(Settings(**stack.server_settings(**overrides)))
@@ -307,7 +311,11 @@ async def _run(
             _announce(info, args)
             for mission_id in missions:
                 await http.post(f"/api/v1/missions/{mission_id}/start")
-            watching = [asyncio.create_task(split.watch_routes(http, _say))] if args.gateways else []
+            watching = (
+                [asyncio.create_task(split.watch_routes(http, _say)),
+                 asyncio.create_task(split.keep_broker(broker, stack, _say))]
+                if args.gateways else []
+            )  # fmt: skip
             waiter = asyncio.create_task(interrupted.wait())
             await asyncio.wait({waiter, *([serving] if serving else [])}, return_when=asyncio.FIRST_COMPLETED)
             for task in watching:

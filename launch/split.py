@@ -250,6 +250,20 @@ def write_center_config(stack: Stack, values: dict[str, Any]) -> Path:
     return path
 
 
+async def keep_broker(broker: Broker, stack: Stack, say: Callable[[str], None], pause: float = 10.0) -> None:
+    """The demo's own broker started again ``pause`` s after it stopped (killed: a broker restarted by
+    its service manager), on its port and store; the parts file says its new process."""
+    while broker.server is not None and broker.server.proc is not None:
+        if broker.server.proc.poll() is None:
+            await asyncio.sleep(1.0)
+            continue
+        say(f"  the broker stopped; starting it again in {pause:.0f} s")
+        await asyncio.sleep(pause)
+        broker.start()
+        write_parts(stack, broker)
+        say("  the broker is back")
+
+
 async def watch_routes(http: Any, say: Callable[[str], None], every: float = 2.0) -> None:
     """Say each vehicle's gateway as the center assigns it, and every move after."""
     known: dict[str, str | None] = {}
