@@ -127,7 +127,7 @@ def test_a_killed_split_demo_leaves_no_process_behind(tmp_path: Path) -> None:
     try:
         json.loads(proc.stdout.readline())  # type: ignore[union-attr]  # everything started
         started = children(proc.pid)
-        assert len(started) == 9  # nats-server, the simulator, two relays and gateways, three agents, the center
+        assert len(started) == 10  # nats-server, the center, the simulator, 2 relays, 2 gateways, 3 agents
         proc.kill()
         proc.wait(timeout=10)
         wait_for(lambda: not alive(started), 60, what="every child of the killed demo gone")
