@@ -52,8 +52,11 @@ class NatsServer:
     """Started and stopped on the same port and store (a restart, or a backhaul outage). Start it from
     the thread that lives as long as it should (the main thread): it ends when that thread does."""
 
-    def __init__(self, folder: Path, port: int | None = None) -> None:
+    def __init__(self, folder: Path, port: int | None = None, monitor: bool = False) -> None:
+        """``monitor``: its HTTP monitoring (``/connz``, ``/varz``) on ``monitor_url`` too."""
         self.port = port or free_port()
+        self.monitor_port = free_port() if monitor else None
+        self.monitor_url = f"http://127.0.0.1:{self.monitor_port}" if monitor else None
         self.folder = folder
         self.url = f"nats://127.0.0.1:{self.port}"
         self.proc: subprocess.Popen[bytes] | None = None
@@ -80,8 +83,9 @@ class NatsServer:
     def _started(self) -> bool:
         """Whether this server (not another on its port) listens within 20 s."""
         self.folder.mkdir(parents=True, exist_ok=True)
+        monitor = ["-m", str(self.monitor_port)] if self.monitor_port else []
         proc = subprocess.Popen(
-            [binary(), *self.arguments(), "-n", self.name],
+            [binary(), *self.arguments(), *monitor, "-n", self.name],
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,
             preexec_fn=_end_with_parent,  # noqa: PLW1509 - a prctl only, before exec
@@ -130,8 +134,9 @@ class Secured(NatsServer):
         tls: tuple[str, str] | None = None,
         deployment: Deployment = UNNAMED,
         port: int | None = None,
+        monitor: bool = False,
     ) -> None:
-        super().__init__(folder, port)
+        super().__init__(folder, port, monitor)
         self.deployments = {deployment: gateways}
         self.tls = tls
         self._configure()
@@ -159,6 +164,14 @@ class Secured(NatsServer):
 
     def arguments(self) -> list[str]:
         return ["-c", str(self.folder / access.CONFIG)]
+
+    def received(self, account: str) -> int:
+        """Messages the server received from the clients of ``account`` (its monitoring's ``/connz``)."""
+        import urllib.request
+
+        assert self.monitor_url is not None, "started with monitor=True"
+        with urllib.request.urlopen(f"{self.monitor_url}/connz?acc={account}&limit=1000") as answer:
+            return sum(int(c.get("in_msgs", 0)) for c in json.load(answer).get("connections") or [])
 
     def credentials_file(self, user: str) -> Path:
         return self.folder / f"{user}.toml"
