@@ -263,8 +263,8 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
         return 0
     finally:
         await shutdown(stack, server, serving)
+        _channel(stack.sim_report())
         if args.gateways:
-            _channel(stack.sim_report())
             for line in await asyncio.to_thread(split.audit, stack, database):
                 _say(line)
 
@@ -280,11 +280,19 @@ def _plans(args: argparse.Namespace) -> str:
 
 
 def _channel(report: dict[str, Any]) -> None:
-    """The simulated channel's figures at exit; where collisions were, if any."""
-    channel = report.get("channel", {})
+    """The simulated channel's figures at exit, in frames at the modem each transmission was for (a
+    cycle-init, an ACK or a ping counts as one frame), and overheard by the others; where collisions
+    were, if any."""
+    c = report.get("channel", {})
+    if "addressed" not in c:  # the simulator said nothing (it did not start, or was killed)
+        return
+    lost, collided, deaf = c["addressed_lost"], c["addressed_collided"], c["addressed_deaf"]
     _say(
-        f"channel: {channel.get('transmissions', '?')} transmissions, "
-        f"{channel.get('collisions', '?')} collisions, {channel.get('lost', '?')} frames lost"
+        f"channel: {c['transmissions']} transmissions (cycle-inits, data, ACKs, pings). At the modem each was "
+        f"for, {c['addressed'] - lost} of {c['addressed']} frames arrived and {lost} were lost: {collided} in "
+        f"collisions, {deaf} while that modem was transmitting, {lost - collided - deaf} to range and noise "
+        f"(a cycle-init, an ACK or a ping counts as one frame). The other modems overheard "
+        f"{c['overheard'] - c['overheard_lost']} of {c['overheard']}."
     )
     for entry in report.get("collided", [])[-5:]:
         _say(f"  collided at {entry['to']}: {entry['kind']} from {entry['from']} (t={entry['time']:.1f} s)")
@@ -355,6 +363,23 @@ def _described(member: Member, sim_info: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def _vehicle_lines(vehicle: dict[str, Any]) -> str:
+    """A vehicle of the banner: its modem, its home, the agent's MAVLink endpoint and a ground station's."""
+    agent = next(url for url in vehicle["mavlink"] if url.startswith("tcp:"))
+    station = next((url for url in vehicle["mavlink"] if url.startswith("udpout:")), None)
+    lines = (
+        f"  Vehicle {vehicle['name']}: modem address {vehicle['address']}, home {vehicle['home'][0]:g} m north "
+        f"{vehicle['home'][1]:g} m east, MAVLink {agent} (its agent's)\n"
+    )
+    if station is not None:
+        host_port = station.removeprefix("udpout:")
+        lines += (
+            f"    ground station: UDP {host_port} (mavproxy.py --master={station}; QGroundControl: a UDP "
+            f"link with server {host_port})\n"
+        )
+    return lines
+
+
 def _announce(info: dict[str, Any], args: argparse.Namespace) -> None:
     if args.json:
         print(json.dumps(info), flush=True)
@@ -372,11 +397,7 @@ def _announce(info: dict[str, Any], args: argparse.Namespace) -> None:
             f"  API:       {info['api_url']}  (docs: {info['dashboard_url']}docs)\n"
             f"  Operator token: {info['token']}\n  Observer token: {info['read_token']}\n"
             f"  (tokens also in {Path(info['data_dir']) / 'secrets.json'}; the part after # never reaches the server)\n"
-            + "".join(
-                f"  Vehicle {v['name']}: modem address {v['address']}, home {v['home'][0]:g} m north "
-                f"{v['home'][1]:g} m east, MAVLink {v['mavlink'][0]}\n"
-                for v in info["vehicles"]
-            )
+            + "".join(_vehicle_lines(v) for v in info["vehicles"])
             + f"{scale}{_plans(args)} Ctrl-C stops everything.\n",
             flush=True,
         )
