@@ -22,7 +22,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tests.support.install import fresh_root, install_agent  # noqa: E402
+from launch.pi_install import fresh_root, install_agent  # noqa: E402
 
 SIZES = """
 import importlib.metadata as m, json, sys

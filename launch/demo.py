@@ -68,6 +68,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", type=int, default=8000, help="API and dashboard port")
     parser.add_argument("--map-port", type=int, default=8080, help="3D map port")
     parser.add_argument(
+        "--metrics-port",
+        type=int,
+        help="/metrics (Prometheus) port on --host (default: a free one, printed with the URLs; 0: none)",
+    )
+    parser.add_argument(
         "--data-dir",
         help="where the demo keeps its files (default data/demo; with --gateways data/demo-gateways)",
     )
@@ -170,10 +175,14 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
     import httpx
     import uvicorn
 
-    from server.app import create_app
+    from server.app import shore_app
     from server.core.config import Settings
 
     free_port(args.host, args.port)
+    if args.metrics_port is None:
+        args.metrics_port = any_free_port(args.host)
+    elif args.metrics_port:
+        free_port(args.host, args.metrics_port, "--metrics-port (0: none)")
     data = Path(args.data_dir).resolve()
     private_dir(private_dir(data, narrow=True) / "missions")
     _log_to(data / "server.log")
@@ -210,7 +219,14 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
             **({"plume_threshold": 1e6} if plans[member.index] is split.TRAVEL else {}),  # no detours
         )
         stack.start_agent(member.index)
-    overrides = {"host": args.host, "port": args.port, "map_port": args.map_port, "poll_interval": 2.0}
+    overrides = {
+        "host": args.host,
+        "port": args.port,
+        "map_port": args.map_port,
+        "metrics_host": args.host,
+        "metrics_port": args.metrics_port,
+        "poll_interval": 2.0,
+    }
     if args.gateways:
         database = await asyncio.to_thread(split.database, args.postgres, data)
         values = {
@@ -221,7 +237,7 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
         split.write_center_config(stack, values)
         app = split.center_app(Settings(**values), args.nats)
     else:
-        app = create_app(Settings(**stack.server_settings(**overrides)))
+        app = shore_app(Settings(**stack.server_settings(**overrides)))
     server = uvicorn.Server(uvicorn.Config(app, host=args.host, port=args.port, log_config=None))
     serving = asyncio.create_task(server.serve())
     try:
@@ -238,6 +254,9 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
                 "api_url": api + "/api/v1",
                 "dashboard_url": api + "/",
                 "map_url": f"http://{args.host}:{app.state.map.port}",
+                "metrics_url": f"http://{args.host}:{args.metrics_port}/metrics"
+                if args.metrics_port
+                else None,
                 "token": secret["token"],
                 "read_token": secret["read_token"],
                 "sign_in_url": f"{api}/#token={quote(secret['token'])}",
@@ -307,14 +326,24 @@ def _travels(member: Member, args: argparse.Namespace) -> bool:
     return args.gateways > 1 and member.index == args.vehicles - 1
 
 
-def free_port(host: str, port: int) -> None:
-    """Fail in one line, before anything starts, if the API's port is taken."""
+def free_port(host: str, port: int, option: str = "--port") -> None:
+    """Fail in one line, before anything starts, if the API's port (or ``option``'s) is taken."""
     from server.app import PortBusy, check_port
 
     try:
-        check_port(host, port)
+        check_port(host, port, option)
     except PortBusy as exc:
         raise DemoError(str(exc)) from None
+
+
+def any_free_port(host: str) -> int:
+    """A port nothing listens on now (the demo's /metrics unless one is asked for: demos and tests run
+    side by side)."""
+    import socket
+
+    with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as probe:
+        probe.bind((host, 0))
+        return int(probe.getsockname()[1])
 
 
 async def shutdown(stack: Stack, server: Any, serving: asyncio.Task) -> None:
@@ -395,7 +424,8 @@ def _announce(info: dict[str, Any], args: argparse.Namespace) -> None:
             f"  Dashboard for an observer (read only): {info['observer_url']}\n"
             f"  3D map:    {info['map_url']}  (its panel asks for a token: paste the operator token)\n"
             f"  API:       {info['api_url']}  (docs: {info['dashboard_url']}docs)\n"
-            f"  Operator token: {info['token']}\n  Observer token: {info['read_token']}\n"
+            + (f"  Metrics:   {info['metrics_url']}  (Prometheus)\n" if info.get("metrics_url") else "")
+            + f"  Operator token: {info['token']}\n  Observer token: {info['read_token']}\n"
             f"  (tokens also in {Path(info['data_dir']) / 'secrets.json'}; the part after # never reaches the server)\n"
             + "".join(_vehicle_lines(v) for v in info["vehicles"])
             + f"{scale}{_plans(args)} Ctrl-C stops everything.\n",

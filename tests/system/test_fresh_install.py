@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.support.install import fresh_root, install_agent
+from launch.pi_install import fresh_root, install_agent
 from vehicle_agent.check import EXIT_CONFIG, EXIT_UNREADY
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -215,12 +215,13 @@ def test_the_pi_install_runs_the_agent_without_the_web_stack_or_plotting(tmp_pat
 
 
 def test_server_extra_alone_serves_the_api_and_the_dashboard(checkout: Path, tmp_path: Path) -> None:
-    """``pip install tacit[server]``: the API, its migrations and the dashboard ship in the package."""
+    """``pip install tacit[server]``: the API, its migrations and the dashboard ship in the package, and
+    ``/metrics`` is served beside them."""
     bin_dir = fresh_venv(tmp_path / "venv", f"{checkout}[server]")
-    port = free_port()
+    port, metrics = free_port(), free_port()
     env = user_env(TACIT_DATABASE_URL=f"sqlite:///{tmp_path}/tacit.db", TACIT_WRITE_TOKENS="op")
     proc = subprocess.Popen(
-        [str(bin_dir / "tacit"), "serve", "--port", str(port), "--no-map"],
+        [str(bin_dir / "tacit"), "serve", "--port", str(port), "--no-map", "--metrics-port", str(metrics)],
         cwd=tmp_path,
         env=env,
         stdout=subprocess.DEVNULL,
@@ -231,6 +232,7 @@ def test_server_extra_alone_serves_the_api_and_the_dashboard(checkout: Path, tmp
         health = json.loads(wait_http(f"http://127.0.0.1:{port}/api/v1/health", 60))
         assert health["status"] == "ok"
         assert b"Tacit" in wait_http(f"http://127.0.0.1:{port}/", 10)
+        assert b"\ntacit_modem_ready " in wait_http(f"http://127.0.0.1:{metrics}/metrics", 10)
     finally:
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=30) == 0, (proc.stderr.read() if proc.stderr else "")[-3000:]

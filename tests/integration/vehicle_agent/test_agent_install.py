@@ -15,9 +15,9 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from launch import pi_install as install
 from tacit.cli import main
 from tests.conftest import tacit_process
-from tests.support import install
 from vehicle_agent.check import EXIT_CONFIG, EXIT_UNREADY
 
 ROOT = Path(__file__).resolve().parents[3]

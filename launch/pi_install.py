@@ -1,5 +1,5 @@
-"""A root file system to install the vehicle agent into (``deploy/install-agent --root``), as Raspberry
-Pi OS starts: root and the dialout group, no service user."""
+"""docs/agent.md's install (``deploy/install-agent --root``) into a root file system as Raspberry Pi OS
+starts (root and the dialout group, no service user): for the tests and ``bench/bench_agent_install.py``."""
 
 from __future__ import annotations
 
