@@ -259,8 +259,8 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
                 else None,
                 "token": secret["token"],
                 "read_token": secret["read_token"],
-                "sign_in_url": f"{api}/#token={quote(secret['token'])}",
-                "observer_url": f"{api}/#token={quote(secret['read_token'])}",
+                "sign_in_url": sign_in(api, secret["token"]),
+                "observer_url": sign_in(api, secret["read_token"]),
                 "time_scale": args.time_scale,
                 "modems": sim_info["modems"],
                 "vehicle": sim_info["vehicle"],
@@ -286,6 +286,11 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
         if args.gateways:
             for line in await asyncio.to_thread(split.audit, stack, database):
                 _say(line)
+
+
+def sign_in(api: str, token: str) -> str:
+    """The dashboard's link that signs in with ``token`` (the part after # never reaches the server)."""
+    return f"{api}/#token={quote(token)}"
 
 
 def _plans(args: argparse.Namespace) -> str:
