@@ -68,8 +68,10 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     tasks = [asyncio.create_task(run(shore)) for run in app.state.background]
     operator_map = None
     if settings.map_enabled:
+        from server.map.connections import quiet_given_up_connections
         from server.map.scene import OperatorMap  # viser is heavy: imported only when the map runs
 
+        quiet_given_up_connections()
         operator_map = OperatorMap(shore.screens, shore.commands, shore.bus, settings, shore.operators.actor)
         operator_map.start()
         shore.screens.map_port = lambda: operator_map.port if operator_map else None
