@@ -79,7 +79,7 @@ class Settings(BaseSettings):
     nats_ca: str = ""  # the CA of the broker's certificate, for a tls:// URL
     nats_insecure: bool = False  # no credentials, on a broker without accounts: development only
     deployment: str = ""  # the split shore's name on its broker: prefixes its subjects, streams, consumers
-    metrics_host: str = "127.0.0.1"  # the center's /metrics listener (Prometheus)
+    metrics_host: str = "127.0.0.1"  # a shore process's /metrics listener (Prometheus: server.ops)
     metrics_port: int = Field(9464, ge=0, le=65535)  # 0: none
     retention_days: float = Field(0.0, ge=0)  # relayed frames' records older are deleted; 0: kept for ever
     max_skew: float = Field(120.0, gt=0)  # s a check-point may be ahead of the shore's clock and raise the
