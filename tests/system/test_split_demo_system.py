@@ -113,7 +113,7 @@ def test_the_split_demo_survives_a_broker_restart_and_loses_no_frame(tmp_path: P
         out, err = proc.communicate(timeout=120)
         drop_database(data)
     assert proc.returncode == 0, err[-3000:]
-    collisions = re.search(r"channel: \d+ transmissions, (\d+) collisions", out)
+    collisions = re.search(r"were lost: (\d+) in collisions", out)
     assert collisions and collisions.group(1) == "0", out[-3000:]
     audit = [line for line in out.splitlines() if re.match(r"\s*gw\d: \d+ frames heard", line)]
     assert len(audit) == 2 and not any("NOT STORED" in line for line in audit), out[-3000:]
