@@ -35,7 +35,7 @@ COMMANDS: dict[str, Subcommand] = {
     "center": Subcommand("server.backhaul.center", "center", "Run the center: gateways' frames from NATS into the store"),
     "database": Subcommand("server.ops.backup", "", "Back up the center's database, or restore a backup into an empty one"),
     "backhaul-audit": Subcommand("server.backhaul.audit", "center", "Count each gateway's frames heard against those the center stored and decoded"),
-    "broker-config": Subcommand("server.backhaul.access", "", "Write the NATS broker's users, permissions and credentials for a list of gateways"),
+    "broker-config": Subcommand("server.backhaul.access", "", "Write the NATS broker's accounts and credentials for a deployment's gateways"),
     "agent": Subcommand("vehicle_agent.agent", "agent", "Run the vehicle agent between ArduSub and the vehicle's modem"),
     "sim": Subcommand("simulators.run", "sim", "Start simulated Micro-Modems, acoustic channel and BlueROV2"),
     "replay": Subcommand("launch.replay", "demo", "Run a real .tlog through the agent and the simulated link"),
