@@ -182,8 +182,17 @@ async def bind(
         except NotFoundError:
             why = f"waiting for the center to make its consumer {consumer.name} on {consumer.stream}"
         except (NatsError, TimeoutError) as exc:
+            stop_if_cancelled()
             why = f"consumer {consumer.name} not reachable yet ({type(exc).__name__}); retrying"
         if why != said:
             log.info("%s: %s", who, why)
             said = why
         await asyncio.sleep(0.5)
+
+
+def stop_if_cancelled() -> None:
+    """Raise CancelledError if this task is being cancelled: nats-py turns a cancellation that comes
+    during a request or a fetch into its TimeoutError, which a retrying loop would swallow for ever."""
+    task = asyncio.current_task()
+    if task is not None and task.cancelling():
+        raise asyncio.CancelledError

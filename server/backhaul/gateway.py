@@ -316,9 +316,11 @@ class Gateway:
             try:
                 msgs = await sub.fetch(1, timeout=1.0)
             except TimeoutError:
+                broker.stop_if_cancelled()
                 self._planned.set()  # none kept: at will until the center hands one out
                 continue
             except NatsError:  # failed at once (closed, consumer gone): never spin without yielding
+                broker.stop_if_cancelled()
                 await asyncio.sleep(0.5)
                 continue
             for msg in msgs:
@@ -334,6 +336,7 @@ class Gateway:
         except NotFoundError:
             return
         except (NatsError, TimeoutError) as exc:  # its consumer brings the next one all the same
+            broker.stop_if_cancelled()
             log.warning("gateway %s: the last schedule kept not read (%s)", self.name, type(exc).__name__)
             return
         self._schedule(msg.data or b"")
@@ -453,8 +456,10 @@ async def _consume(sub: JetStreamContext.PullSubscription, handle: Callable[[Msg
         try:
             msgs = await sub.fetch(16, timeout=1.0)
         except TimeoutError:
+            broker.stop_if_cancelled()
             continue
         except NatsError:  # failed at once (closed, consumer gone): never spin without yielding
+            broker.stop_if_cancelled()
             await asyncio.sleep(0.5)
             continue
         for msg in msgs:
