@@ -614,3 +614,20 @@ def test_a_client_without_credentials_refuses_to_start_unless_insecure(
     with caplog.at_level("WARNING"):
         assert access.client_auth("tacit gateway ship", None, None, True, UNNAMED) == access.BrokerAuth()
     assert any("INSECURE" in r.getMessage() for r in caplog.records)
+
+
+@pytest.mark.parametrize(
+    ("values", "said"),
+    [({}, None), ({"nats_insecure": True}, "insecure"), ({"nats_credentials": "center.toml"}, "accounts")],
+)
+def test_the_health_route_says_how_the_center_reaches_its_broker(
+    tmp_path: Path, values: dict[str, object], said: str | None
+) -> None:
+    from fastapi.testclient import TestClient
+
+    from server.app import create_app
+    from server.core.config import Settings
+
+    settings = Settings(database_url=f"sqlite:///{tmp_path}/t.db", map_enabled=False, **values)  # type: ignore[arg-type]
+    with TestClient(create_app(settings)) as client:
+        assert client.get("/api/v1/health").json()["broker"] == said
