@@ -9,7 +9,8 @@ key, readable only by you). Ctrl-C or SIGTERM stops the agent, then the simulato
 closes the database cleanly.
 
 ``--gateways N`` runs the split shore instead (``launch.split``): N simulated shore modems, a
-``tacit gateway`` on each, and the center in this process, on this machine's NATS and PostgreSQL.
+``tacit gateway`` on each and ``tacit center``, children too, on a broker of the demo's own and this
+machine's PostgreSQL; ``--pid PART`` prints one part's process id, to stop or signal it alone.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from typing import Any
 from urllib.parse import quote
 
 from launch import split
-from launch.stack import Member, Stack, StackConfig, StackError, write_private
+from launch.stack import Member, Stack, StackConfig, StackError, gateway_name, write_private
 from tacit.private import open_private, private_dir
 
 PLUME_RIVER = {
@@ -87,11 +88,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="a split shore: this many shore modems, each with its gateway, and a center (needs NATS and "
         "PostgreSQL; the last vehicle flies from the first gateway's water into the second's)",
     )
-    parser.add_argument("--nats", default="nats://127.0.0.1:4222", help="with --gateways: the broker")
+    parser.add_argument(
+        "--nats",
+        default=None,
+        help="with --gateways: a broker configured by `tacit broker-config --deployment demo` (with "
+        "--broker-dir); default: a nats-server of the demo's own, on a free port",
+    )
+    parser.add_argument(
+        "--broker-dir", type=Path, default=None, help="with --nats: the folder of its credentials files"
+    )
     parser.add_argument(
         "--postgres",
         default="postgresql+psycopg://postgres@127.0.0.1:5432/test",
         help="with --gateways: a PostgreSQL server and a database on it to create the demo's database from",
+    )
+    parser.add_argument(
+        "--pid",
+        metavar="PART",
+        help="print the process id of a running split demo's part (center, broker, gateway-gw1, relay-gw1, "
+        "sim, agent, agent-rov2, ...) in --data-dir, and exit",
     )
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--headless", action="store_true", help="do not open a browser")
@@ -135,9 +150,19 @@ def run(args: argparse.Namespace) -> int:
         print("tacit demo: --gateways is 0 (one shore) .. 5", file=sys.stderr)
         return 2
     args.data_dir = args.data_dir or ("data/demo-gateways" if args.gateways else "data/demo")
+    if args.pid:
+        try:
+            print(split.part_pid(Path(args.data_dir), args.pid))
+        except LookupError as exc:
+            print(f"tacit demo: {exc}", file=sys.stderr)
+            return 1
+        return 0
     mixed = split.other_layout(Path(args.data_dir), bool(args.gateways))
     if mixed:
         print(f"tacit demo: {mixed}", file=sys.stderr)
+        return 2
+    if args.gateways and bool(args.nats) != bool(args.broker_dir):
+        print("tacit demo: --nats and --broker-dir go together", file=sys.stderr)
         return 2
     if args.gateways:
         absent = split_missing(args)
@@ -172,12 +197,6 @@ def split_missing(args: argparse.Namespace) -> str | None:
 
 
 async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
-    import httpx
-    import uvicorn
-
-    from server.app import shore_app
-    from server.core.config import Settings
-
     free_port(args.host, args.port)
     if args.metrics_port is None:
         args.metrics_port = any_free_port(args.host)
@@ -206,9 +225,57 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
         )
     )
     plans = {m.index: split.TRAVEL if _travels(m, args) else mission for m in stack.members}
+    names = [gateway_name(i) for i in range(args.gateways)]
+    broker = split.Broker(data, names, args.nats, args.broker_dir)
+    broker.start()  # on this thread: its server ends with this process, however that ends
+    try:
+        return await _run(args, secret, stack, plans, broker)
+    finally:
+        broker.stop()
+
+
+async def _run(
+    args: argparse.Namespace,
+    secret: dict[str, Any],
+    stack: Stack,
+    plans: dict[int, Any],
+    broker: split.Broker,
+) -> int:
+    """The children, the server and the missions, until stopped; the broker is started already."""
+    import httpx
+    import uvicorn
+
+    from server.app import shore_app
+    from server.core.config import Settings
+
+    data = stack.dir
+    overrides = {
+        "host": args.host,
+        "port": args.port,
+        "map_port": args.map_port,
+        "metrics_host": args.host,
+        "metrics_port": args.metrics_port,
+        "poll_interval": 2.0,
+    }
+    database = ""
+    server: Any = None
+    serving: asyncio.Task[None] | None = None
+    if args.gateways:  # the center first (stopped last: it stores what the gateways send to the end), a
+        # child of its own, to be killed and started again alone
+        database = await asyncio.to_thread(split.database, args.postgres, data)
+        values = {
+            **split.center_settings(stack, database, args.time_scale),
+            **overrides,
+            "nats_url": broker.url,
+            "nats_credentials": str(broker.credentials("center")),
+            "deployment": split.DEPLOYMENT.name,
+        }
+        config = split.write_center_config(stack, values)
+        center = stack.spawn(["center", "--config", str(config), "--instance", "demo-center"], "center.log")
+        map_port = args.map_port
     sim_info = await asyncio.to_thread(stack.start_sim)
-    for index in range(args.gateways):
-        stack.start_gateway(index, args.nats)
+    for index, name in enumerate(gateway_name(i) for i in range(args.gateways)):
+        stack.start_gateway(index, broker.url, broker.credentials(f"gateway-{name}"), split.DEPLOYMENT.name)
     for member in stack.members:  # up before the server: a mission started at once finds its agent listening
         plan = "travel.json" if plans[member.index] is split.TRAVEL else "mission.json"
         stack.write_agent_config(
@@ -219,33 +286,22 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
             **({"plume_threshold": 1e6} if plans[member.index] is split.TRAVEL else {}),  # no detours
         )
         stack.start_agent(member.index)
-    overrides = {
-        "host": args.host,
-        "port": args.port,
-        "map_port": args.map_port,
-        "metrics_host": args.host,
-        "metrics_port": args.metrics_port,
-        "poll_interval": 2.0,
-    }
     if args.gateways:
-        database = await asyncio.to_thread(split.database, args.postgres, data)
-        values = {
-            **split.center_settings(stack, database, args.time_scale),
-            **overrides,
-            "nats_url": args.nats,
-        }
-        split.write_center_config(stack, values)
-        app = split.center_app(Settings(**values), args.nats)
+        split.write_parts(stack, broker)
     else:
         app = shore_app(Settings(**stack.server_settings(**overrides)))
-    server = uvicorn.Server(uvicorn.Config(app, host=args.host, port=args.port, log_config=None))
-    serving = asyncio.create_task(server.serve())
+        server = uvicorn.Server(uvicorn.Config(app, host=args.host, port=args.port, log_config=None))
+        serving = asyncio.create_task(server.serve())
     try:
-        while not server.started:
-            if serving.done():
-                raise DemoError(f"the server did not start (is port {args.port} free?)")
-            await asyncio.sleep(0.05)
         api = f"http://{args.host}:{args.port}"
+        if server is None:
+            await _answering(api, center, stack.dir / "center.log")
+        else:
+            while not server.started:
+                if serving is not None and serving.done():
+                    raise DemoError(f"the server did not start (is port {args.port} free?)")
+                await asyncio.sleep(0.05)
+            map_port = app.state.map.port
         async with httpx.AsyncClient(
             base_url=api, headers={"Authorization": f"Bearer {secret['token']}"}
         ) as http:
@@ -253,7 +309,7 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
             info = {
                 "api_url": api + "/api/v1",
                 "dashboard_url": api + "/",
-                "map_url": f"http://{args.host}:{app.state.map.port}",
+                "map_url": f"http://{args.host}:{map_port}",
                 "metrics_url": f"http://{args.host}:{args.metrics_port}/metrics"
                 if args.metrics_port
                 else None,
@@ -274,9 +330,13 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
             _announce(info, args)
             for mission_id in missions:
                 await http.post(f"/api/v1/missions/{mission_id}/start")
-            watching = [asyncio.create_task(split.watch_routes(http, _say))] if args.gateways else []
+            watching = (
+                [asyncio.create_task(split.watch_routes(http, _say)),
+                 asyncio.create_task(split.keep_broker(broker, stack, _say))]
+                if args.gateways else []
+            )  # fmt: skip
             waiter = asyncio.create_task(interrupted.wait())
-            await asyncio.wait({waiter, serving}, return_when=asyncio.FIRST_COMPLETED)
+            await asyncio.wait({waiter, *([serving] if serving else [])}, return_when=asyncio.FIRST_COMPLETED)
             for task in watching:
                 task.cancel()
         return 0
@@ -291,6 +351,25 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
 def sign_in(api: str, token: str) -> str:
     """The dashboard's link that signs in with ``token`` (the part after # never reaches the server)."""
     return f"{api}/#token={quote(token)}"
+
+
+async def _answering(api: str, center: Any, log: Path, timeout: float = 120.0) -> None:
+    """Wait until the center's API answers; a center that exits first fails the demo (its log named)."""
+    import httpx
+
+    deadline = asyncio.get_running_loop().time() + timeout
+    async with httpx.AsyncClient(base_url=api, timeout=2) as http:
+        while True:
+            if center.poll() is not None:
+                raise DemoError(f"the center stopped at start; see {log}")
+            try:
+                if (await http.get("/api/v1/health")).status_code == 200:
+                    return
+            except httpx.HTTPError:
+                pass
+            if asyncio.get_running_loop().time() > deadline:
+                raise DemoError(f"the center did not answer in {timeout:.0f} s; see {log}")
+            await asyncio.sleep(0.2)
 
 
 def _plans(args: argparse.Namespace) -> str:
@@ -351,9 +430,13 @@ def any_free_port(host: str) -> int:
         return int(probe.getsockname()[1])
 
 
-async def shutdown(stack: Stack, server: Any, serving: asyncio.Task) -> None:
-    """Children first (agent, then simulator), then the server, which closes the database cleanly."""
+async def shutdown(stack: Stack, server: Any, serving: asyncio.Task | None) -> None:
+    """Children in reverse order of start (agents, gateways, simulator, and a split shore's center last:
+    it stores what the gateways sent to the end), then the server in this process, if any, which closes
+    the database cleanly."""
     await asyncio.to_thread(stack.close)
+    if server is None or serving is None:
+        return
     server.should_exit = True
     try:
         await serving

@@ -77,6 +77,8 @@ class Settings(BaseSettings):
     nats_url: str = "nats://127.0.0.1:4222"  # the center's broker (docs/backhaul.md)
     nats_credentials: str = ""  # this role's credentials file (`tacit broker-config`); empty: no accounts
     nats_ca: str = ""  # the CA of the broker's certificate, for a tls:// URL
+    nats_insecure: bool = False  # no credentials, on a broker without accounts: development only
+    deployment: str = ""  # the split shore's name on its broker: prefixes its subjects, streams, consumers
     metrics_host: str = "127.0.0.1"  # a shore process's /metrics listener (Prometheus: server.ops)
     metrics_port: int = Field(9464, ge=0, le=65535)  # 0: none
     retention_days: float = Field(0.0, ge=0)  # relayed frames' records older are deleted; 0: kept for ever
