@@ -15,22 +15,12 @@ import numpy as np
 
 from tacit.arithmetic import Decoder
 from tacit.codec.format import CODE_BITS, CodecError, UnknownBase, next_id, unpack
-from tacit.codec.grammar import (
-    END,
-    LOST,
-    PHASE,
-    SAME,
-    START,
-    RawValue,
-    placed,
-    read_sample,
-    read_token,
-    started,
-)
+from tacit.codec.grammar import RawValue, placed, read_sample, read_token, started
 from tacit.codec.grid import PHASES, regrid
 from tacit.codec.prediction import Dual
 from tacit.codec.spec import StreamSpec
 from tacit.codec.state import Chain, Position, restore, save
+from tacit.codec.tokens import END, LOST, PHASE, SAME, START
 
 
 @dataclass

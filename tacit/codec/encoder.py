@@ -20,13 +20,14 @@ import numpy as np
 
 from tacit.arithmetic import Encoder
 from tacit.codec.format import CODE_BITS, next_id, pack
-from tacit.codec.grammar import END, LOST, RAW_Q, RawValue, Token, placing, write_sample, write_token
+from tacit.codec.grammar import RAW_Q, RawValue, Token, placing, write_sample, write_token
 from tacit.codec.grid import Grid, regrid, unregrid
 from tacit.codec.models import Coder
 from tacit.codec.policy import SendPolicy
 from tacit.codec.prediction import Dual
 from tacit.codec.spec import MARGIN, StreamSpec
 from tacit.codec.state import Chain, Position
+from tacit.codec.tokens import END, LOST
 from tacit.packets import Priority, PriorityPacket
 
 
@@ -198,8 +199,8 @@ class PacketEncoder:
         """The tick of a sample taken at ``time``, on its stream's grid (``Grid``)."""
         spec, grid = self.specs[stream], self._grids[stream]
         if grid is None:
-            grid = self._grids[stream] = Grid.start(spec, time)
-        elif (phase := grid.follow(spec, time)) is not None:
+            grid = self._grids[stream] = Grid.start(spec.period, time)
+        elif (phase := grid.follow(spec.period, time)) is not None:
             cursor = self._cursor[stream]
             # not on a sample the new grid would date at a tick after its own (the cursor re-expressed
             # on the new grid may be up to half a tick later than the latest sample)

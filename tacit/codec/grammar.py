@@ -30,18 +30,16 @@ stream's first sample (at 256 Hz, 18 hours).
 from __future__ import annotations
 
 import struct
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
 from tacit.arithmetic import Decoder, Encoder
 from tacit.codec.format import CodecError
 from tacit.codec.grid import PHASE_BITS, regrid
+from tacit.codec.models import Coder
+from tacit.codec.tokens import JUMP, LOST, PHASE, SAME, START, STEP
 
-if TYPE_CHECKING:
-    from tacit.codec.models import Coder
-
-END, STEP, SAME, JUMP, LOST, START, PHASE = range(7)
 TICK_BITS = 24
 SMALL = 6
 ESC_NEG, ESC_POS, RAW = 2 * SMALL + 1, 2 * SMALL + 2, 2 * SMALL + 3

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tacit.codec.grid import PHASES
+from tacit.codec import grid
 from tacit.packets import Stream
 from tacit.predict import Predictor, make_predictor
 
@@ -59,8 +59,4 @@ class StreamSpec:
 
     def tick(self, time: float, phase: int = 0) -> int:
         """The tick a sample taken at ``time`` belongs to, on the grid of ``phase`` (sixteenths)."""
-        return round(time / self.period - phase / PHASES)
-
-    def phase_of(self, time: float) -> complex:
-        """Where ``time`` falls within a tick, as a unit phasor (so phases average across the wrap)."""
-        return complex(np.exp(2j * np.pi * (time / self.period % 1.0)))
+        return grid.tick(self.period, time, phase)
