@@ -23,6 +23,7 @@ bound, packets send-on-delta never sends; ``--max-silence none`` compares the tw
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import random
@@ -36,6 +37,7 @@ from tqdm import tqdm
 
 from analysis.series import Series, load
 from tacit.codec import StreamDecoder, StreamEncoder, StreamSpec
+from tacit.codec.versions import NEWEST, VERSIONS
 from tacit.packets import PACKET_SIZE, PAYLOAD_SIZE, Stream
 from tacit.predict import METHODS
 
@@ -90,8 +92,10 @@ def run_codec(
     urgent_threshold: float | None = None,
     max_silence: float | None = 60.0,
     progress: bool = False,
+    version: int = NEWEST,
 ) -> tuple[Result, Reconstruction]:
-    encoder, decoder = StreamEncoder(spec, max_latency, urgent_threshold, max_silence), StreamDecoder(spec)
+    encoder = StreamEncoder(spec, max_latency, urgent_threshold, max_silence, version)
+    decoder = StreamDecoder(spec, version)
     rng = random.Random(seed)
     truth = series.values
     rows = len(truth)
@@ -375,6 +379,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--urgent-threshold", type=float, help="|q| at or above which a sample goes out at once"
     )
+    parser.add_argument(
+        "--time-tolerance",
+        type=float,
+        help="seconds within which the shore may date a sample (default: half the period); a payload "
+        "version 4 vehicle then keeps a wandering clock's samples a tick apart",
+    )
+    parser.add_argument(
+        "--payload-version",
+        type=int,
+        choices=VERSIONS,
+        default=NEWEST,
+        help=f"the payload version the vehicle speaks (default {NEWEST}, a new agent's)",
+    )
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--plot", metavar="PNG", help="write truth, reconstruction and sent points")
     parser.add_argument("--json", action="store_true", help="one JSON object")
@@ -395,6 +412,7 @@ def evaluate(args: argparse.Namespace) -> tuple[dict[str, Any], Series, StreamSp
         file=sys.stderr,
     )
     spec = make_spec(series, args.eps, args.relative, args.method, args.period)
+    spec = dataclasses.replace(spec, time_tolerance=getattr(args, "time_tolerance", None))
     result, rec = run_codec(
         series,
         spec,
@@ -404,11 +422,13 @@ def evaluate(args: argparse.Namespace) -> tuple[dict[str, Any], Series, StreamSp
         args.urgent_threshold,
         args.max_silence,
         progress,
+        getattr(args, "payload_version", NEWEST),
     )
     baselines = {"send-all": send_all, "send-on-delta": send_on_delta}
     report: dict[str, object] = {
         **asdict(result),
         "method": args.method,
+        "payload_version": getattr(args, "payload_version", NEWEST),
         "channels": list(spec.channels),
         "rows": len(series.times),
         "eps": list(spec.eps),  # per channel, in channel units (with --relative: --eps x the channel's std)

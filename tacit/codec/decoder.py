@@ -21,6 +21,7 @@ from tacit.codec.prediction import Dual
 from tacit.codec.spec import StreamSpec
 from tacit.codec.state import Chain, Position, restore, save
 from tacit.codec.tokens import END, LOST, PHASE, SAME, START
+from tacit.codec.versions import coding
 
 
 @dataclass
@@ -53,8 +54,10 @@ class DecodedSpan:
 class PacketDecoder:
     """The shore's side: payloads in, each stream's reconstructed samples out, in the vehicle's chain."""
 
-    def __init__(self, specs: list[StreamSpec]) -> None:
+    def __init__(self, specs: list[StreamSpec], version: int = 3) -> None:
+        """``version``: the payload version the vehicle speaks (``tacit.codec.versions``)."""
         self.specs = list(specs)
+        self.coding = coding(version)
         self.predictors = [Dual(s) for s in self.specs]
         self._initial = Chain.initial(self.specs, self.predictors)
         self.snapshots: dict[int, Chain] = {}
@@ -116,9 +119,9 @@ class PacketDecoder:
         self.snapshots = restore(self.specs, data)
 
     @classmethod
-    def from_bytes(cls, specs: list[StreamSpec], data: bytes) -> PacketDecoder:
-        """``PacketDecoder(specs)`` holding the state ``to_bytes`` saved (see ``load``)."""
-        decoder = PacketDecoder(specs)
+    def from_bytes(cls, specs: list[StreamSpec], data: bytes, version: int = 3) -> PacketDecoder:
+        """``PacketDecoder(specs, version)`` holding the state ``to_bytes`` saved (see ``load``)."""
+        decoder = PacketDecoder(specs, version)
         decoder.load(data)
         return decoder
 
@@ -199,8 +202,8 @@ def _reconstruct(predictor: Dual, prediction: np.ndarray, q: list[int | None]) -
 class StreamDecoder(PacketDecoder):
     """A single stream's decoder: ``decode`` returns its one span."""
 
-    def __init__(self, spec: StreamSpec) -> None:
-        super().__init__([spec])
+    def __init__(self, spec: StreamSpec, version: int = 3) -> None:
+        super().__init__([spec], version)
         self.spec = spec
 
     def decode(self, payload: bytes, received_at: float) -> DecodedSpan:  # type: ignore[override]

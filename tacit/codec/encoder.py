@@ -21,13 +21,14 @@ import numpy as np
 from tacit.arithmetic import Encoder
 from tacit.codec.format import CODE_BITS, next_id, pack
 from tacit.codec.grammar import RAW_Q, RawValue, Token, placing, write_sample, write_token
-from tacit.codec.grid import Grid, regrid, unregrid
+from tacit.codec.grid import PHASES, Grid, regrid, unregrid
 from tacit.codec.models import Coder
 from tacit.codec.policy import SendPolicy
 from tacit.codec.prediction import Dual
 from tacit.codec.spec import MARGIN, StreamSpec
 from tacit.codec.state import Chain, Position
 from tacit.codec.tokens import END, LOST
+from tacit.codec.versions import coding
 from tacit.packets import Priority, PriorityPacket
 
 
@@ -135,12 +136,15 @@ class PacketEncoder:
         max_latency: float = 10.0,
         urgent_threshold: float | None = None,
         max_silence: float | None = 60.0,
+        version: int = 3,
     ) -> None:
         """When packets leave: ``SendPolicy(max_latency, max_silence, urgent_threshold)`` (``max_silence``
-        None: no packet leaves only to confirm predictable samples)."""
+        None: no packet leaves only to confirm predictable samples). ``version``: the payload version the
+        vehicle speaks (``tacit.codec.versions``)."""
         if not specs:
             raise ValueError("at least one stream")
         self.specs = list(specs)
+        self.coding = coding(version)
         self.policy = SendPolicy(max_latency, max_silence, urgent_threshold)
         self.predictors = [Dual(s) for s in self.specs]
         self.initial = Chain.initial(self.specs, self.predictors)
@@ -206,7 +210,25 @@ class PacketEncoder:
             # on the new grid may be up to half a tick later than the latest sample)
             if cursor is None or spec.tick(time, phase) >= regrid(cursor, self._phase[stream], phase):
                 grid.move(phase)
-        return spec.tick(time, grid.phase)
+        index = spec.tick(time, grid.phase)
+        return self._stepped(stream, time, index, grid.phase) if self.coding.tolerance else index
+
+    def _stepped(self, stream: int, time: float, index: int, phase: int) -> int:
+        """Version 4: the tick after the last sample's if it dates ``time`` within the stream's time
+        tolerance (``StreamSpec.time_precision``): a sampler whose intervals wander about the period then
+        costs a STEP, not SAME and JUMP; else ``index``, the nearest tick. A gap longer than the
+        tolerance stays a gap, exact."""
+        spec, cursor = self.specs[stream], self._cursor[stream]
+        if cursor is None:
+            return index
+        if phase != self._phase[stream]:
+            cursor = regrid(cursor, self._phase[stream], phase)
+        following = cursor + 1
+        return (
+            following
+            if abs((following + phase / PHASES) * spec.period - time) <= spec.time_precision
+            else index
+        )
 
     def _process(self, stream: int, sample: _Sample, draft: bool = True) -> None:
         spec, predictor = self.specs[stream], self.predictors[stream]
@@ -490,8 +512,9 @@ class StreamEncoder(PacketEncoder):
         max_latency: float = 10.0,
         urgent_threshold: float | None = None,
         max_silence: float | None = 60.0,
+        version: int = 3,
     ) -> None:
-        super().__init__([spec], max_latency, urgent_threshold, max_silence)
+        super().__init__([spec], max_latency, urgent_threshold, max_silence, version)
         self.spec = spec
 
     def push(self, time: float, values: np.ndarray | list[float], urgent: bool = False) -> bool:  # type: ignore[override]
