@@ -12,6 +12,14 @@ and the same guarantee (the codec with no silence bound: nothing confirms a quie
 codec costs at most one packet more, and what confirming predictable samples within max(60 s, latency)
 adds. It fails (exit status 1) if it did not measure what it claims: a sample off by more than eps or not
 held on the shore, a latency over its bound, or link bits that are not whole packets.
+
+``--peers``: the goals' table on the public series (``bench/data``) and the ArduSub logs. Per series: the
+codec's own bits (the arithmetic code alone, no latency bound, no framing) beside SZ3 (``pysz``, the
+error-bounded compressor of the scientific-data community; a benchmark dependency) at the same absolute
+bound, each channel compressed separately with the sample times given free, over the whole series and
+one latency window at a time, its decompressed error verified; and on the link at the agent's defaults
+(latency 10 s, silence 60 s) the codec's packets beside send-on-delta's in the same frames. It fails if
+a decompressed value is off by more than eps or a run did not measure what it claims.
 """
 
 from __future__ import annotations
@@ -136,6 +144,103 @@ def sweep_table(data: Path, method: str) -> bool:
     return not faults
 
 
+# file (bench/data, or the ArduSub logs' folder for a .tlog), columns (None: every numeric one), time
+# column (None: detected), eps (absolute, per channel as --eps takes it; "sd:x": x standard deviations),
+# time units per second, label
+PEER_CASES = [
+    ("glider_amadeus_ctd.csv", None, None, "sci_water_temp=0.01,sci_water_cond=0.001,sci_water_pressure=0.01",
+     1.0, "Slocum CTD T,C,P 2 s"),
+    ("glider_amadeus_ctd_temperature.csv", None, None, "0.05", 1.0, "Slocum CTD temperature 2 s"),
+    ("glider_amadeus_attitude.csv", None, None, "0.005,m_depth=0.1", 1.0, "Slocum attitude, depth 5 s"),
+    ("glider_sea046_gpctd.csv.gz", ["GPCTD_CONDUCTIVITY", "GPCTD_TEMPERATURE", "GPCTD_PRESSURE"], None,
+     "GPCTD_CONDUCTIVITY=0.001,GPCTD_TEMPERATURE=0.01,GPCTD_PRESSURE=0.1", 1.0, "SeaExplorer CTD C,T,P 1 s"),
+    ("glider_sea046_nav.csv", ["Heading", "Pitch", "Roll", "Depth"], None, "0.2,Depth=0.1", 1.0,
+     "SeaExplorer attitude, depth 10 s"),
+    ("glider_sea035_oxygen.csv", None, None, "1.0", 1.0, "SeaExplorer oxygen 30 s"),
+    ("handheld_ximu_256hz_imu.csv", None, "Packet number", "sd:0.5", 390.0, "x-IMU 256 Hz"),
+    ("small.tlog", IMU.split(","), None, "sd:0.5", 1.0, "ArduSub RAW_IMU 4 Hz"),
+    ("small.tlog", ["SCALED_PRESSURE2.temperature"], None, "5.0", 1.0, "ArduSub water temperature"),
+]  # fmt: skip
+AGENT_LATENCY, AGENT_SILENCE = 10.0, 60.0  # vehicle_agent's defaults
+
+
+def sz3_bits(series: Series, eps: tuple[float, ...], window: float | None = None) -> tuple[int, float]:
+    """SZ3's compressed bits for every channel of ``series`` (its present values, compressed separately,
+    at absolute bound eps; times free), the whole series at once or ``window`` seconds at a time; and the
+    largest decompressed error over eps (verified here, not taken from SZ3)."""
+    import pysz  # a benchmark dependency only
+
+    bits, worst = 0, 0.0
+    starts = [0] if window is None else _window_starts(series.times, window)
+    for c, bound in enumerate(eps):
+        config = pysz.szConfig()
+        config.errorBoundMode = pysz.szErrorBoundMode.ABS
+        config.absErrorBound = bound
+        for lo, hi in zip(starts, [*starts[1:], len(series.times)], strict=True):
+            values = series.values[lo:hi, c]
+            values = np.ascontiguousarray(values[~np.isnan(values)])
+            if not len(values):
+                continue
+            compressed, _ = pysz.sz.compress(values, config)
+            restored, _ = pysz.sz.decompress(compressed, np.float64, values.shape)
+            bits += 8 * len(compressed)
+            worst = max(worst, float(np.abs(restored - values).max()) / bound)
+    return bits, worst
+
+
+def _window_starts(times: np.ndarray, window: float) -> list[int]:
+    """Where each latency window begins: a window holds the samples within ``window`` of its first."""
+    starts, i = [], 0
+    while i < len(times):
+        starts.append(i)
+        i = int(np.searchsorted(times, times[i] + window, side="right"))
+    return starts
+
+
+def peer_series(data: Path, name: str, columns: list[str] | None, time_column: str | None) -> Series:
+    if name.endswith(".tlog") and columns is not None:
+        return load(data / name, columns if "." in columns[0] else [f"RAW_IMU.{c}" for c in columns])
+    return load(PUBLIC / name, columns, time_column)
+
+
+def peers_table(data: Path, method: str) -> bool:
+    """The goals' table; False if something was not measured as claimed."""
+    head = (
+        f"{'series':<34} {'samples':>7} {'codec own':>9} {'SZ3 whole':>9} {'SZ3 window':>10} "
+        f"{'own/SZ3':>7} {'codec pkt':>9} {'no-silence pkt':>14} {'SoD pkt':>7} {'codec b/s':>9} {'SoD b/s':>7}"
+    )
+    print(
+        f"bits per sample; link at the agent's defaults (latency {AGENT_LATENCY:g} s, silence {AGENT_SILENCE:g} s)"
+    )
+    print(head)
+    print("-" * len(head))
+    faults = []
+    for name, columns, time_column, eps, unit, label in tqdm(
+        PEER_CASES, desc="peers", unit="series", leave=False
+    ):
+        series = peer_series(data, name, columns, time_column)
+        relative = eps.startswith("sd:")
+        spec = make_spec(series, eps.removeprefix("sd:"), relative, method, None)
+        latency, silence = AGENT_LATENCY * unit, AGENT_SILENCE * unit
+        own, _ = run_codec(series, spec, float("inf"), max_silence=None)
+        link, _ = run_codec(series, spec, latency, max_silence=silence)
+        quiet, _ = run_codec(series, spec, latency, max_silence=None)
+        sod = send_on_delta(series, spec, latency)
+        whole, whole_err = sz3_bits(series, spec.eps)
+        windowed, window_err = sz3_bits(series, spec.eps, latency)
+        faults += [f"{label}: {w}" for w in measured({"link": link, "quiet": quiet, "sod": sod}, silence)]
+        faults += [f"{label}: SZ3 off by {e:.3f} eps" for e in (whole_err, window_err) if e > 1 + 1e-9]
+        n = own.samples
+        print(
+            f"{label:<34} {n:>7} {own.code_bits_per_sample:>9.3f} {whole / n:>9.3f} {windowed / n:>10.3f} "
+            f"{own.code_bits_per_sample / (whole / n):>7.2f} {link.packets:>9} {quiet.packets:>14} {sod.packets:>7} "
+            f"{link.bits_per_sample:>9.3f} {sod.bits_per_sample:>7.3f}"
+        )
+    for fault in faults:
+        print(f"NOT MEASURED AS CLAIMED: {fault}", file=sys.stderr)
+    return not faults
+
+
 def degraded(series: Series, seed: int = 2) -> Series:
     """5 % of samples removed at random and +-30 % of a period of timing jitter."""
     rng = np.random.default_rng(seed)
@@ -203,7 +308,12 @@ def main() -> None:
     parser.add_argument("--json", action="store_true", help="one JSON object per case")
     parser.add_argument("--only-robustness", action="store_true", help="only the clean/degraded/public table")
     parser.add_argument("--sweep", action="store_true", help="only the latency sweep against send-on-delta")
+    parser.add_argument(
+        "--peers", action="store_true", help="only the goals' table: the codec, SZ3, send-on-delta"
+    )
     options = parser.parse_args()
+    if options.peers:
+        sys.exit(0 if peers_table(options.data, options.method) else 1)
     if options.sweep:
         sys.exit(0 if sweep_table(options.data, options.method) else 1)
     if options.only_robustness:
