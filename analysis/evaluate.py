@@ -121,7 +121,8 @@ def run_codec(
         span = decoder.decode(encoded.packet.payload, now)
         latencies.extend(now - t for t in encoded.surprise_times)
         confirmations.extend(now - t for t in encoded.sample_times)
-        for serial, at, row in zip(encoded.serials[0], span.times, span.values, strict=True):
+        for serial, r in zip(encoded.serials[0], encoded.rows[0], strict=True):
+            at, row = span.times[r], span.values[r]
             held = shore[row_of[serial]]  # a sample too large for one packet arrives in parts (channels)
             shore[row_of[serial]] = np.where(np.isnan(row), held, row)
             shore_time[row_of[serial]] = at

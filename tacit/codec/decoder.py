@@ -15,7 +15,15 @@ import numpy as np
 
 from tacit.arithmetic import Decoder
 from tacit.codec.format import CODE_BITS, CodecError, UnknownBase, next_id, unpack
-from tacit.codec.grammar import RawValue, placed, read_sample, read_token, started
+from tacit.codec.grammar import (
+    RawValue,
+    continues,
+    placed,
+    presence_before,
+    read_sample,
+    read_token,
+    started,
+)
 from tacit.codec.grid import PHASES, regrid
 from tacit.codec.prediction import Dual
 from tacit.codec.spec import StreamSpec
@@ -34,6 +42,9 @@ class DecodedSpan:
     lost: tuple[int, int] | None  # [start, end) ticks in a lost packet (the shore cannot vouch for them)
     phases: np.ndarray  # each sample's grid phase, sixteenths of a tick
     lost_phase: int  # the grid the lost ticks are on
+    # the first row is the rest of the stream's last row in the packet before (a sample sent in parts:
+    # the same tick, the channels that row lacks); parts within one packet are merged into one row
+    continues: bool = False
 
     @property
     def first_tick(self) -> int:
@@ -134,7 +145,7 @@ class PacketDecoder:
         ticks: list[int] = []
         phases: list[int] = []
         rows: list[np.ndarray] = []
-        lost = None
+        lost, first_continues, last_phase = None, False, base.phase
         while True:
             token = read_token(coder, decoder)
             if token.kind == END:
@@ -167,15 +178,28 @@ class PacketDecoder:
                 index = placed(cursor, token)
                 predictor.skip(index - cursor - 1)
                 prediction = predictor.predict()
+            before, same_tick = presence_before(coder), token.kind == SAME and phase == last_phase
+            row = _reconstruct(predictor, prediction, read_sample(coder, decoder))
+            if continues(before, (~np.isnan(row)).tolist(), same_tick) and (rows or lost is None):
+                if rows:  # a part of the row before: one row
+                    rows[-1] = np.where(np.isnan(rows[-1]), row, rows[-1])
+                    continue
+                first_continues = True
             ticks.append(index)
             phases.append(phase)
-            rows.append(_reconstruct(predictor, prediction, read_sample(coder, decoder)))
-            cursor = index
+            rows.append(row)
+            cursor, last_phase = index, phase
             if len(rows) > CODE_BITS * 64:
                 raise CodecError("more samples than a packet can hold")
         values = np.array(rows) if rows else np.zeros((0, len(spec.channels)))
         span = DecodedSpan(
-            spec, np.array(ticks, dtype=np.int64), values, lost, np.array(phases, dtype=np.int64), base.phase
+            spec,
+            np.array(ticks, dtype=np.int64),
+            values,
+            lost,
+            np.array(phases, dtype=np.int64),
+            base.phase,
+            first_continues,
         )
         return span, Position(predictor.state(), coder, cursor, phase)
 

@@ -20,7 +20,16 @@ import numpy as np
 
 from tacit.arithmetic import Encoder
 from tacit.codec.format import CODE_BITS, next_id, pack
-from tacit.codec.grammar import RAW_Q, RawValue, Token, placing, write_sample, write_token
+from tacit.codec.grammar import (
+    RAW_Q,
+    RawValue,
+    Token,
+    continues,
+    placing,
+    presence_before,
+    write_sample,
+    write_token,
+)
 from tacit.codec.grid import PHASES, Grid, regrid, unregrid
 from tacit.codec.models import Coder
 from tacit.codec.policy import SendPolicy
@@ -63,6 +72,8 @@ class EncodedPacket:
     surprises: dict[str, list[int]] = field(
         default_factory=dict
     )  # per stream and channel: values not predicted
+    # per stream and sample: its row in the shore's span (a part of the sample before it shares its row)
+    rows: list[list[int]] = field(default_factory=list)
 
 
 def _code_sample(
@@ -110,6 +121,21 @@ def _quantise(
             z[c] = correction + q * fine[c]
     predictor.update(reconstruction, z, raw)
     return out
+
+
+def _rows(section: _Section, taken: list[_Sample]) -> list[int]:
+    """For each of ``taken`` (a section's samples), the row of the shore's span it is decoded into: a
+    sample that is a part of the one before it in the same packet (``tacit.codec.grammar.continues``:
+    the same tick, other channels) is merged into that one's row."""
+    base, rows = section.base, list[int]()
+    before = presence_before(section.base.coder)
+    tick, phase = (base.cursor, base.phase) if section.lost is None else (None, base.phase)
+    for x in taken:
+        present = [v is not None for v in x.q]
+        merged = rows and continues(before, present, x.index == tick and x.phase == phase)
+        rows.append(rows[-1] if merged else len(rows) and rows[-1] + 1)
+        before, tick, phase = present, x.index, x.phase
+    return rows
 
 
 @dataclass
@@ -349,7 +375,7 @@ class PacketEncoder:
         urgent = any(x.urgent for x in draft)
         main = self._main_stream(urgent)  # before the taken samples leave the queues
         main_first = self._first_index(main)
-        positions, counts, serials, surprises = [], {}, [], {}
+        positions, counts, serials, rows, surprises = [], {}, [], [], {}
         for s, section in enumerate(self._sections):
             taken, rest = self._queues[s][: section.count], self._queues[s][section.count :]
             predictor = rest[0].state_before if rest else self.predictors[s].state()
@@ -361,6 +387,7 @@ class PacketEncoder:
                 sum(1 for x in taken if x.q[c]) for c in range(len(self.specs[s].channels))
             ]
             serials.append([x.serial for x in taken])
+            rows.append(_rows(section, taken))
             self._queues[s] = rest
         chain = Chain(next_id(self._base.id), positions)
         packet = PriorityPacket(
@@ -381,6 +408,7 @@ class PacketEncoder:
             serials,
             len(bits),
             surprises,
+            rows,
         )
         carried = [sec.count > 0 or sec.lost is not None for sec in self._sections]
         self.in_flight = (chain, carried)

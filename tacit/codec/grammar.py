@@ -121,6 +121,17 @@ def started(low: int, now: int) -> int:
     return now - ((now - low) % (1 << TICK_BITS))
 
 
+def presence_before(coder: Coder) -> list[bool]:
+    """Which channels the last sample coded with ``coder`` had (all, when it had every one)."""
+    return [True] * len(coder.q) if coder.previous_all else [bool(p) for p in coder.previous_present]
+
+
+def continues(before: list[bool], present: list[bool], same_tick: bool) -> bool:
+    """A sample is a part of the one before it (a sample too large for a packet, sent as parts with
+    some of its channels each): same tick and grid, none of the channels the one before had."""
+    return same_tick and not any(b and p for b, p in zip(before, present, strict=True))
+
+
 def write_sample(coder: Coder, enc: Encoder, q: list[int | None]) -> None:
     present = [v is not None for v in q]
     everything = all(present)

@@ -75,8 +75,11 @@ class Run:
             return
         span = self.dec.decode(encoded.packet.payload, now)
         self.spans.append(span)
-        assert len(span.ticks) == len(encoded.serials[0])
-        for serial, at, row in zip(encoded.serials[0], span.times, span.values, strict=True):
+        assert len(span.ticks) == len(set(encoded.rows[0]))
+        for serial, r in zip(encoded.serials[0], encoded.rows[0], strict=True):
+            at, row = span.times[r], span.values[r]
+            if encoded.rows[0].count(r) > 1:  # samples of one tick with other channels each: one row
+                row = np.where(np.isfinite(self.truth[serial][1]), row, np.nan)
             if serial in self.shore:  # a sample too large for one packet arrives as parts (channels)
                 assert self.shore[serial][0] == at
                 row = np.where(np.isnan(row), self.shore[serial][1], row)
@@ -705,3 +708,25 @@ def test_an_unknown_payload_version_is_refused() -> None:
         StreamEncoder(spec(1, 0.1), version=5)
     with pytest.raises(ValueError, match="payload version 2"):
         StreamDecoder(spec(1, 0.1), version=2)
+
+
+def test_a_sample_sent_in_parts_decodes_as_one_row() -> None:
+    """Nine channels far off on the first sample go as parts: parts in one packet are one row, and a
+    packet whose first row completes the last row of the packet before says so (``continues``), so the
+    shore stores one row per sample time."""
+    s = spec(9, 1.0)
+    run = Run(s).feed(grid(3), np.array([[500.0 * (c + 1) for c in range(9)], [10.0] * 9, [20.0] * 9]))
+    assert run.enc.split >= 2
+    rows: dict[tuple[int, int], np.ndarray] = {}
+    for span in run.spans:
+        for i, (tick, phase, row) in enumerate(zip(span.ticks, span.phases, span.values, strict=True)):
+            key = (int(tick), int(phase))
+            if i == 0 and span.continues:
+                assert key in rows and not (~np.isnan(rows[key]) & ~np.isnan(row)).any()
+                row = np.where(np.isnan(row), rows[key], row)
+            else:
+                assert key not in rows
+            rows[key] = row
+    assert len(rows) == 3 and all(not np.isnan(r).any() for r in rows.values())
+    assert any(span.continues for span in run.spans)
+    run.check()
