@@ -14,7 +14,8 @@ adds. It fails (exit status 1) if it did not measure what it claims: a sample of
 held on the shore, a latency over its bound, or link bits that are not whole packets.
 
 ``--peers``: the goals' table on the public series (``bench/data``) and the ArduSub logs. Per series: the
-codec's own bits (the arithmetic code alone, no latency bound, no framing) beside SZ3 (``pysz``, the
+codec's own bits (the arithmetic code alone, no latency bound, no framing; payload version 3, and
+version 4 with a time tolerance of 0.75 period) beside SZ3 (``pysz``, the
 error-bounded compressor of the scientific-data community; a benchmark dependency) at the same absolute
 bound, each channel compressed separately with the sample times given free, over the whole series and
 one latency window at a time, its decompressed error verified; and on the link at the agent's defaults
@@ -25,6 +26,7 @@ a decompressed value is off by more than eps or a run did not measure what it cl
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -162,6 +164,7 @@ PEER_CASES = [
     ("small.tlog", ["SCALED_PRESSURE2.temperature"], None, "5.0", 1.0, "ArduSub water temperature"),
 ]  # fmt: skip
 AGENT_LATENCY, AGENT_SILENCE = 10.0, 60.0  # vehicle_agent's defaults
+TOLERANCE = 0.75  # the "v4 tol" column: payload version 4 with a time tolerance of 0.75 period
 
 
 def sz3_bits(series: Series, eps: tuple[float, ...], window: float | None = None) -> tuple[int, float]:
@@ -206,7 +209,7 @@ def peer_series(data: Path, name: str, columns: list[str] | None, time_column: s
 def peers_table(data: Path, method: str) -> bool:
     """The goals' table; False if something was not measured as claimed."""
     head = (
-        f"{'series':<34} {'samples':>7} {'codec own':>9} {'SZ3 whole':>9} {'SZ3 window':>10} "
+        f"{'series':<34} {'samples':>7} {'codec own':>9} {'v4 tol':>6} {'SZ3 whole':>9} {'SZ3 window':>10} "
         f"{'own/SZ3':>7} {'codec pkt':>9} {'no-silence pkt':>14} {'SoD pkt':>7} {'codec b/s':>9} {'SoD b/s':>7}"
     )
     print(
@@ -222,7 +225,10 @@ def peers_table(data: Path, method: str) -> bool:
         relative = eps.startswith("sd:")
         spec = make_spec(series, eps.removeprefix("sd:"), relative, method, None)
         latency, silence = AGENT_LATENCY * unit, AGENT_SILENCE * unit
-        own, _ = run_codec(series, spec, float("inf"), max_silence=None)
+        unbound = float(series.times[-1] - series.times[0]) + 1.0  # no latency bound: packets leave full
+        own, _ = run_codec(series, spec, unbound, max_silence=None, version=3)
+        tolerant = dataclasses.replace(spec, time_tolerance=TOLERANCE * spec.period)
+        own_v4, _ = run_codec(series, tolerant, unbound, max_silence=None, version=4)
         link, _ = run_codec(series, spec, latency, max_silence=silence)
         quiet, _ = run_codec(series, spec, latency, max_silence=None)
         sod = send_on_delta(series, spec, latency)
@@ -232,7 +238,8 @@ def peers_table(data: Path, method: str) -> bool:
         faults += [f"{label}: SZ3 off by {e:.3f} eps" for e in (whole_err, window_err) if e > 1 + 1e-9]
         n = own.samples
         print(
-            f"{label:<34} {n:>7} {own.code_bits_per_sample:>9.3f} {whole / n:>9.3f} {windowed / n:>10.3f} "
+            f"{label:<34} {n:>7} {own.code_bits_per_sample:>9.3f} {own_v4.code_bits_per_sample:>6.3f} "
+            f"{whole / n:>9.3f} {windowed / n:>10.3f} "
             f"{own.code_bits_per_sample / (whole / n):>7.2f} {link.packets:>9} {quiet.packets:>14} {sod.packets:>7} "
             f"{link.bits_per_sample:>9.3f} {sod.bits_per_sample:>7.3f}"
         )
