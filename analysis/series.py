@@ -99,7 +99,7 @@ def parse_times(cells: list[str], column: str, unit: str | None = None) -> tuple
     out = np.empty(len(cells))
     naive = False
     for i, cell in enumerate(cells):
-        text = cell.strip()
+        text = YEAR_FIRST.sub(r"\1-\2-\3", cell.strip())  # 2020/09/08 as 2020-09-08
         if text.endswith("Z"):
             text = text[:-1] + "+00:00"
         try:
@@ -118,6 +118,7 @@ def parse_times(cells: list[str], column: str, unit: str | None = None) -> tuple
     return out, notes
 
 
+YEAR_FIRST = re.compile(r"^(\d{4})/(\d{2})/(\d{2})")
 SLASHED = re.compile(r"(\d{1,2})/(\d{1,2})/(\d{4})[ T](\d{1,2}):(\d{2})(?::(\d{2}(?:\.\d*)?))?$")
 
 
@@ -161,6 +162,25 @@ def _clock(name: str) -> bool:
     return name.lower() in TIME_NAMES or any(
         w in ("time", "date", "datetime", "timestamp", "stamp") for w in words
     )
+
+
+TIME_OF_DAY = re.compile(r"\d{1,2}:\d{2}(:\d{2}(\.\d*)?)?$")
+
+
+DATE_ONLY = re.compile(r"(\d{4}[-/]\d{2}[-/]\d{2}|\d{1,2}/\d{1,2}/\d{4})$")
+
+
+def _date_and_time(header: list[str], rows: list[list[str]], time_column: str) -> tuple[str, str] | None:
+    """(the date column, the time-of-day column) when a file splits its time in two and
+    ``time_column`` is one of them (judged by the first row's cells)."""
+    first = {h: rows[0][j].strip() for j, h in enumerate(header)}
+    dates = [h for h in header if DATE_ONLY.match(first[h])]
+    clocks = [h for h in header if TIME_OF_DAY.match(first[h])]
+    if time_column in dates and clocks:
+        return time_column, clocks[0]
+    if time_column in clocks and dates:
+        return dates[0], time_column
+    return None
 
 
 def load_csv(
@@ -231,7 +251,13 @@ def load_csv(
         raise ValueError(f"{path.name}: no numeric column")
     values = np.array(columns_out, dtype=float).T
     if time_column:
-        times, time_notes = parse_times([r[header.index(time_column)] for r in rows], time_column, time_unit)
+        cells = [r[header.index(time_column)] for r in rows]
+        partner = _date_and_time(header, rows, time_column)
+        if partner is not None:  # a date column and a time-of-day column (a ship's logger's)
+            date, clock = partner
+            cells = [f"{r[header.index(date)].strip()} {r[header.index(clock)].strip()}" for r in rows]
+            notes.append(f"times: the date in column {date!r}, the time of day in column {clock!r}")
+        times, time_notes = parse_times(cells, time_column, time_unit)
         notes.extend(time_notes)
     else:
         times = np.arange(len(rows)) * (period or 1.0)

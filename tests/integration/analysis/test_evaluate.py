@@ -173,3 +173,20 @@ def test_a_glider_log_as_it_writes_it(tmp_path: Path) -> None:
     assert report["samples_absent"] == 5 and report["samples_not_represented"] == 0
     assert report["time_precision_s"] == 7.5 and report["max_time_error_s"] <= 7.5
     assert report["max_error_ratio"] <= 1.0
+
+
+def test_a_ship_logger_splits_date_and_time_of_day(tmp_path: Path) -> None:
+    """A thermosalinograph's file: the date in one column (year first, with slashes), the time of day in
+    another, a reading every 5 s."""
+    lines = ["Date,Time,TSG_temp,TSG_sal"]
+    for i in range(120):
+        minute, second = divmod(i * 5, 60)
+        lines.append(f"2019/07/21,12:{minute:02d}:{second:02d},{14 + 0.003 * i:.3f},{32 + 0.001 * i:.3f}")
+    path = tmp_path / "tsg.csv"
+    path.write_text("\n".join(lines) + "\n")
+    result = evaluate(str(path), "--eps", "0.01", "--json")
+    assert result.returncode == 0, result.stderr
+    assert "the date in column 'Date', the time of day in column 'Time'" in result.stderr
+    report = json.loads(result.stdout)
+    assert report["channels"] == ["TSG_temp", "TSG_sal"] and report["period_s"] == 5.0
+    assert report["max_time_error_s"] <= 2.5 and report["max_error_ratio"] <= 1.0
