@@ -38,6 +38,7 @@ from tqdm import tqdm
 from analysis.evaluate import PACKET_BITS, Result, evaluate, make_spec, run_codec, send_on_delta
 from analysis.series import Series, load
 from tacit.codec import StreamDecoder, StreamEncoder
+from tacit.codec.versions import NEWEST, VERSIONS
 
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "ardusub"
 IMU = "xacc,yacc,zacc,xgyro,ygyro,zgyro,xmag,ymag,zmag"
@@ -115,7 +116,7 @@ def measured(results: dict[str, Result], latency: float) -> list[str]:
     return wrong
 
 
-def sweep_table(data: Path, method: str) -> bool:
+def sweep_table(data: Path, method: str, version: int) -> bool:
     """The latency sweep; False if a measurement did not hold what it claims."""
     print("\ncodec vs send-on-delta framed on the same link, same eps, latency and guarantee:")
     head = (
@@ -131,8 +132,10 @@ def sweep_table(data: Path, method: str) -> bool:
         spec = make_spec(series, eps, relative, method, None)
         for seconds, name in SWEEP_LATENCIES:
             latency = seconds * unit
-            codec, _ = run_codec(series, spec, latency, max_silence=None)
-            confirmed, _ = run_codec(series, spec, latency, max_silence=max(60.0 * unit, latency))
+            codec, _ = run_codec(series, spec, latency, max_silence=None, version=version)
+            confirmed, _ = run_codec(
+                series, spec, latency, max_silence=max(60.0 * unit, latency), version=version
+            )
             sod = send_on_delta(series, spec, latency)
             runs = {"codec": codec, "codec confirming": confirmed, "send-on-delta": sod}
             faults += [f"{label} at {name}: {w}" for w in measured(runs, latency)]
@@ -257,22 +260,22 @@ def degraded(series: Series, seed: int = 2) -> Series:
     return Series(series.names, times[keep][order], series.values[keep][order])
 
 
-def decode_rate(series: Series, spec, max_latency: float) -> float:
+def decode_rate(series: Series, spec, max_latency: float, version: int) -> float:
     """Packets per second the pure-Python shore decoder handles."""
-    encoder, payloads = StreamEncoder(spec, max_latency), []
+    encoder, payloads = StreamEncoder(spec, max_latency, version=version), []
     for t, x in zip(series.times, series.values, strict=True):
         encoder.push(t, x)
         while encoder.ready(t):
             payloads.append((encoder.take().packet.payload, t))
             encoder.resolve(True)
-    decoder = StreamDecoder(spec)
+    decoder = StreamDecoder(spec, version)
     start = time.perf_counter()
     for payload, at in payloads:
         decoder.decode(payload, at)
     return len(payloads) / max(1e-9, time.perf_counter() - start)
 
 
-def robustness_table(data: Path) -> None:
+def robustness_table(data: Path, version: int) -> None:
     print("\nclean vs 5 % removed and +-30 % jitter (RAW_IMU 0.5 sd, latency 10 s), and public data:")
     head = (
         f"{'case':<46} {'bits/sample':>11} {'code only':>9} {'send-on-delta':>13} {'ideal':>6} {'x ideal':>7} "
@@ -295,14 +298,14 @@ def robustness_table(data: Path) -> None:
         if "jitter" in label and clean_spec is not None:
             spec = clean_spec  # the same stream definition as the clean run
         clean_spec = spec
-        result, _ = run_codec(series, spec, latency, max_silence=max(60.0, latency))
+        result, _ = run_codec(series, spec, latency, max_silence=max(60.0, latency), version=version)
         sod = send_on_delta(series, spec, latency).bits_per_sample
         ideal = result.ideal_bits_per_sample
         print(
             f"{label:<46} {result.bits_per_sample:>11.3f} {result.code_bits_per_sample:>9.3f} {sod:>13.3f} {ideal:>6.3f} "
             f"{result.bits_per_sample / max(ideal, 1e-9):>7.2f} {result.max_error_ratio:>11.3f} "
             f"{result.samples_absent:>6} {result.samples_not_represented:>8} {result.time_precision_s:>11.3f} "
-            f"{decode_rate(series, spec, latency):>13.0f}"
+            f"{decode_rate(series, spec, latency, version):>13.0f}"
         )
 
 
@@ -313,6 +316,13 @@ def main() -> None:
     parser.add_argument("--data", type=Path, default=DATA, help="folder of the logs")
     parser.add_argument("--method", default="kalman", help="predictor (kalman, kalman-cv, mean, hold)")
     parser.add_argument("--json", action="store_true", help="one JSON object per case")
+    parser.add_argument(
+        "--payload-version",
+        type=int,
+        choices=VERSIONS,
+        default=NEWEST,
+        help=f"the payload version the codec codes (default {NEWEST}, a new agent's; 3: today's vehicles)",
+    )
     parser.add_argument("--only-robustness", action="store_true", help="only the clean/degraded/public table")
     parser.add_argument("--sweep", action="store_true", help="only the latency sweep against send-on-delta")
     parser.add_argument(
@@ -322,9 +332,9 @@ def main() -> None:
     if options.peers:
         sys.exit(0 if peers_table(options.data, options.method) else 1)
     if options.sweep:
-        sys.exit(0 if sweep_table(options.data, options.method) else 1)
+        sys.exit(0 if sweep_table(options.data, options.method, options.payload_version) else 1)
     if options.only_robustness:
-        robustness_table(options.data)
+        robustness_table(options.data, options.payload_version)
         return
     rows = []
     for name, columns, eps, relative, label in tqdm(CASES, desc="logs", unit="case"):
@@ -340,6 +350,7 @@ def main() -> None:
             max_latency=10.0,
             max_silence=60.0,
             method=options.method,
+            payload_version=options.payload_version,
             loss=0.0,
             seed=1,
             urgent_threshold=None,
@@ -360,7 +371,7 @@ def main() -> None:
             f"{name:<32} {label:<22} {r['samples']:>8} {r['packets']:>8} {r['bits_per_sample']:>12.3f} "
             f"{sod:>14.3f} {r['max_error_ratio']:>12.3f} {r['max_latency_s']:>10.1f} {r['max_confirmation_s']:>10.1f} {r['us_per_tick']:>8.0f}"
         )
-    robustness_table(options.data)
+    robustness_table(options.data, options.payload_version)
 
 
 if __name__ == "__main__":

@@ -69,7 +69,7 @@ class PacketDecoder:
         """``version``: the payload version the vehicle speaks (``tacit.codec.versions``)."""
         self.specs = list(specs)
         self.coding = coding(version)
-        self.predictors = [Dual(s) for s in self.specs]
+        self.predictors = [Dual(s, self.coding) for s in self.specs]
         self._initial = Chain.initial(self.specs, self.predictors)
         self.snapshots: dict[int, Chain] = {}
 

@@ -172,7 +172,7 @@ class PacketEncoder:
         self.specs = list(specs)
         self.coding = coding(version)
         self.policy = SendPolicy(max_latency, max_silence, urgent_threshold)
-        self.predictors = [Dual(s) for s in self.specs]
+        self.predictors = [Dual(s, self.coding) for s in self.specs]
         self.initial = Chain.initial(self.specs, self.predictors)
         self.delivered = self.initial
         self._queues: list[list[_Sample]] = [[] for _ in self.specs]

@@ -16,6 +16,10 @@ predictor, a second one in a row is (a real jump). A channel's first value is co
 ``FIRST_FINE`` of the usual (``Dual.fine``), so what later values are predicted from is within eps / 16 of
 the truth, not up to eps.
 
+Payload version 4 (``tacit.codec.versions``) adds a third prediction per channel, the line through its last
+two values fed (``2 x1 - x2``), used while it has lately missed less often and by less (squared error in
+steps, capped at ``TREND_FAR``) than the prediction it would replace, both by a margin ``TREND_USE``.
+
 Both ends must compute every prediction to the bit, on a vehicle's ARM and a shore's x86 alike: the
 arithmetic here is element-wise operations and sums in a fixed order (``tacit.predict.ordered``), with a
 small solver of its own (``_solve``), never a BLAS product or a LAPACK solve, whose kernels differ by CPU
@@ -28,6 +32,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from tacit.codec.versions import Coding
 from tacit.predict import ordered
 
 if TYPE_CHECKING:
@@ -43,6 +48,8 @@ CROSS_MIN_R2 = 0.1  # a channel whose fit explains less of its residual power is
 HOLD_FORGET = 1 - 1 / 32  # the predictor choice's memory: about 32 samples
 HOLD_USE = 0.5  # a channel holds while hold would lately have missed less than half as often as its own
 HOLD_MISS = 0.99  # a step (2 eps), less a margin for rounding: a prediction this far off certainly missed
+TREND_USE = 0.8  # version 4: a channel extends its last line while that has lately done 20 % better
+TREND_FAR = 64.0  # ... its squared errors (in steps) counted up to this
 HOLD_SLACK = 0.75  # ... or missed at most as often while both have missed about once or never (a tie)
 FIRST_FINE = 1 / 16  # a channel's first value is coded on steps this much finer (within eps / 16)
 
@@ -82,8 +89,12 @@ class Dual:
     reconstructions only, so both ends hold the same coefficients. A value sent raw (a glitch) is not
     given to the predictor unless the channel's previous value was raw too (a real jump is learnt)."""
 
-    def __init__(self, spec: StreamSpec) -> None:
+    def __init__(self, spec: StreamSpec, coding: Coding | None = None) -> None:
         n = len(spec.channels)
+        self.trend = coding is not None and coding.trend
+        self.lines = np.full((2, n), np.nan)  # version 4: per channel its last two values, newest first
+        self.trend_misses = np.zeros(n)  # ... forgotten count of the line's misses
+        self.trend_errors = np.zeros((3, n))  # ... forgotten squared errors in steps: own, hold, line
         self.base, self.step, self.cross = spec.predictor(), spec.step, spec.cross and n > 1
         self.sums, self.count = np.zeros((2 * n, 2 * n)), 0
         self._set_beta(np.zeros((n, 2 * n)))  # per channel: on this sample's channels, then the previous
@@ -108,7 +119,13 @@ class Dual:
         """Per channel: the held value where hold has lately missed far less often (the Kalman filter,
         fed reconstructions, lags a drift; hold follows it a step at a time)."""
         hold = (self.misses[1] < HOLD_USE * self.misses[0] + HOLD_SLACK) & ~np.isnan(self.held)
-        return np.where(hold, self.held, self.own)
+        chosen = np.where(hold, self.held, self.own)
+        if not self.trend:
+            return chosen
+        line = 2 * self.lines[0] - self.lines[1]
+        fewer = self.trend_misses < TREND_USE * np.where(hold, self.misses[1], self.misses[0])
+        closer = self.trend_errors[2] < TREND_USE * np.where(hold, self.trend_errors[1], self.trend_errors[0])
+        return np.where(fewer & closer & ~np.isnan(line), line, chosen)
 
     def fine(self) -> np.ndarray:
         """Per channel, the fraction of a step its next q counts: ``FIRST_FINE`` for a channel that has no
@@ -163,6 +180,15 @@ class Dual:
             kept = np.clip(self.held, fed - self.near, fed + self.near)
         missed &= ~np.isnan(self.held)  # a channel's first value: neither predicted it
         self.misses = self.misses * HOLD_FORGET + np.where(seen, missed, 0.0)
+        if self.trend:
+            guesses = np.array([self.own, self.held, 2 * self.lines[0] - self.lines[1]])
+            with np.errstate(over="ignore", invalid="ignore"):
+                off = np.minimum(((fed - guesses) / self.step) ** 2, TREND_FAR)
+            off = np.where(np.isnan(off), TREND_FAR, off)  # no guess: as far off as counted
+            self.trend_errors = self.trend_errors * HOLD_FORGET + np.where(seen, off, 0.0)
+            line_missed = off[2] > self.miss_by**2 / self.step**2
+            self.trend_misses = self.trend_misses * HOLD_FORGET + np.where(seen, line_missed, 0.0)
+            self.lines = np.where(seen, np.array([fed, self.lines[0]]), self.lines)
         self.held = np.where(seen, np.where(np.isnan(self.held), fed, kept), self.held)
 
     def _refit(self) -> None:
@@ -206,10 +232,13 @@ class Dual:
             self.errors.copy(),
             self.held.copy(),
             self.misses.copy(),
+            *((self.lines.copy(), self.trend_misses.copy(), self.trend_errors.copy()) if self.trend else ()),
         )
 
     def restore(self, state: Any) -> None:
-        base, sums, beta, count, raw_before, previous, errors, held, misses = state
+        base, sums, beta, count, raw_before, previous, errors, held, misses, *trend = state
+        if self.trend:
+            self.lines, self.trend_misses, self.trend_errors = (np.array(x, dtype=np.float64) for x in trend)
         self.held, self.misses = np.array(held, dtype=np.float64), np.array(misses, dtype=np.float64)
         self.previous, self.errors = np.array(previous, dtype=np.float64), np.array(errors, dtype=np.float64)
         self.base.restore(base)
