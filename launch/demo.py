@@ -68,6 +68,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", type=int, default=8000, help="API and dashboard port")
     parser.add_argument("--map-port", type=int, default=8080, help="3D map port")
     parser.add_argument(
+        "--metrics-port",
+        type=int,
+        help="/metrics (Prometheus) port on --host (default: a free one, printed with the URLs; 0: none)",
+    )
+    parser.add_argument(
         "--data-dir",
         help="where the demo keeps its files (default data/demo; with --gateways data/demo-gateways)",
     )
@@ -170,10 +175,14 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
     import httpx
     import uvicorn
 
-    from server.app import create_app
+    from server.app import shore_app
     from server.core.config import Settings
 
     free_port(args.host, args.port)
+    if args.metrics_port is None:
+        args.metrics_port = any_free_port(args.host)
+    elif args.metrics_port:
+        free_port(args.host, args.metrics_port, "--metrics-port (0: none)")
     data = Path(args.data_dir).resolve()
     private_dir(private_dir(data, narrow=True) / "missions")
     _log_to(data / "server.log")
@@ -210,7 +219,14 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
             **({"plume_threshold": 1e6} if plans[member.index] is split.TRAVEL else {}),  # no detours
         )
         stack.start_agent(member.index)
-    overrides = {"host": args.host, "port": args.port, "map_port": args.map_port, "poll_interval": 2.0}
+    overrides = {
+        "host": args.host,
+        "port": args.port,
+        "map_port": args.map_port,
+        "metrics_host": args.host,
+        "metrics_port": args.metrics_port,
+        "poll_interval": 2.0,
+    }
     if args.gateways:
         database = await asyncio.to_thread(split.database, args.postgres, data)
         values = {
@@ -221,7 +237,7 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
         split.write_center_config(stack, values)
         app = split.center_app(Settings(**values), args.nats)
     else:
-        app = create_app(Settings(**stack.server_settings(**overrides)))
+        app = shore_app(Settings(**stack.server_settings(**overrides)))
     server = uvicorn.Server(uvicorn.Config(app, host=args.host, port=args.port, log_config=None))
     serving = asyncio.create_task(server.serve())
     try:
@@ -238,10 +254,13 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
                 "api_url": api + "/api/v1",
                 "dashboard_url": api + "/",
                 "map_url": f"http://{args.host}:{app.state.map.port}",
+                "metrics_url": f"http://{args.host}:{args.metrics_port}/metrics"
+                if args.metrics_port
+                else None,
                 "token": secret["token"],
                 "read_token": secret["read_token"],
-                "sign_in_url": f"{api}/#token={quote(secret['token'])}",
-                "observer_url": f"{api}/#token={quote(secret['read_token'])}",
+                "sign_in_url": sign_in(api, secret["token"]),
+                "observer_url": sign_in(api, secret["read_token"]),
                 "time_scale": args.time_scale,
                 "modems": sim_info["modems"],
                 "vehicle": sim_info["vehicle"],
@@ -263,10 +282,15 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
         return 0
     finally:
         await shutdown(stack, server, serving)
+        _channel(stack.sim_report())
         if args.gateways:
-            _channel(stack.sim_report())
             for line in await asyncio.to_thread(split.audit, stack, database):
                 _say(line)
+
+
+def sign_in(api: str, token: str) -> str:
+    """The dashboard's link that signs in with ``token`` (the part after # never reaches the server)."""
+    return f"{api}/#token={quote(token)}"
 
 
 def _plans(args: argparse.Namespace) -> str:
@@ -280,11 +304,19 @@ def _plans(args: argparse.Namespace) -> str:
 
 
 def _channel(report: dict[str, Any]) -> None:
-    """The simulated channel's figures at exit; where collisions were, if any."""
-    channel = report.get("channel", {})
+    """The simulated channel's figures at exit, in frames at the modem each transmission was for (a
+    cycle-init, an ACK or a ping counts as one frame), and overheard by the others; where collisions
+    were, if any."""
+    c = report.get("channel", {})
+    if "addressed" not in c:  # the simulator said nothing (it did not start, or was killed)
+        return
+    lost, collided, deaf = c["addressed_lost"], c["addressed_collided"], c["addressed_deaf"]
     _say(
-        f"channel: {channel.get('transmissions', '?')} transmissions, "
-        f"{channel.get('collisions', '?')} collisions, {channel.get('lost', '?')} frames lost"
+        f"channel: {c['transmissions']} transmissions (cycle-inits, data, ACKs, pings). At the modem each was "
+        f"for, {c['addressed'] - lost} of {c['addressed']} frames arrived and {lost} were lost: {collided} in "
+        f"collisions, {deaf} while that modem was transmitting, {lost - collided - deaf} to range and noise "
+        f"(a cycle-init, an ACK or a ping counts as one frame). The other modems overheard "
+        f"{c['overheard'] - c['overheard_lost']} of {c['overheard']}."
     )
     for entry in report.get("collided", [])[-5:]:
         _say(f"  collided at {entry['to']}: {entry['kind']} from {entry['from']} (t={entry['time']:.1f} s)")
@@ -299,14 +331,24 @@ def _travels(member: Member, args: argparse.Namespace) -> bool:
     return args.gateways > 1 and member.index == args.vehicles - 1
 
 
-def free_port(host: str, port: int) -> None:
-    """Fail in one line, before anything starts, if the API's port is taken."""
+def free_port(host: str, port: int, option: str = "--port") -> None:
+    """Fail in one line, before anything starts, if the API's port (or ``option``'s) is taken."""
     from server.app import PortBusy, check_port
 
     try:
-        check_port(host, port)
+        check_port(host, port, option)
     except PortBusy as exc:
         raise DemoError(str(exc)) from None
+
+
+def any_free_port(host: str) -> int:
+    """A port nothing listens on now (the demo's /metrics unless one is asked for: demos and tests run
+    side by side)."""
+    import socket
+
+    with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as probe:
+        probe.bind((host, 0))
+        return int(probe.getsockname()[1])
 
 
 async def shutdown(stack: Stack, server: Any, serving: asyncio.Task) -> None:
@@ -355,6 +397,23 @@ def _described(member: Member, sim_info: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def _vehicle_lines(vehicle: dict[str, Any]) -> str:
+    """A vehicle of the banner: its modem, its home, the agent's MAVLink endpoint and a ground station's."""
+    agent = next(url for url in vehicle["mavlink"] if url.startswith("tcp:"))
+    station = next((url for url in vehicle["mavlink"] if url.startswith("udpout:")), None)
+    lines = (
+        f"  Vehicle {vehicle['name']}: modem address {vehicle['address']}, home {vehicle['home'][0]:g} m north "
+        f"{vehicle['home'][1]:g} m east, MAVLink {agent} (its agent's)\n"
+    )
+    if station is not None:
+        host_port = station.removeprefix("udpout:")
+        lines += (
+            f"    ground station: UDP {host_port} (mavproxy.py --master={station}; QGroundControl: a UDP "
+            f"link with server {host_port})\n"
+        )
+    return lines
+
+
 def _announce(info: dict[str, Any], args: argparse.Namespace) -> None:
     if args.json:
         print(json.dumps(info), flush=True)
@@ -370,13 +429,10 @@ def _announce(info: dict[str, Any], args: argparse.Namespace) -> None:
             f"  Dashboard for an observer (read only): {info['observer_url']}\n"
             f"  3D map:    {info['map_url']}  (its panel asks for a token: paste the operator token)\n"
             f"  API:       {info['api_url']}  (docs: {info['dashboard_url']}docs)\n"
-            f"  Operator token: {info['token']}\n  Observer token: {info['read_token']}\n"
+            + (f"  Metrics:   {info['metrics_url']}  (Prometheus)\n" if info.get("metrics_url") else "")
+            + f"  Operator token: {info['token']}\n  Observer token: {info['read_token']}\n"
             f"  (tokens also in {Path(info['data_dir']) / 'secrets.json'}; the part after # never reaches the server)\n"
-            + "".join(
-                f"  Vehicle {v['name']}: modem address {v['address']}, home {v['home'][0]:g} m north "
-                f"{v['home'][1]:g} m east, MAVLink {v['mavlink'][0]}\n"
-                for v in info["vehicles"]
-            )
+            + "".join(_vehicle_lines(v) for v in info["vehicles"])
             + f"{scale}{_plans(args)} Ctrl-C stops everything.\n",
             flush=True,
         )

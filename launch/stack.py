@@ -261,6 +261,7 @@ class Stack:
             "modem_log": str(self.dir / "shore-modem.log"), "write_tokens": list(c.write_tokens),
             "read_tokens": list(c.read_tokens), "time_scale": c.time_scale, "default_range": c.range_m,
             "origin": (SIM_ORIGIN.lat, SIM_ORIGIN.lon),
+            "metrics_port": 0,  # stacks run side by side: /metrics only where asked for (the demo)
         }  # fmt: skip
         values.update(overrides)
         return values

@@ -46,6 +46,7 @@ ACTIVE = {
 }
 HOME = Target(0.0, 0.0, 0.0)  # compared with, never handed out (a Target is mutable)
 FOLLOWING = (MissionState.PREPROGRAMMED, MissionState.AWAITING_COMMAND)  # on the pre-programmed trajectory
+LOST_ACTIONS = ("hold", "surface", "return")  # what a vehicle does when the shore falls silent
 PARAMS = {1: "plume_threshold", 2: "checkpoint_interval", 3: "cruise_speed", 4: "link_lost_timeout"}
 
 
@@ -139,8 +140,8 @@ class MissionFSM:
         lost_action: str = "hold",
         checkpoint_interval: float = 60.0,
     ) -> None:
-        if lost_action not in ("hold", "surface", "return"):
-            raise ValueError("lost_action is hold, surface or return")
+        if lost_action not in LOST_ACTIONS:
+            raise ValueError(f"lost_action is one of {', '.join(LOST_ACTIONS)}")
         self.plans = plans
         self.limits = limits
         self.status = status or MissionProgress()

@@ -77,7 +77,7 @@ class Settings(BaseSettings):
     nats_url: str = "nats://127.0.0.1:4222"  # the center's broker (docs/backhaul.md)
     nats_credentials: str = ""  # this role's credentials file (`tacit broker-config`); empty: no accounts
     nats_ca: str = ""  # the CA of the broker's certificate, for a tls:// URL
-    metrics_host: str = "127.0.0.1"  # the center's /metrics listener (Prometheus)
+    metrics_host: str = "127.0.0.1"  # a shore process's /metrics listener (Prometheus: server.ops)
     metrics_port: int = Field(9464, ge=0, le=65535)  # 0: none
     retention_days: float = Field(0.0, ge=0)  # relayed frames' records older are deleted; 0: kept for ever
     max_skew: float = Field(120.0, gt=0)  # s a check-point may be ahead of the shore's clock and raise the
