@@ -94,10 +94,10 @@ def run_codec(
     urgent_threshold: float | None = None,
     max_silence: float | None = 60.0,
     progress: bool = False,
-    version: int = NEWEST,
+    protocol: int = NEWEST,
 ) -> tuple[Result, Reconstruction]:
-    encoder = StreamEncoder(spec, max_latency, urgent_threshold, max_silence, version)
-    decoder = StreamDecoder(spec, version)
+    encoder = StreamEncoder(spec, max_latency, urgent_threshold, max_silence, protocol)
+    decoder = StreamDecoder(spec, protocol)
     rng = random.Random(seed)
     truth = series.values
     rows = len(truth)
@@ -432,14 +432,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--time-tolerance",
         type=float,
         help="seconds within which the shore may date a sample (default: half the period); a payload "
-        "version 4 vehicle then keeps a wandering clock's samples a tick apart",
+        "protocol 4 vehicle then keeps a wandering clock's samples a tick apart",
     )
     parser.add_argument(
-        "--payload-version",
+        "--protocol",
         type=int,
         choices=VERSIONS,
         default=NEWEST,
-        help=f"the payload version the vehicle speaks (default {NEWEST}, a new agent's)",
+        help=f"the protocol version the vehicle speaks (default {NEWEST}, a new agent's; 3: today's vehicles)",
     )
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--plot", metavar="PNG", help="write truth, reconstruction and sent points")
@@ -471,13 +471,13 @@ def evaluate(args: argparse.Namespace) -> tuple[dict[str, Any], Series, StreamSp
         args.urgent_threshold,
         args.max_silence,
         progress,
-        getattr(args, "payload_version", NEWEST),
+        getattr(args, "protocol", NEWEST),
     )
     baselines = {"send-all": send_all, "send-on-delta": send_on_delta}
     report: dict[str, object] = {
         **asdict(result),
         "method": args.method,
-        "payload_version": getattr(args, "payload_version", NEWEST),
+        "protocol": getattr(args, "protocol", NEWEST),
         "channels": list(spec.channels),
         "rows": len(series.times),
         "eps": list(spec.eps),  # per channel, in channel units (with --relative: --eps x the channel's std)

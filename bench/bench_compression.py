@@ -116,7 +116,7 @@ def measured(results: dict[str, Result], latency: float) -> list[str]:
     return wrong
 
 
-def sweep_table(data: Path, method: str, version: int) -> bool:
+def sweep_table(data: Path, method: str, protocol: int) -> bool:
     """The latency sweep; False if a measurement did not hold what it claims."""
     print("\ncodec vs send-on-delta framed on the same link, same eps, latency and guarantee:")
     head = (
@@ -132,9 +132,9 @@ def sweep_table(data: Path, method: str, version: int) -> bool:
         spec = make_spec(series, eps, relative, method, None)
         for seconds, name in SWEEP_LATENCIES:
             latency = seconds * unit
-            codec, _ = run_codec(series, spec, latency, max_silence=None, version=version)
+            codec, _ = run_codec(series, spec, latency, max_silence=None, protocol=protocol)
             confirmed, _ = run_codec(
-                series, spec, latency, max_silence=max(60.0 * unit, latency), version=version
+                series, spec, latency, max_silence=max(60.0 * unit, latency), protocol=protocol
             )
             sod = send_on_delta(series, spec, latency)
             runs = {"codec": codec, "codec confirming": confirmed, "send-on-delta": sod}
@@ -229,9 +229,9 @@ def peers_table(data: Path, method: str) -> bool:
         spec = make_spec(series, eps.removeprefix("sd:"), relative, method, None)
         latency, silence = AGENT_LATENCY * unit, AGENT_SILENCE * unit
         unbound = float(series.times[-1] - series.times[0]) + 1.0  # no latency bound: packets leave full
-        own, _ = run_codec(series, spec, unbound, max_silence=None, version=3)
+        own, _ = run_codec(series, spec, unbound, max_silence=None, protocol=3)
         tolerant = dataclasses.replace(spec, time_tolerance=TOLERANCE * spec.period)
-        own_v4, _ = run_codec(series, tolerant, unbound, max_silence=None, version=4)
+        own_v4, _ = run_codec(series, tolerant, unbound, max_silence=None, protocol=4)
         link, _ = run_codec(series, spec, latency, max_silence=silence)
         quiet, _ = run_codec(series, spec, latency, max_silence=None)
         sod = send_on_delta(series, spec, latency)
@@ -260,22 +260,22 @@ def degraded(series: Series, seed: int = 2) -> Series:
     return Series(series.names, times[keep][order], series.values[keep][order])
 
 
-def decode_rate(series: Series, spec, max_latency: float, version: int) -> float:
+def decode_rate(series: Series, spec, max_latency: float, protocol: int) -> float:
     """Packets per second the pure-Python shore decoder handles."""
-    encoder, payloads = StreamEncoder(spec, max_latency, version=version), []
+    encoder, payloads = StreamEncoder(spec, max_latency, protocol=protocol), []
     for t, x in zip(series.times, series.values, strict=True):
         encoder.push(t, x)
         while encoder.ready(t):
             payloads.append((encoder.take().packet.payload, t))
             encoder.resolve(True)
-    decoder = StreamDecoder(spec, version)
+    decoder = StreamDecoder(spec, protocol)
     start = time.perf_counter()
     for payload, at in payloads:
         decoder.decode(payload, at)
     return len(payloads) / max(1e-9, time.perf_counter() - start)
 
 
-def robustness_table(data: Path, version: int) -> None:
+def robustness_table(data: Path, protocol: int) -> None:
     print("\nclean vs 5 % removed and +-30 % jitter (RAW_IMU 0.5 sd, latency 10 s), and public data:")
     head = (
         f"{'case':<46} {'bits/sample':>11} {'code only':>9} {'send-on-delta':>13} {'ideal':>6} {'x ideal':>7} "
@@ -298,14 +298,14 @@ def robustness_table(data: Path, version: int) -> None:
         if "jitter" in label and clean_spec is not None:
             spec = clean_spec  # the same stream definition as the clean run
         clean_spec = spec
-        result, _ = run_codec(series, spec, latency, max_silence=max(60.0, latency), version=version)
+        result, _ = run_codec(series, spec, latency, max_silence=max(60.0, latency), protocol=protocol)
         sod = send_on_delta(series, spec, latency).bits_per_sample
         ideal = result.ideal_bits_per_sample
         print(
             f"{label:<46} {result.bits_per_sample:>11.3f} {result.code_bits_per_sample:>9.3f} {sod:>13.3f} {ideal:>6.3f} "
             f"{result.bits_per_sample / max(ideal, 1e-9):>7.2f} {result.max_error_ratio:>11.3f} "
             f"{result.samples_absent:>6} {result.samples_not_represented:>8} {result.time_precision_s:>11.3f} "
-            f"{decode_rate(series, spec, latency, version):>13.0f}"
+            f"{decode_rate(series, spec, latency, protocol):>13.0f}"
         )
 
 
@@ -317,11 +317,11 @@ def main() -> None:
     parser.add_argument("--method", default="kalman", help="predictor (kalman, kalman-cv, mean, hold)")
     parser.add_argument("--json", action="store_true", help="one JSON object per case")
     parser.add_argument(
-        "--payload-version",
+        "--protocol",
         type=int,
         choices=VERSIONS,
         default=NEWEST,
-        help=f"the payload version the codec codes (default {NEWEST}, a new agent's; 3: today's vehicles)",
+        help=f"the protocol version the vehicle speaks (default {NEWEST}, a new agent's; 3: today's vehicles)",
     )
     parser.add_argument("--only-robustness", action="store_true", help="only the clean/degraded/public table")
     parser.add_argument("--sweep", action="store_true", help="only the latency sweep against send-on-delta")
@@ -332,9 +332,9 @@ def main() -> None:
     if options.peers:
         sys.exit(0 if peers_table(options.data, options.method) else 1)
     if options.sweep:
-        sys.exit(0 if sweep_table(options.data, options.method, options.payload_version) else 1)
+        sys.exit(0 if sweep_table(options.data, options.method, options.protocol) else 1)
     if options.only_robustness:
-        robustness_table(options.data, options.payload_version)
+        robustness_table(options.data, options.protocol)
         return
     rows = []
     for name, columns, eps, relative, label in tqdm(CASES, desc="logs", unit="case"):
@@ -350,7 +350,7 @@ def main() -> None:
             max_latency=10.0,
             max_silence=60.0,
             method=options.method,
-            payload_version=options.payload_version,
+            protocol=options.protocol,
             loss=0.0,
             seed=1,
             urgent_threshold=None,
@@ -371,7 +371,7 @@ def main() -> None:
             f"{name:<32} {label:<22} {r['samples']:>8} {r['packets']:>8} {r['bits_per_sample']:>12.3f} "
             f"{sod:>14.3f} {r['max_error_ratio']:>12.3f} {r['max_latency_s']:>10.1f} {r['max_confirmation_s']:>10.1f} {r['us_per_tick']:>8.0f}"
         )
-    robustness_table(options.data, options.payload_version)
+    robustness_table(options.data, options.protocol)
 
 
 if __name__ == "__main__":

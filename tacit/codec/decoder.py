@@ -65,10 +65,11 @@ class DecodedSpan:
 class PacketDecoder:
     """The shore's side: payloads in, each stream's reconstructed samples out, in the vehicle's chain."""
 
-    def __init__(self, specs: list[StreamSpec], version: int = 3) -> None:
-        """``version``: the payload version the vehicle speaks (``tacit.codec.versions``)."""
+    def __init__(self, specs: list[StreamSpec], protocol: int = 3) -> None:
+        """``protocol``: the version the vehicle speaks, which says what its payloads code
+        (``tacit.codec.versions``)."""
         self.specs = list(specs)
-        self.coding = coding(version)
+        self.coding = coding(protocol)
         self.predictors = [Dual(s, self.coding) for s in self.specs]
         self._initial = Chain.initial(self.specs, self.predictors)
         self.snapshots: dict[int, Chain] = {}
@@ -130,9 +131,9 @@ class PacketDecoder:
         self.snapshots = restore(self.specs, data)
 
     @classmethod
-    def from_bytes(cls, specs: list[StreamSpec], data: bytes, version: int = 3) -> PacketDecoder:
-        """``PacketDecoder(specs, version)`` holding the state ``to_bytes`` saved (see ``load``)."""
-        decoder = PacketDecoder(specs, version)
+    def from_bytes(cls, specs: list[StreamSpec], data: bytes, protocol: int = 3) -> PacketDecoder:
+        """``PacketDecoder(specs, protocol)`` holding the state ``to_bytes`` saved (see ``load``)."""
+        decoder = PacketDecoder(specs, protocol)
         decoder.load(data)
         return decoder
 
@@ -226,8 +227,8 @@ def _reconstruct(predictor: Dual, prediction: np.ndarray, q: list[int | None]) -
 class StreamDecoder(PacketDecoder):
     """A single stream's decoder: ``decode`` returns its one span."""
 
-    def __init__(self, spec: StreamSpec, version: int = 3) -> None:
-        super().__init__([spec], version)
+    def __init__(self, spec: StreamSpec, protocol: int = 3) -> None:
+        super().__init__([spec], protocol)
         self.spec = spec
 
     def decode(self, payload: bytes, received_at: float) -> DecodedSpan:  # type: ignore[override]

@@ -162,15 +162,15 @@ class PacketEncoder:
         max_latency: float = 10.0,
         urgent_threshold: float | None = None,
         max_silence: float | None = 60.0,
-        version: int = 3,
+        protocol: int = 3,
     ) -> None:
         """When packets leave: ``SendPolicy(max_latency, max_silence, urgent_threshold)`` (``max_silence``
-        None: no packet leaves only to confirm predictable samples). ``version``: the payload version the
-        vehicle speaks (``tacit.codec.versions``)."""
+        None: no packet leaves only to confirm predictable samples). ``protocol``: the version the vehicle
+        speaks, which says what its payloads code (``tacit.codec.versions``)."""
         if not specs:
             raise ValueError("at least one stream")
         self.specs = list(specs)
-        self.coding = coding(version)
+        self.coding = coding(protocol)
         self.policy = SendPolicy(max_latency, max_silence, urgent_threshold)
         self.predictors = [Dual(s, self.coding) for s in self.specs]
         self.initial = Chain.initial(self.specs, self.predictors)
@@ -540,9 +540,9 @@ class StreamEncoder(PacketEncoder):
         max_latency: float = 10.0,
         urgent_threshold: float | None = None,
         max_silence: float | None = 60.0,
-        version: int = 3,
+        protocol: int = 3,
     ) -> None:
-        super().__init__([spec], max_latency, urgent_threshold, max_silence, version)
+        super().__init__([spec], max_latency, urgent_threshold, max_silence, protocol)
         self.spec = spec
 
     def push(self, time: float, values: np.ndarray | list[float], urgent: bool = False) -> bool:  # type: ignore[override]

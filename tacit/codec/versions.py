@@ -35,10 +35,10 @@ class Coding:
     trend: bool = False  # a channel may predict by extending the line through its last two values
 
 
-def coding(version: int) -> Coding:
-    """The coder of payload ``version``; ValueError for one this codec does not know."""
-    if version == 3:
+def coding(protocol: int) -> Coding:
+    """What a vehicle speaking ``protocol`` codes; ValueError for a version this codec does not know."""
+    if protocol == 3:
         return Coding(3)
-    if version == 4:
+    if protocol == 4:
         return Coding(4, tolerance=True, trend=True)
-    raise ValueError(f"payload version {version}: this codec codes versions {', '.join(map(str, VERSIONS))}")
+    raise ValueError(f"protocol {protocol}: this codec codes versions {', '.join(map(str, VERSIONS))}")

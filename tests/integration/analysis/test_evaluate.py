@@ -169,7 +169,7 @@ def test_a_glider_log_as_it_writes_it(tmp_path: Path) -> None:
     assert result.returncode == 0, result.stderr
     assert "dd/mm/yyyy HH:MM:SS, no zone given: read as UTC" in result.stderr
     report = json.loads(result.stdout)
-    assert report["channels"] == ["NavState", "Depth", "Pitch"] and report["payload_version"] == 4
+    assert report["channels"] == ["NavState", "Depth", "Pitch"] and report["protocol"] == 4
     assert report["samples_absent"] == 5 and report["samples_not_represented"] == 0
     assert report["time_precision_s"] == 7.5 and report["max_time_error_s"] <= 7.5
     assert report["max_error_ratio"] <= 1.0
