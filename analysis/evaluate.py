@@ -434,6 +434,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="seconds within which the shore may date a sample (default: half the period); a payload "
         "protocol 4 vehicle then keeps a wandering clock's samples a tick apart",
     )
+    add_protocol_option(parser)
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--plot", metavar="PNG", help="write truth, reconstruction and sent points")
+    parser.add_argument("--json", action="store_true", help="one JSON object")
+
+
+def add_protocol_option(parser: argparse.ArgumentParser) -> None:
+    """``--protocol``: the version the vehicle speaks, which says what the codec codes."""
     parser.add_argument(
         "--protocol",
         type=int,
@@ -441,9 +449,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=NEWEST,
         help=f"the protocol version the vehicle speaks (default {NEWEST}, a new agent's; 3: today's vehicles)",
     )
-    parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--plot", metavar="PNG", help="write truth, reconstruction and sent points")
-    parser.add_argument("--json", action="store_true", help="one JSON object")
 
 
 def evaluate(args: argparse.Namespace) -> tuple[dict[str, Any], Series, StreamSpec, Reconstruction]:

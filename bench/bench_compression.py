@@ -35,10 +35,17 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from analysis.evaluate import PACKET_BITS, Result, evaluate, make_spec, run_codec, send_on_delta
+from analysis.evaluate import (
+    PACKET_BITS,
+    Result,
+    add_protocol_option,
+    evaluate,
+    make_spec,
+    run_codec,
+    send_on_delta,
+)
 from analysis.series import Series, load
 from tacit.codec import StreamDecoder, StreamEncoder
-from tacit.codec.versions import NEWEST, VERSIONS
 
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "ardusub"
 IMU = "xacc,yacc,zacc,xgyro,ygyro,zgyro,xmag,ymag,zmag"
@@ -316,13 +323,7 @@ def main() -> None:
     parser.add_argument("--data", type=Path, default=DATA, help="folder of the logs")
     parser.add_argument("--method", default="kalman", help="predictor (kalman, kalman-cv, mean, hold)")
     parser.add_argument("--json", action="store_true", help="one JSON object per case")
-    parser.add_argument(
-        "--protocol",
-        type=int,
-        choices=VERSIONS,
-        default=NEWEST,
-        help=f"the protocol version the vehicle speaks (default {NEWEST}, a new agent's; 3: today's vehicles)",
-    )
+    add_protocol_option(parser)
     parser.add_argument("--only-robustness", action="store_true", help="only the clean/degraded/public table")
     parser.add_argument("--sweep", action="store_true", help="only the latency sweep against send-on-delta")
     parser.add_argument(
