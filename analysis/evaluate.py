@@ -23,6 +23,7 @@ bound, packets send-on-delta never sends; ``--max-silence none`` compares the tw
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import random
@@ -38,6 +39,7 @@ from tqdm import tqdm
 
 from analysis.series import Series, load
 from tacit.codec import StreamDecoder, StreamEncoder, StreamSpec
+from tacit.codec.versions import NEWEST, VERSIONS
 from tacit.packets import PACKET_SIZE, PAYLOAD_SIZE, Stream
 from tacit.predict import METHODS
 
@@ -92,8 +94,10 @@ def run_codec(
     urgent_threshold: float | None = None,
     max_silence: float | None = 60.0,
     progress: bool = False,
+    protocol: int = NEWEST,
 ) -> tuple[Result, Reconstruction]:
-    encoder, decoder = StreamEncoder(spec, max_latency, urgent_threshold, max_silence), StreamDecoder(spec)
+    encoder = StreamEncoder(spec, max_latency, urgent_threshold, max_silence, protocol)
+    decoder = StreamDecoder(spec, protocol)
     rng = random.Random(seed)
     truth = series.values
     rows = len(truth)
@@ -119,7 +123,8 @@ def run_codec(
         span = decoder.decode(encoded.packet.payload, now)
         latencies.extend(now - t for t in encoded.surprise_times)
         confirmations.extend(now - t for t in encoded.sample_times)
-        for serial, at, row in zip(encoded.serials[0], span.times, span.values, strict=True):
+        for serial, r in zip(encoded.serials[0], encoded.rows[0], strict=True):
+            at, row = span.times[r], span.values[r]
             held = shore[row_of[serial]]  # a sample too large for one packet arrives in parts (channels)
             shore[row_of[serial]] = np.where(np.isnan(row), held, row)
             shore_time[row_of[serial]] = at
@@ -423,9 +428,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--urgent-threshold", type=float, help="|q| at or above which a sample goes out at once"
     )
+    parser.add_argument(
+        "--time-tolerance",
+        type=float,
+        help="seconds within which the shore may date a sample (default: half the period); a payload "
+        "protocol 4 vehicle then keeps a wandering clock's samples a tick apart",
+    )
+    add_protocol_option(parser)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--plot", metavar="PNG", help="write truth, reconstruction and sent points")
     parser.add_argument("--json", action="store_true", help="one JSON object")
+
+
+def add_protocol_option(parser: argparse.ArgumentParser) -> None:
+    """``--protocol``: the version the vehicle speaks, which says what the codec codes."""
+    parser.add_argument(
+        "--protocol",
+        type=int,
+        choices=VERSIONS,
+        default=NEWEST,
+        help=f"the protocol version the vehicle speaks (default {NEWEST}, a new agent's; 3: today's vehicles)",
+    )
 
 
 def evaluate(args: argparse.Namespace) -> tuple[dict[str, Any], Series, StreamSpec, Reconstruction]:
@@ -443,6 +466,7 @@ def evaluate(args: argparse.Namespace) -> tuple[dict[str, Any], Series, StreamSp
         file=sys.stderr,
     )
     spec = make_spec(series, args.eps, args.relative, args.method, args.period)
+    spec = dataclasses.replace(spec, time_tolerance=getattr(args, "time_tolerance", None))
     result, rec = run_codec(
         series,
         spec,
@@ -452,11 +476,13 @@ def evaluate(args: argparse.Namespace) -> tuple[dict[str, Any], Series, StreamSp
         args.urgent_threshold,
         args.max_silence,
         progress,
+        getattr(args, "protocol", NEWEST),
     )
     baselines = {"send-all": send_all, "send-on-delta": send_on_delta}
     report: dict[str, object] = {
         **asdict(result),
         "method": args.method,
+        "protocol": getattr(args, "protocol", NEWEST),
         "channels": list(spec.channels),
         "rows": len(series.times),
         "eps": list(spec.eps),  # per channel, in channel units (with --relative: --eps x the channel's std)

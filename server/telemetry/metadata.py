@@ -83,7 +83,7 @@ def columns(spec: StreamSpec) -> dict[str, Attributes]:
             "calendar": "standard",
         },  # fmt: skip
         "tick": {
-            "long_name": "the codec's tick number (time dates a sample within half the stream's period)"
+            "long_name": "the codec's tick number (time dates a sample within the stream's time_precision)"
         },
         "in_tick": {
             "long_name": "the sample's place among the samples dated at its time",
@@ -117,6 +117,8 @@ def attributes(d: Dataset) -> Attributes:
         "stream": d.spec.name,
         "stream_period": d.spec.period,
         "stream_period_units": "s",
+        "time_precision": d.spec.time_precision,  # half a period, or the stream's time tolerance
+        "time_precision_units": "s",
         "history": f"{datetime.now(UTC).isoformat(timespec='seconds')} exported by Tacit",
     }
 
