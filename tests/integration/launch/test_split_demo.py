@@ -18,7 +18,7 @@ def test_a_missing_broker_and_database_are_named_in_one_line(tmp_path: Path) -> 
     closed = free_port()
     result = subprocess.run(
         [sys.executable, "-m", "tacit.cli", "demo", "--gateways", "2", "--vehicles", "3", "--headless",
-         "--data-dir", str(tmp_path), "--nats", f"nats://127.0.0.1:{closed}",
+         "--data-dir", str(tmp_path), "--nats", f"nats://127.0.0.1:{closed}", "--broker-dir", str(tmp_path / "broker"),
          "--postgres", f"postgresql+psycopg://postgres@127.0.0.1:{closed}/test"],
         capture_output=True, text=True, timeout=60,
     )  # fmt: skip
