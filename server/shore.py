@@ -58,7 +58,8 @@ class Shore:
         operators = Operators(settings, db)
         routing = Routing(db, settings, bus)
         screens = Screens(settings, db, link, routing)
-        safety = Separation(settings, screens, vehicles, commands, bus)
+        missions = Missions(db, commands)
+        safety = Separation(settings, screens, vehicles, commands, missions, bus)
         commands.guard = safety.check  # every command's path, against the other vehicles'
         teams = Teams(settings, db, commands, vehicles, safety, bus)
         watcher = Watcher(bus, settings.separation_check_interval / settings.time_scale)
@@ -73,7 +74,7 @@ class Shore:
             link,
             vehicles,
             commands,
-            Missions(db, commands),
+            missions,
             TelemetryReader(db, ingest.streams),
             screens,
             operators,

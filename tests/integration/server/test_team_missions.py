@@ -67,13 +67,21 @@ def report(
     command: int = 0,
     status: CommandStatus = CommandStatus.NONE,
     age: float = 0.0,
+    state: MissionState | None = None,
+    mission: int = 0,
+    waypoint: int = 0,
+    key: str | None = None,
+    address: int | None = None,
 ) -> None:
-    """A check-point from the vehicle (holding, or reporting on its command ``command``), heard ``age``
-    seconds ago."""
+    """A check-point from the vehicle (holding, or reporting on its command ``command``; else ``state``,
+    with its ``mission`` and the ``waypoint`` it goes to), heard ``age`` seconds ago; ``key`` and
+    ``address``: a vehicle the test registered itself."""
     packet = CheckpointPacket(
         seq=next(_stamps) % 256,
         time=next(_stamps),
-        state=MissionState.COMMANDED if command else MissionState.HOLDING,
+        state=state or (MissionState.COMMANDED if command else MissionState.HOLDING),
+        mission_id=mission,
+        waypoint=waypoint,
         last_command=command,
         command_status=status,
         north=north,
@@ -81,8 +89,9 @@ def report(
         depth=depth,
         heading=0.0,
     )
-    frame = auth.sign_checkpoint(packet, bytes.fromhex(KEYS[name]), 1, ADDRESS[name], [])
-    shore(client).ingest.handle(IncomingFrame(ADDRESS[name], 1, frame, at=time.time() - age))
+    src = address or ADDRESS[name]
+    frame = auth.sign_checkpoint(packet, bytes.fromhex(key or KEYS[name]), 1, src, [])
+    shore(client).ingest.handle(IncomingFrame(src, 1, frame, at=time.time() - age))
 
 
 def plume(client: TestClient, name: str, stream: Stream = Stream.ENVIRONMENTAL) -> None:
@@ -152,7 +161,15 @@ def test_a_team_mission_runs_its_lanes_leg_by_leg(client: TestClient) -> None:
     started = post(client, f"/teams/{created['id']}/start")
     assert started.status_code == 202, started.text
     rov1, rov2 = started.json()["members"]
-    assert rov1["state"] == rov2["state"] == "running"
+    assert rov1["state"] == rov2["state"] == "running" and rov1["stopping"] and rov2["stopping"]
+    stop = command(client, rov1["command_id"])
+    assert stop["command"] == "abort_mission"  # the team takes the vehicle over: it holds where it is
+    report(client, "rov1", -5.0, 2.5, depth=0.0, command=stop["seq"], status=CommandStatus.EXECUTED)
+    rov1 = wait_for(
+        lambda: (m := member(client, created["id"], "rov1"))["stopping"] is False and m,
+        timeout=10,
+        what="leg 1",
+    )
     first = command(client, rov1["command_id"])
     assert (first["command"], first["distance"], first["angle"], first["depth"], first["absolute_angle"]) == (
         "move",
@@ -193,7 +210,7 @@ def test_a_team_mission_runs_its_lanes_leg_by_leg(client: TestClient) -> None:
     wait_for(
         lambda: member(client, created["id"], "rov2")["state"] == "stopped", timeout=10, what="rov2 stopped"
     )
-    assert member(client, created["id"], "rov2")["reason"].startswith("leg 1 refused")
+    assert member(client, created["id"], "rov2")["reason"].startswith("its takeover refused")
     aborted = post(client, f"/teams/{created['id']}/abort").json()
     assert (
         aborted["status"] == "aborted"
@@ -264,11 +281,13 @@ def test_lost_link_actions_are_checked_when_a_team_starts(client: TestClient) ->
     assert team["members"][0]["home"] == [10.0, 40.0]
     refused = post(client, f"/teams/{team['id']}/start")
     assert refused.status_code == 422
-    assert refused.json()["detail"] == (
-        "if the link is lost, rov1 (return) and rov2 (surface) may come 0.0 m apart, closer than the 5 m "
-        "separation"
+    reason = (
+        "if the link is lost, rov1 (hold or return) and rov2 (hold or surface) may come 0.0 m apart, closer "
+        "than the 5 m separation"  # each holds until it has the team's action, then does that
     )
-    assert client.get(f"/api/v1/teams/{team['id']}", headers=OP).json()["status"] == "created"
+    assert refused.json()["detail"] == reason
+    shown = client.get(f"/api/v1/teams/{team['id']}", headers=OP).json()
+    assert (shown["status"], shown["detail"]) == ("refused", reason)
     assert client.get("/api/v1/vehicles/1/commands", headers=OP).json() == []  # nothing was queued
     holding = post(client, "/teams", team_body("rov1", "rov2")).json()  # both hold: their lanes stay apart
     assert post(client, f"/teams/{holding['id']}/start").status_code == 202
