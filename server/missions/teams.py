@@ -166,6 +166,12 @@ class Teams:
         chosen = [self._named(v.vehicle) for v in body.vehicles]
         if len({saved_id(v) for v in chosen}) < len(chosen):
             raise Refused("a vehicle is named twice", "vehicles")
+        if len(chosen) > 1 and body.spacing < self.settings.separation:
+            raise Refused(
+                f"lanes {body.spacing:g} m apart would bring neighbouring vehicles closer than the "
+                f"{self.settings.separation:g} m separation: space them at least that far",
+                "spacing",
+            )
         try:
             groups = plans.split(plans.lanes(body.area.corners(), body.spacing), len(chosen))
         except plans.PlanError as exc:

@@ -217,7 +217,7 @@ class Separation:
         )
         shared = (
             f" (both end at {_where(new.end)}: send them one at a time, or give each its own home)"
-            if new.start != new.end and math.dist(new.end, theirs.end) < self.settings.separation
+            if new.start != new.end and theirs.start != theirs.end and math.dist(new.end, theirs.end) < CLOSER
             else ""
         )
         return f"{name}'s {path} passes {closest:.1f} m from {other}, which {going}: {limit}{shared}"

@@ -7,7 +7,9 @@ at start, and a time-sensitive anomaly restructuring the team (confirmed by an o
 from __future__ import annotations
 
 import itertools
+import json
 import math
+import re
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -16,7 +18,8 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from launch.stack import wait_for
+from launch.demo import SQUARE
+from launch.stack import SPACING_M, wait_for
 from server.app import create_app
 from server.core.config import Settings
 from server.core.events import Event, SeparationWarning
@@ -133,6 +136,7 @@ def test_bad_team_missions_are_refused_with_the_reason(client: TestClient) -> No
         (team_body("rov1", area={**AREA, "north": 0.0}), "the area is empty"),
         (team_body("rov1", area={"polygon": [[0, 0], [10, 10], [10, 0], [0, 10]]}), "edges cross"),
         (team_body("rov1", "rov2", "rov3", spacing=10.0), "holds 2 lanes, fewer than the 3 vehicles"),
+        (team_body("rov1", "rov2", spacing=3.0), "lanes 3 m apart would bring neighbouring vehicles closer"),
         (team_body("rov1", depth=30.0), "the target depth 30.00 m is outside 0 .. 10.0 m"),
         (team_body("rov1", area={**AREA, "north": 600.0}), "leg 1 does not fit its limits: distance 600.0 m"),
     ]
@@ -348,3 +352,35 @@ def test_with_restructure_auto_the_proposal_is_applied_at_once(tmp_path: Path) -
         assert member(client, team, "rov1")["waypoints"][-1] == done[0]["work"][0]["target"]
     finally:
         clients.close()
+
+
+def manual_example() -> dict:
+    """The team mission docs/missions.md gives for the demo fleet, as written there."""
+    text = (Path(__file__).parents[3] / "docs" / "missions.md").read_text()
+    found = re.search(r"POST /api/v1/teams\n((?:    .*\n)+)", text)
+    assert found is not None, "docs/missions.md shows no POST /api/v1/teams"
+    return dict(json.loads(found.group(1)))
+
+
+@pytest.mark.parametrize("corner", [(0.0, 0.0), (20.0, 20.0)], ids=["home", "north-east"])
+def test_the_manuals_example_starts_on_the_demo_fleet(
+    client: TestClient, corner: tuple[float, float]
+) -> None:
+    """The demo's vehicles fly their squares (``launch.demo.SQUARE``) around homes ``SPACING_M`` apart:
+    wherever they are on them (each at the same corner of its own square; their plans hold the whole
+    square ahead), the manual's example is created and started."""
+    for k, name in enumerate(KEYS):
+        home = [0.0, SPACING_M * k]
+        vehicle_id = k + 1
+        assert (
+            client.put(f"/api/v1/vehicles/{vehicle_id}/home", json={"home": home}, headers=OP).status_code
+            == 200
+        )
+        assert post(client, f"/vehicles/{vehicle_id}/missions", SQUARE).status_code == 201
+        north, east = home[0] + corner[0], home[1] + corner[1]
+        report(client, name, north, east, state=MissionState.PREPROGRAMMED, mission=1, waypoint=2)
+    team = post(client, "/teams", manual_example())
+    assert team.status_code == 201, team.text
+    started = post(client, f"/teams/{team.json()['id']}/start")
+    assert started.status_code == 202, started.text
+    assert [m["state"] for m in started.json()["members"]] == ["running"] * 3
