@@ -22,6 +22,7 @@ from server.operators.service import Operators
 from server.routing.service import Routing
 from server.safety.service import Separation
 from server.screens.service import Screens
+from server.telemetry.metadata import About
 from server.telemetry.service import TelemetryReader
 from server.vehicles.service import Vehicles
 from tacit.streams import default_streams
@@ -75,7 +76,7 @@ class Shore:
             vehicles,
             commands,
             missions,
-            TelemetryReader(db, ingest.streams),
+            TelemetryReader(db, ingest.streams, About.of(settings)),
             screens,
             operators,
             Throttle(settings, operators.actor),

@@ -14,6 +14,7 @@ from server.telemetry.models import Frame, Packet, PacketTrust, Telemetry
 from tacit.packets import PACKET_SIZE
 
 EXPORT_ROWS = 5000  # rows per database fetch of an export
+FIX_MARGIN = 600.0  # s: check-points this far outside an export's window still place its first and last rows
 
 
 def add_frame(s: Session, row: dict[str, Any]) -> int:
@@ -328,3 +329,22 @@ def certain_ticks_by_stream(s: Session) -> dict[str, int]:
         .group_by(Telemetry.stream)
     )
     return {stream: int(n) for stream, n in s.exec(query).all()}
+
+
+def fixes(
+    s: Session, vehicle_id: int, since: float | None, until: float | None
+) -> Iterator[tuple[float, float, float, float]]:
+    """The vehicle's verified check-points heard within the window (UNIX s, ``FIX_MARGIN`` s wider either
+    side) as (vehicle time, north, east, depth), in the order heard, fetched ``EXPORT_ROWS`` at a time."""
+    query = select(Packet.body).where(
+        Packet.vehicle_id == vehicle_id, Packet.type == "checkpoint", Packet.auth == PacketTrust.VERIFIED
+    )
+    if since is not None:
+        query = query.where(col(Packet.at) >= since - FIX_MARGIN)
+    if until is not None:
+        query = query.where(col(Packet.at) <= until + FIX_MARGIN)
+    for body in s.exec(
+        query.order_by(col(Packet.at), col(Packet.id)).execution_options(yield_per=EXPORT_ROWS)
+    ):
+        if all(k in body for k in ("time", "north", "east", "depth")):
+            yield float(body["time"]), float(body["north"]), float(body["east"]), float(body["depth"])
