@@ -16,12 +16,12 @@ from server.core.errors import Refused
 from server.telemetry import clock
 from server.telemetry import repository as repo
 from server.telemetry.metadata import About, Dataset
-from server.telemetry.models import Packet, SampleTrust, Telemetry
+from server.telemetry.models import Packet, SampleRow, SampleTrust, Telemetry
 from server.vehicles import service as vehicles
 from tacit.codec import StreamSpec
 from tacit.packets import Stream
 
-Sample = tuple[Telemetry, SampleTrust]
+Sample = tuple[SampleRow, SampleTrust]
 Fix = tuple[float, float, float, float]  # a verified check-point: vehicle time, north, east, depth
 
 
