@@ -214,6 +214,7 @@ class Teams:
                 raise Conflict(f"team mission {team_id} is {team.status}", "team_id")
             members = copy.deepcopy(team.members)
             try:
+                self._check_free(members)
                 self._check_start(members)
                 for member in members:
                     vehicle = self.vehicles.get(member["vehicle_id"])
@@ -434,6 +435,26 @@ class Teams:
         if planned is None:
             raise Refused("the vehicle has not reported its position yet", "vehicles")
         return planned.start
+
+    def _check_free(self, members: list[dict[str, Any]]) -> None:
+        """Refuse (``Conflict``) a start while one of its vehicles runs another team's lanes."""
+        ids = {m["vehicle_id"] for m in members}
+        for other in self._running():
+            busy = [
+                m["name"]
+                for m in other.members
+                if m["vehicle_id"] in ids and m["state"] == MemberState.RUNNING
+            ]
+            if busy:
+                raise Conflict(
+                    f"{', '.join(busy)} {'runs' if len(busy) == 1 else 'run'} team mission {other.id} "
+                    f"({other.name}): abort it first",
+                    "team_id",
+                )
+
+    def _running(self) -> list[TeamMission]:
+        with reading(self.db) as s:
+            return repo.started_teams(s)
 
     def _check_start(self, members: list[dict[str, Any]]) -> None:
         """Refuse (``Refused``) a start whose plans would bring two vehicles closer than the separation:

@@ -295,6 +295,17 @@ def test_lost_link_actions_are_checked_when_a_team_starts(client: TestClient) ->
     assert client.get("/api/v1/vehicles/1/commands", headers=OP).json() == []  # nothing was queued
     holding = post(client, "/teams", team_body("rov1", "rov2")).json()  # both hold: their lanes stay apart
     assert post(client, f"/teams/{holding['id']}/start").status_code == 202
+    again = post(client, "/teams", team_body("rov1", "rov2")).json()
+    busy = post(client, f"/teams/{again['id']}/start")
+    assert busy.status_code == 409 and busy.json()["detail"] == (
+        f"rov1, rov2 run team mission {holding['id']} (survey): abort it first"
+    )
+    assert client.get(f"/api/v1/teams/{again['id']}", headers=OP).json()["status"] == "refused"
+    running = client.delete(f"/api/v1/teams/{holding['id']}", headers=OP)
+    assert running.status_code == 409 and "abort it first" in running.json()["detail"]
+    for refused_team in (team, again):  # a refused team is deleted, not left for ever
+        assert client.delete(f"/api/v1/teams/{refused_team['id']}", headers=OP).status_code == 204
+        assert client.get(f"/api/v1/teams/{refused_team['id']}", headers=OP).status_code == 404
 
 
 def started_team(client: TestClient) -> int:
