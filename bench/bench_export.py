@@ -4,7 +4,7 @@ fastest stream), exported as CSV, Parquet and NetCDF, each by a fresh process wh
 from its file (CSV lines, Parquet's row count, NetCDF's record count), so a peak is only reported for an
 export that held every sample: the check is that the month's peak is within ``--slack`` MB of the day's.
 
-    cd bench && ../.venv/bin/python bench_export.py [--days 30] [--baseline-days 1] [--dir DIR]
+    cd bench && ../.venv/bin/python bench_export.py [--days 30] [--baseline-days 1] [--formats nc ...]
 
 The database is a SQLite file built here (a few minutes for a month: 10.4 million rows, about 1.5 GB);
 the files go to ``--dir`` too and are deleted once counted.
@@ -114,6 +114,7 @@ def main() -> int:
     parser.add_argument("--baseline-days", type=float, default=1.0, help="the short window")
     parser.add_argument("--slack", type=float, default=64.0, help="MB the long window's peak may exceed")
     parser.add_argument("--dir", type=Path, default=None, help="where the database and files go")
+    parser.add_argument("--formats", nargs="+", choices=FORMATS, default=list(FORMATS), help="the exports")
     parser.add_argument("--child", nargs=4, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
@@ -129,7 +130,7 @@ def main() -> int:
             f"{total} samples ({args.days:g} days at 4 Hz, 9 channels); baseline {short} ({args.baseline_days:g} d)"
         )
         print(f"{'format':8} {'window':>7} {'rows':>10} {'file MB':>8} {'peak MB':>8} {'s':>7}")
-        for fmt in FORMATS:
+        for fmt in args.formats:
             results = {}
             for label, rows, until in (
                 ("day", short, T0 + short * IMU_PERIOD - IMU_PERIOD / 2),
