@@ -23,12 +23,15 @@ bound, packets send-on-delta never sends; ``--max-silence none`` compares the tw
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import random
+import re
 import sys
 import time
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -36,6 +39,7 @@ from tqdm import tqdm
 
 from analysis.series import Series, load
 from tacit.codec import StreamDecoder, StreamEncoder, StreamSpec
+from tacit.codec.versions import NEWEST, VERSIONS
 from tacit.packets import PACKET_SIZE, PAYLOAD_SIZE, Stream
 from tacit.predict import METHODS
 
@@ -90,8 +94,10 @@ def run_codec(
     urgent_threshold: float | None = None,
     max_silence: float | None = 60.0,
     progress: bool = False,
+    protocol: int = NEWEST,
 ) -> tuple[Result, Reconstruction]:
-    encoder, decoder = StreamEncoder(spec, max_latency, urgent_threshold, max_silence), StreamDecoder(spec)
+    encoder = StreamEncoder(spec, max_latency, urgent_threshold, max_silence, protocol)
+    decoder = StreamDecoder(spec, protocol)
     rng = random.Random(seed)
     truth = series.values
     rows = len(truth)
@@ -117,7 +123,8 @@ def run_codec(
         span = decoder.decode(encoded.packet.payload, now)
         latencies.extend(now - t for t in encoded.surprise_times)
         confirmations.extend(now - t for t in encoded.sample_times)
-        for serial, at, row in zip(encoded.serials[0], span.times, span.values, strict=True):
+        for serial, r in zip(encoded.serials[0], encoded.rows[0], strict=True):
+            at, row = span.times[r], span.values[r]
             held = shore[row_of[serial]]  # a sample too large for one packet arrives in parts (channels)
             shore[row_of[serial]] = np.where(np.isnan(row), held, row)
             shore_time[row_of[serial]] = at
@@ -300,7 +307,17 @@ def make_spec(
     return StreamSpec("eval", Stream.KINEMATIC, series.names, per_channel, period or series.period, method)
 
 
-def plot(path: str, series: Series, spec: StreamSpec, rec: Reconstruction) -> None:
+def plot(path: str, spec: StreamSpec, rec: Reconstruction, title: str) -> None:
+    import matplotlib.pyplot as plt
+
+    fig = figure(spec, rec, title)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def figure(spec: StreamSpec, rec: Reconstruction, title: str) -> Any:
+    """Per channel: what was measured, what the shore reconstructed with its error bound eps around it,
+    and the samples the vehicle sent (those the shared prediction missed by more than eps)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -309,26 +326,62 @@ def plot(path: str, series: Series, spec: StreamSpec, rec: Reconstruction) -> No
     n = len(spec.channels)
     cols = 3 if n > 4 else 1
     rows = math.ceil(n / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(5 * cols, 2.2 * rows), squeeze=False, sharex=True)
+    fig, axes = plt.subplots(rows, cols, figsize=(5 * cols, 2.4 * rows + 0.8), squeeze=False, sharex=True)
     t = rec.times - rec.times[0]
     for c, ax in enumerate(axes.flat):
         if c >= n:
             ax.axis("off")
             continue
-        ax.plot(t, rec.truth[:, c], color="0.6", lw=1, label="truth")
-        ax.plot(t, rec.shore[:, c], color="tab:blue", lw=1, label="shore reconstruction")
+        unit = channel_unit(spec.channels[c])
+        eps = spec.eps[c]
+        ax.plot(t, rec.truth[:, c], color="0.6", lw=1, label="measured on the vehicle")
+        ax.plot(t, rec.shore[:, c], color="tab:blue", lw=1, label="reconstructed on the shore")
         ax.fill_between(
-            t, rec.shore[:, c] - spec.eps[c], rec.shore[:, c] + spec.eps[c], color="tab:blue", alpha=0.15
+            t,
+            rec.shore[:, c] - eps,
+            rec.shore[:, c] + eps,
+            color="tab:blue",
+            alpha=0.15,
+            label="error bound: reconstruction +- eps",
         )
         ax.scatter(
-            t[rec.sent[:, c]], rec.truth[rec.sent[:, c], c], s=6, color="tab:red", label="sent (q != 0)"
+            t[rec.sent[:, c]],
+            rec.truth[rec.sent[:, c], c],
+            s=6,
+            color="tab:red",
+            label="sent (the prediction missed by more than eps)",
         )
-        ax.set_title(spec.channels[c], fontsize=9)
+        ax.set_title(f"{spec.channels[c]}, eps {eps:.3g}{f' {unit}' if unit else ''}", fontsize=9)
+        ax.set_ylabel(unit or "channel units", fontsize=8)
     axes.flat[0].legend(fontsize=7, loc="best")
-    fig.supxlabel("time (s)")
+    fig.suptitle(title, fontsize=10)
+    fig.supxlabel("time since the first sample (s)")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
+
+
+def channel_unit(channel: str) -> str | None:
+    """A channel's unit: a CSV header's "name (unit)", or a tlog's MESSAGE.field's in the MAVLink
+    definitions; None when neither says."""
+    if found := re.fullmatch(r".*\(([^()]+)\)\s*", channel):
+        return found.group(1)
+    kind, _, field = channel.partition(".")
+    if not field:
+        return None
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+    message = getattr(mavlink, f"MAVLink_{kind.lower()}_message", None)
+    units: dict[str, str] = getattr(message, "fieldunits_by_name", None) or {}
+    return units.get(field) or None
+
+
+def plot_title(file: str, report: dict[str, Any]) -> str:
+    """The plot's title: the file, the method, the error bound and what it cost."""
+    eps = "eps: --eps x each channel's std" if report["eps_relative"] else "eps in each channel's unit"
+    return (
+        f"{Path(file).name}: tacit ({report['method']}), {report['bits_per_sample']:.3f} bits per sample, "
+        f"largest error {report['max_error_ratio']:.3f} x eps ({eps})"
+    )
 
 
 def _silence(text: str) -> float | None:
@@ -375,9 +428,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--urgent-threshold", type=float, help="|q| at or above which a sample goes out at once"
     )
+    parser.add_argument(
+        "--time-tolerance",
+        type=float,
+        help="seconds within which the shore may date a sample (default: half the period); a payload "
+        "protocol 4 vehicle then keeps a wandering clock's samples a tick apart",
+    )
+    add_protocol_option(parser)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--plot", metavar="PNG", help="write truth, reconstruction and sent points")
     parser.add_argument("--json", action="store_true", help="one JSON object")
+
+
+def add_protocol_option(parser: argparse.ArgumentParser) -> None:
+    """``--protocol``: the version the vehicle speaks, which says what the codec codes."""
+    parser.add_argument(
+        "--protocol",
+        type=int,
+        choices=VERSIONS,
+        default=NEWEST,
+        help=f"the protocol version the vehicle speaks (default {NEWEST}, a new agent's; 3: today's vehicles)",
+    )
 
 
 def evaluate(args: argparse.Namespace) -> tuple[dict[str, Any], Series, StreamSpec, Reconstruction]:
@@ -395,6 +466,7 @@ def evaluate(args: argparse.Namespace) -> tuple[dict[str, Any], Series, StreamSp
         file=sys.stderr,
     )
     spec = make_spec(series, args.eps, args.relative, args.method, args.period)
+    spec = dataclasses.replace(spec, time_tolerance=getattr(args, "time_tolerance", None))
     result, rec = run_codec(
         series,
         spec,
@@ -404,11 +476,13 @@ def evaluate(args: argparse.Namespace) -> tuple[dict[str, Any], Series, StreamSp
         args.urgent_threshold,
         args.max_silence,
         progress,
+        getattr(args, "protocol", NEWEST),
     )
     baselines = {"send-all": send_all, "send-on-delta": send_on_delta}
     report: dict[str, object] = {
         **asdict(result),
         "method": args.method,
+        "protocol": getattr(args, "protocol", NEWEST),
         "channels": list(spec.channels),
         "rows": len(series.times),
         "eps": list(spec.eps),  # per channel, in channel units (with --relative: --eps x the channel's std)
@@ -476,6 +550,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"tacit eval-compression: {exc}", file=sys.stderr)
         return 2
     if args.plot:
-        plot(args.plot, series, spec, rec)
+        plot(args.plot, spec, rec, plot_title(args.file, report))
     print(json.dumps(report) if args.json else _table(report))
     return 0

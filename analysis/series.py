@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import gzip
+import itertools
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -91,12 +92,14 @@ def parse_times(cells: list[str], column: str, unit: str | None = None) -> tuple
             else:
                 notes.append(f"time column {column!r}: UNIX time in {unit} (from its magnitude)")
         return raw * dict(EPOCH_UNITS)[unit], notes
+    if cells and SLASHED.match(cells[0].strip()):
+        return _slashed_times(cells, column)
     from datetime import datetime
 
     out = np.empty(len(cells))
     naive = False
     for i, cell in enumerate(cells):
-        text = cell.strip()
+        text = YEAR_FIRST.sub(r"\1-\2-\3", cell.strip())  # 2020/09/08 as 2020-09-08
         if text.endswith("Z"):
             text = text[:-1] + "+00:00"
         try:
@@ -115,6 +118,40 @@ def parse_times(cells: list[str], column: str, unit: str | None = None) -> tuple
     return out, notes
 
 
+YEAR_FIRST = re.compile(r"^(\d{4})/(\d{2})/(\d{2})")
+SLASHED = re.compile(r"(\d{1,2})/(\d{1,2})/(\d{4})[ T](\d{1,2}):(\d{2})(?::(\d{2}(?:\.\d*)?))?$")
+
+
+def _slashed_times(cells: list[str], column: str) -> tuple[np.ndarray, list[str]]:
+    """Times written ``dd/mm/yyyy HH:MM[:SS.fff]`` (as a SeaExplorer glider logs them) or ``mm/dd/yyyy``:
+    the order is the one the values allow (a first field over 12 is a day; a second over 12, a day);
+    day first when both fit. No zone: read as UTC."""
+    from datetime import datetime
+
+    parts = []
+    for i, cell in enumerate(cells):
+        match = SLASHED.match(cell.strip())
+        if match is None:
+            raise ValueError(f"time column {column!r}, row {i + 2}: {cell!r} is not dd/mm/yyyy HH:MM:SS")
+        parts.append(match.groups())
+    month_first = any(int(p[1]) > 12 for p in parts) and not any(int(p[0]) > 12 for p in parts)
+    out = np.empty(len(parts))
+    try:
+        for i, (a, b, year, hour, minute, second) in enumerate(parts):
+            day, month = (b, a) if month_first else (a, b)
+            stamp = datetime(int(year), int(month), int(day), int(hour), int(minute), tzinfo=UTC)
+            out[i] = stamp.timestamp() + float(second or 0.0)
+    except ValueError as exc:
+        raise ValueError(f"time column {column!r}: {exc}") from None
+    order = "mm/dd/yyyy" if month_first else "dd/mm/yyyy"
+    ambiguous = not any(int(p[0]) > 12 or int(p[1]) > 12 for p in parts)
+    return out, [
+        f"time column {column!r}: {order} HH:MM:SS"
+        + (" (either order fits: read day first)" if ambiguous else "")
+        + ", no zone given: read as UTC"
+    ]
+
+
 TIME_NAMES = ("t_unix_s", "time", "timestamp", "datetime", "date_time", "date", "t", "timeus", "time_us")
 
 
@@ -125,6 +162,25 @@ def _clock(name: str) -> bool:
     return name.lower() in TIME_NAMES or any(
         w in ("time", "date", "datetime", "timestamp", "stamp") for w in words
     )
+
+
+TIME_OF_DAY = re.compile(r"\d{1,2}:\d{2}(:\d{2}(\.\d*)?)?$")
+
+
+DATE_ONLY = re.compile(r"(\d{4}[-/]\d{2}[-/]\d{2}|\d{1,2}/\d{1,2}/\d{4})$")
+
+
+def _date_and_time(header: list[str], rows: list[list[str]], time_column: str) -> tuple[str, str] | None:
+    """(the date column, the time-of-day column) when a file splits its time in two and
+    ``time_column`` is one of them (judged by the first row's cells)."""
+    first = {h: rows[0][j].strip() for j, h in enumerate(header)}
+    dates = [h for h in header if DATE_ONLY.match(first[h])]
+    clocks = [h for h in header if TIME_OF_DAY.match(first[h])]
+    if time_column in dates and clocks:
+        return time_column, clocks[0]
+    if time_column in clocks and dates:
+        return dates[0], time_column
+    return None
 
 
 def load_csv(
@@ -141,7 +197,10 @@ def load_csv(
     opener = gzip.open if path.suffix.lower() == ".gz" else open
     with opener(path, "rt", newline="", encoding="utf-8-sig") as handle:
         lines = (line for line in handle if not line.startswith("#"))
-        reader = csv.reader(lines)
+        first = next(lines, "")
+        # a glider's payload log separates by semicolons (and ends each line with one)
+        delimiter = ";" if first.count(";") > first.count(",") else ","
+        reader = csv.reader(itertools.chain([first], lines), delimiter=delimiter)
         header = [h.strip() for h in next(reader, [])]
         # on a terminal only, after a second (a log would keep the bar's first "0 rows"), then cleared
         bar = tqdm(
@@ -160,7 +219,7 @@ def load_csv(
             (h for h in header if _clock(h)), None
         )
     clocks = [] if columns else [h for h in header if h != time_column and _clock(h)]  # not measurements
-    wanted = columns or [h for h in header if h != time_column and h not in clocks]
+    wanted = columns or [h for h in header if h and h != time_column and h not in clocks]
     missing = [c for c in [*wanted, *([time_column] if time_column else [])] if c not in header]
     if missing:
         raise ValueError(f"{path.name}: no column(s) {missing}; the file has {header}")
@@ -192,7 +251,13 @@ def load_csv(
         raise ValueError(f"{path.name}: no numeric column")
     values = np.array(columns_out, dtype=float).T
     if time_column:
-        times, time_notes = parse_times([r[header.index(time_column)] for r in rows], time_column, time_unit)
+        cells = [r[header.index(time_column)] for r in rows]
+        partner = _date_and_time(header, rows, time_column)
+        if partner is not None:  # a date column and a time-of-day column (a ship's logger's)
+            date, clock = partner
+            cells = [f"{r[header.index(date)].strip()} {r[header.index(clock)].strip()}" for r in rows]
+            notes.append(f"times: the date in column {date!r}, the time of day in column {clock!r}")
+        times, time_notes = parse_times(cells, time_column, time_unit)
         notes.extend(time_notes)
     else:
         times = np.arange(len(rows)) * (period or 1.0)

@@ -12,11 +12,21 @@ and the same guarantee (the codec with no silence bound: nothing confirms a quie
 codec costs at most one packet more, and what confirming predictable samples within max(60 s, latency)
 adds. It fails (exit status 1) if it did not measure what it claims: a sample off by more than eps or not
 held on the shore, a latency over its bound, or link bits that are not whole packets.
+
+``--peers``: the goals' table on the public series (``bench/data``) and the ArduSub logs. Per series: the
+codec's own bits (the arithmetic code alone, no latency bound, no framing; payload version 3, and
+version 4 with a time tolerance of 0.75 period) beside SZ3 (``pysz``, the
+error-bounded compressor of the scientific-data community; a benchmark dependency) at the same absolute
+bound, each channel compressed separately with the sample times given free, over the whole series and
+one latency window at a time, its decompressed error verified; and on the link at the agent's defaults
+(latency 10 s, silence 60 s) the codec's packets beside send-on-delta's in the same frames. It fails if
+a decompressed value is off by more than eps or a run did not measure what it claims.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -25,7 +35,15 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from analysis.evaluate import PACKET_BITS, Result, evaluate, make_spec, run_codec, send_on_delta
+from analysis.evaluate import (
+    PACKET_BITS,
+    Result,
+    add_protocol_option,
+    evaluate,
+    make_spec,
+    run_codec,
+    send_on_delta,
+)
 from analysis.series import Series, load
 from tacit.codec import StreamDecoder, StreamEncoder
 
@@ -105,7 +123,7 @@ def measured(results: dict[str, Result], latency: float) -> list[str]:
     return wrong
 
 
-def sweep_table(data: Path, method: str) -> bool:
+def sweep_table(data: Path, method: str, protocol: int) -> bool:
     """The latency sweep; False if a measurement did not hold what it claims."""
     print("\ncodec vs send-on-delta framed on the same link, same eps, latency and guarantee:")
     head = (
@@ -121,8 +139,10 @@ def sweep_table(data: Path, method: str) -> bool:
         spec = make_spec(series, eps, relative, method, None)
         for seconds, name in SWEEP_LATENCIES:
             latency = seconds * unit
-            codec, _ = run_codec(series, spec, latency, max_silence=None)
-            confirmed, _ = run_codec(series, spec, latency, max_silence=max(60.0 * unit, latency))
+            codec, _ = run_codec(series, spec, latency, max_silence=None, protocol=protocol)
+            confirmed, _ = run_codec(
+                series, spec, latency, max_silence=max(60.0 * unit, latency), protocol=protocol
+            )
             sod = send_on_delta(series, spec, latency)
             runs = {"codec": codec, "codec confirming": confirmed, "send-on-delta": sod}
             faults += [f"{label} at {name}: {w}" for w in measured(runs, latency)]
@@ -131,6 +151,108 @@ def sweep_table(data: Path, method: str) -> bool:
                 f"{label:<46} {name:>7} {codec.samples:>8} {codec.packets:>9} {codec.bits_per_sample:>9.3f} "
                 f"{sod.packets:>8} {sod.bits_per_sample:>8.3f} {check:>20} {confirmed.bits_per_sample:>13.3f}"
             )
+    for fault in faults:
+        print(f"NOT MEASURED AS CLAIMED: {fault}", file=sys.stderr)
+    return not faults
+
+
+# file (bench/data, or the ArduSub logs' folder for a .tlog), columns (None: every numeric one), time
+# column (None: detected), eps (absolute, per channel as --eps takes it; "sd:x": x standard deviations),
+# time units per second, label
+PEER_CASES = [
+    ("glider_amadeus_ctd.csv", None, None, "sci_water_temp=0.01,sci_water_cond=0.001,sci_water_pressure=0.01",
+     1.0, "Slocum CTD T,C,P 2 s"),
+    ("glider_amadeus_ctd_temperature.csv", None, None, "0.05", 1.0, "Slocum CTD temperature 2 s"),
+    ("glider_amadeus_attitude.csv", None, None, "0.005,m_depth=0.1", 1.0, "Slocum attitude, depth 5 s"),
+    ("glider_sea046_gpctd.csv.gz", ["GPCTD_CONDUCTIVITY", "GPCTD_TEMPERATURE", "GPCTD_PRESSURE"], None,
+     "GPCTD_CONDUCTIVITY=0.001,GPCTD_TEMPERATURE=0.01,GPCTD_PRESSURE=0.1", 1.0, "SeaExplorer CTD C,T,P 1 s"),
+    ("glider_sea046_nav.csv", ["Heading", "Pitch", "Roll", "Depth"], None, "0.2,Depth=0.1", 1.0,
+     "SeaExplorer attitude, depth 10 s"),
+    ("glider_sea035_oxygen.csv", None, None, "1.0", 1.0, "SeaExplorer oxygen 30 s"),
+    ("handheld_ximu_256hz_imu.csv", None, "Packet number", "sd:0.5", 390.0, "x-IMU 256 Hz"),
+    ("small.tlog", IMU.split(","), None, "sd:0.5", 1.0, "ArduSub RAW_IMU 4 Hz"),
+    ("small.tlog", ["SCALED_PRESSURE2.temperature"], None, "5.0", 1.0, "ArduSub water temperature"),
+]  # fmt: skip
+AGENT_LATENCY, AGENT_SILENCE = 10.0, 60.0  # vehicle_agent's defaults
+TOLERANCE = 0.75  # the "v4 tol" column: payload version 4 with a time tolerance of 0.75 period
+
+
+def sz3_bits(series: Series, eps: tuple[float, ...], window: float | None = None) -> tuple[int, float]:
+    """SZ3's compressed bits for every channel of ``series`` (its present values, compressed separately,
+    at absolute bound eps; times free), the whole series at once or ``window`` seconds at a time; and the
+    largest decompressed error over eps (verified here, not taken from SZ3)."""
+    import pysz  # a benchmark dependency only
+
+    bits, worst = 0, 0.0
+    starts = [0] if window is None else _window_starts(series.times, window)
+    for c, bound in enumerate(eps):
+        config = pysz.szConfig()
+        config.errorBoundMode = pysz.szErrorBoundMode.ABS
+        config.absErrorBound = bound
+        for lo, hi in zip(starts, [*starts[1:], len(series.times)], strict=True):
+            values = series.values[lo:hi, c]
+            values = np.ascontiguousarray(values[~np.isnan(values)])
+            if not len(values):
+                continue
+            compressed, _ = pysz.sz.compress(values, config)
+            restored, _ = pysz.sz.decompress(compressed, np.float64, values.shape)
+            bits += 8 * len(compressed)
+            worst = max(worst, float(np.abs(restored - values).max()) / bound)
+    return bits, worst
+
+
+def _window_starts(times: np.ndarray, window: float) -> list[int]:
+    """Where each latency window begins: a window holds the samples within ``window`` of its first."""
+    starts, i = [], 0
+    while i < len(times):
+        starts.append(i)
+        i = int(np.searchsorted(times, times[i] + window, side="right"))
+    return starts
+
+
+def peer_series(data: Path, name: str, columns: list[str] | None, time_column: str | None) -> Series:
+    if name.endswith(".tlog") and columns is not None:
+        return load(data / name, columns if "." in columns[0] else [f"RAW_IMU.{c}" for c in columns])
+    return load(PUBLIC / name, columns, time_column)
+
+
+def peers_table(data: Path, method: str) -> bool:
+    """The goals' table; False if something was not measured as claimed."""
+    head = (
+        f"{'series':<34} {'samples':>7} {'codec own':>9} {'v4 tol':>6} {'SZ3 whole':>9} {'SZ3 window':>10} "
+        f"{'own/SZ3':>7} {'codec pkt':>9} {'no-silence pkt':>14} {'SoD pkt':>7} {'codec b/s':>9} {'SoD b/s':>7}"
+    )
+    print(
+        f"bits per sample; link at the agent's defaults (latency {AGENT_LATENCY:g} s, silence {AGENT_SILENCE:g} s)"
+    )
+    print(head)
+    print("-" * len(head))
+    faults = []
+    for name, columns, time_column, eps, unit, label in tqdm(
+        PEER_CASES, desc="peers", unit="series", leave=False
+    ):
+        series = peer_series(data, name, columns, time_column)
+        relative = eps.startswith("sd:")
+        spec = make_spec(series, eps.removeprefix("sd:"), relative, method, None)
+        latency, silence = AGENT_LATENCY * unit, AGENT_SILENCE * unit
+        unbound = float(series.times[-1] - series.times[0]) + 1.0  # no latency bound: packets leave full
+        own, _ = run_codec(series, spec, unbound, max_silence=None, protocol=3)
+        tolerant = dataclasses.replace(spec, time_tolerance=TOLERANCE * spec.period)
+        own_v4, _ = run_codec(series, tolerant, unbound, max_silence=None, protocol=4)
+        link, _ = run_codec(series, spec, latency, max_silence=silence)
+        quiet, _ = run_codec(series, spec, latency, max_silence=None)
+        sod = send_on_delta(series, spec, latency)
+        whole, whole_err = sz3_bits(series, spec.eps)
+        windowed, window_err = sz3_bits(series, spec.eps, latency)
+        faults += [f"{label}: {w}" for w in measured({"link": link, "quiet": quiet, "sod": sod}, silence)]
+        faults += [f"{label}: SZ3 off by {e:.3f} eps" for e in (whole_err, window_err) if e > 1 + 1e-9]
+        n = own.samples
+        print(
+            f"{label:<34} {n:>7} {own.code_bits_per_sample:>9.3f} {own_v4.code_bits_per_sample:>6.3f} "
+            f"{whole / n:>9.3f} {windowed / n:>10.3f} "
+            f"{own.code_bits_per_sample / (whole / n):>7.2f} {link.packets:>9} {quiet.packets:>14} {sod.packets:>7} "
+            f"{link.bits_per_sample:>9.3f} {sod.bits_per_sample:>7.3f}"
+        )
     for fault in faults:
         print(f"NOT MEASURED AS CLAIMED: {fault}", file=sys.stderr)
     return not faults
@@ -145,22 +267,22 @@ def degraded(series: Series, seed: int = 2) -> Series:
     return Series(series.names, times[keep][order], series.values[keep][order])
 
 
-def decode_rate(series: Series, spec, max_latency: float) -> float:
+def decode_rate(series: Series, spec, max_latency: float, protocol: int) -> float:
     """Packets per second the pure-Python shore decoder handles."""
-    encoder, payloads = StreamEncoder(spec, max_latency), []
+    encoder, payloads = StreamEncoder(spec, max_latency, protocol=protocol), []
     for t, x in zip(series.times, series.values, strict=True):
         encoder.push(t, x)
         while encoder.ready(t):
             payloads.append((encoder.take().packet.payload, t))
             encoder.resolve(True)
-    decoder = StreamDecoder(spec)
+    decoder = StreamDecoder(spec, protocol)
     start = time.perf_counter()
     for payload, at in payloads:
         decoder.decode(payload, at)
     return len(payloads) / max(1e-9, time.perf_counter() - start)
 
 
-def robustness_table(data: Path) -> None:
+def robustness_table(data: Path, protocol: int) -> None:
     print("\nclean vs 5 % removed and +-30 % jitter (RAW_IMU 0.5 sd, latency 10 s), and public data:")
     head = (
         f"{'case':<46} {'bits/sample':>11} {'code only':>9} {'send-on-delta':>13} {'ideal':>6} {'x ideal':>7} "
@@ -183,14 +305,14 @@ def robustness_table(data: Path) -> None:
         if "jitter" in label and clean_spec is not None:
             spec = clean_spec  # the same stream definition as the clean run
         clean_spec = spec
-        result, _ = run_codec(series, spec, latency, max_silence=max(60.0, latency))
+        result, _ = run_codec(series, spec, latency, max_silence=max(60.0, latency), protocol=protocol)
         sod = send_on_delta(series, spec, latency).bits_per_sample
         ideal = result.ideal_bits_per_sample
         print(
             f"{label:<46} {result.bits_per_sample:>11.3f} {result.code_bits_per_sample:>9.3f} {sod:>13.3f} {ideal:>6.3f} "
             f"{result.bits_per_sample / max(ideal, 1e-9):>7.2f} {result.max_error_ratio:>11.3f} "
             f"{result.samples_absent:>6} {result.samples_not_represented:>8} {result.time_precision_s:>11.3f} "
-            f"{decode_rate(series, spec, latency):>13.0f}"
+            f"{decode_rate(series, spec, latency, protocol):>13.0f}"
         )
 
 
@@ -201,13 +323,19 @@ def main() -> None:
     parser.add_argument("--data", type=Path, default=DATA, help="folder of the logs")
     parser.add_argument("--method", default="kalman", help="predictor (kalman, kalman-cv, mean, hold)")
     parser.add_argument("--json", action="store_true", help="one JSON object per case")
+    add_protocol_option(parser)
     parser.add_argument("--only-robustness", action="store_true", help="only the clean/degraded/public table")
     parser.add_argument("--sweep", action="store_true", help="only the latency sweep against send-on-delta")
+    parser.add_argument(
+        "--peers", action="store_true", help="only the goals' table: the codec, SZ3, send-on-delta"
+    )
     options = parser.parse_args()
+    if options.peers:
+        sys.exit(0 if peers_table(options.data, options.method) else 1)
     if options.sweep:
-        sys.exit(0 if sweep_table(options.data, options.method) else 1)
+        sys.exit(0 if sweep_table(options.data, options.method, options.protocol) else 1)
     if options.only_robustness:
-        robustness_table(options.data)
+        robustness_table(options.data, options.protocol)
         return
     rows = []
     for name, columns, eps, relative, label in tqdm(CASES, desc="logs", unit="case"):
@@ -223,6 +351,7 @@ def main() -> None:
             max_latency=10.0,
             max_silence=60.0,
             method=options.method,
+            protocol=options.protocol,
             loss=0.0,
             seed=1,
             urgent_threshold=None,
@@ -243,7 +372,7 @@ def main() -> None:
             f"{name:<32} {label:<22} {r['samples']:>8} {r['packets']:>8} {r['bits_per_sample']:>12.3f} "
             f"{sod:>14.3f} {r['max_error_ratio']:>12.3f} {r['max_latency_s']:>10.1f} {r['max_confirmation_s']:>10.1f} {r['us_per_tick']:>8.0f}"
         )
-    robustness_table(options.data)
+    robustness_table(options.data, options.protocol)
 
 
 if __name__ == "__main__":

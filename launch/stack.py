@@ -23,8 +23,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, TypeVar
+from urllib.parse import urlsplit
 
+from launch.broker import free_port
 from launch.processes import stop
+from tacit.cli import PARENT
 from tacit.config import dump_toml
 from tacit.navigation import Origin
 from tacit.private import open_private, private_dir
@@ -137,6 +140,7 @@ class Stack:
         self.members = config.members()
         self.dir = private_dir(Path(config.data_dir).resolve(), narrow=True)
         self.procs: list[subprocess.Popen[str]] = []
+        self.parts: dict[str, subprocess.Popen[str]] = {}  # by name: its log's, without ".log"
         self.sim_info: dict[str, Any] = {}
         self.agents: dict[int, subprocess.Popen[str]] = {}  # by vehicle index
         self.server: subprocess.Popen[str] | None = None
@@ -261,6 +265,7 @@ class Stack:
             "modem_log": str(self.dir / "shore-modem.log"), "write_tokens": list(c.write_tokens),
             "read_tokens": list(c.read_tokens), "time_scale": c.time_scale, "default_range": c.range_m,
             "origin": (SIM_ORIGIN.lat, SIM_ORIGIN.lon),
+            "metrics_port": 0,  # stacks run side by side: /metrics only where asked for (the demo)
         }  # fmt: skip
         values.update(overrides)
         return values
@@ -272,12 +277,22 @@ class Stack:
         return self.server
 
     # a split shore's gateways -----------------------------------------------------------------------
-    def start_gateway(self, index: int, nats_url: str) -> subprocess.Popen[str]:
+    def start_gateway(
+        self, index: int, nats_url: str, credentials: Path, deployment: str
+    ) -> subprocess.Popen[str]:
         """``tacit gateway`` on the simulated modem of gateway ``index`` (told where it is, for the screens),
-        its outbox in the stack's folder."""
+        its outbox in the stack's folder, with its broker ``credentials`` in ``deployment``; its backhaul
+        through a relay of its own (``relay-<name>``: stop that process and this gateway's link alone
+        goes silent)."""
         name = gateway_name(index)
+        port = urlsplit(nats_url).port or 4222
+        relay = free_port()
+        upstream = f"{urlsplit(nats_url).hostname or '127.0.0.1'}:{port}"
+        self.spawn(["--listen", str(relay), "--to", upstream], f"relay-{name}.log", module="launch.relay")
+        nats_url = urlsplit(nats_url)._replace(netloc=f"127.0.0.1:{relay}").geturl()
         return self.spawn(
-            ["gateway", "--nats", nats_url, "--name", name, "--outbox", str(self.dir / f"gateway-{name}.db"),
+            ["gateway", "--nats", nats_url, "--nats-credentials", str(credentials), "--deployment", deployment,
+             "--name", name, "--outbox", str(self.dir / f"gateway-{name}.db"),
              "--modem-url", str(self.pty(name)), "--modem-address", str(gateway_address(index)),
              "--modem-log", str(self.dir / f"gateway-{name}-modem.log"),
              "--position=" + ",".join(f"{x:g}" for x in self.gateway_place(index))],
@@ -341,23 +356,26 @@ class Stack:
         capture: bool = False,
         env: dict[str, str] | None = None,
         clock: str = "",
+        module: str = "tacit.cli",
     ) -> subprocess.Popen[str]:
         """``tacit ARGS`` as a child; stderr (and stdout unless captured) appended to ``log``. What the child
-        creates (its database, tlogs, modem logs) is owner-only as well (umask 077). ``clock``: the name
+        creates (its database, tlogs, modem logs) is owner-only as well (umask 077). It ends when this
+        process does, however this one ends (``tacit.cli``: ``TACIT_PARENT_PID``). ``clock``: the name
         its wall clock is stepped by (``step_clock``), in a stack with ``stepped_clocks``."""
         out: IO[str] | int = subprocess.PIPE if capture else open_private(self.dir / log)
-        entry = ["-m", "tacit.cli"]
+        entry = ["-m", module, *(["--log-level", "INFO"] if module == "tacit.cli" else [])]
         if clock and self.config.stepped_clocks:
-            entry = ["-m", "launch.stepped_clock", str(self.dir / f"{clock}.clock")]
+            entry = ["-m", "launch.stepped_clock", str(self.dir / f"{clock}.clock"), "--log-level", "INFO"]
         proc = subprocess.Popen(
-            [sys.executable, *entry, "--log-level", "INFO", *args],
+            [sys.executable, *entry, *args],
             stdout=out,
             stderr=open_private(self.dir / log),
             text=True,
             umask=0o077,
-            env={**os.environ, **(env or {}), "PYTHONUNBUFFERED": "1"},
+            env={**os.environ, **(env or {}), "PYTHONUNBUFFERED": "1", PARENT: str(os.getpid())},
         )
         self.procs.append(proc)
+        self.parts[log.removesuffix(".log")] = proc
         return proc
 
     def log(self, name: str) -> str:

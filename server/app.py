@@ -68,8 +68,10 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     tasks = [asyncio.create_task(run(shore)) for run in app.state.background]
     operator_map = None
     if settings.map_enabled:
+        from server.map.connections import quiet_given_up_connections
         from server.map.scene import OperatorMap  # viser is heavy: imported only when the map runs
 
+        quiet_given_up_connections()
         operator_map = OperatorMap(shore.screens, shore.commands, shore.bus, settings, shore.operators.actor)
         operator_map.start()
         shore.screens.map_port = lambda: operator_map.port if operator_map else None
@@ -150,6 +152,14 @@ def create_app(
     return app
 
 
+def shore_app(settings: Settings) -> FastAPI:
+    """The app of a shore with its own modem (``tacit serve``, the demo), with its ``/metrics`` listener
+    on ``metrics_port`` (``server.ops``)."""
+    from server.ops.process import expose
+
+    return create_app(settings, background=[expose])
+
+
 def _offline_docs(app: FastAPI) -> None:
     """Swagger UI at /docs from files installed with the server, not from a CDN: shore stations are
     usually offline. The files come from fastapi-offline's package (Swagger UI 5, which reads the
@@ -195,6 +205,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", help="bind address (default 127.0.0.1: only this machine)")
     parser.add_argument("--port", type=int, help="API and dashboard port (default 8000)")
     parser.add_argument("--map-port", type=int, help="3D map port (default 8080)")
+    parser.add_argument(
+        "--metrics-port",
+        type=int,
+        help="serve /metrics (Prometheus) on this port of TACIT_METRICS_HOST; 0: none (default 9464)",
+    )
     parser.add_argument("--database-url", help="e.g. sqlite:///data/tacit.db or postgresql+psycopg://...")
     parser.add_argument("--modem-url", help="the shore modem: /dev/ttyUSB0, a pty, socket://host:port")
     parser.add_argument("--no-map", action="store_true", help="do not start the 3D map")
@@ -202,8 +217,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def settings_from(args: argparse.Namespace) -> Settings:
     settings = Settings.load(args.config)
-    for name in ("host", "port", "map_port", "database_url", "modem_url"):
-        value = getattr(args, name)
+    for name in ("host", "port", "map_port", "metrics_port", "database_url", "modem_url"):
+        value = getattr(args, name, None)
         if value is not None:
             setattr(settings, name, value)
     if args.no_map:
@@ -221,10 +236,12 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         check_port(settings.host, settings.port)
+        if settings.metrics_port:
+            check_port(settings.metrics_host, settings.metrics_port, "--metrics-port (0: none)")
     except PortBusy as exc:
         print(f"tacit serve: {exc}", file=sys.stderr)
         return 1
     if not settings.write_tokens:
         log.warning("no operator token configured (TACIT_WRITE_TOKENS): every write will be refused")
-    uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level="info")
+    uvicorn.run(shore_app(settings), host=settings.host, port=settings.port, log_level="info")
     return 0

@@ -20,6 +20,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from simulators.parameters import Parameters
+
 MODES = {
     "STABILIZE": 0, "ACRO": 1, "ALT_HOLD": 2, "AUTO": 3, "GUIDED": 4, "CIRCLE": 7, "SURFACE": 9,
     "POSHOLD": 16, "MANUAL": 19, "MOTOR_DETECT": 20, "SURFTRAK": 21,
@@ -65,7 +67,7 @@ class BlueROV2:
     position_source: bool = False
     current: tuple[float, float] = (0.0, 0.0)  # m/s north, east
     battery_v: float = 16.0
-    params: dict[str, float] = field(default_factory=lambda: {"SYSID_MYGCS": 255.0, "FS_PILOT_TIMEOUT": 3.0})
+    params: Parameters = field(default_factory=Parameters.ardusub)  # a real ArduSub's (SYSID_MYGCS 255, ...)
     depth_target: float | None = None
     yaw_target: float | None = None
     yaw_target_time: float = -math.inf

@@ -49,6 +49,14 @@ class Transmission:
     start: float = 0.0
     sender: str = ""
 
+    @property
+    def addressee(self) -> int:
+        """The modem address it is for. A poll is a cycle-init its sender addresses to itself (the data is
+        for the poller): it is for the polled modem, the data's source."""
+        if self.kind is Kind.CYCLE_INIT and self.dest == self.src:
+            return int(self.info["src"])
+        return self.dest
+
 
 @dataclass
 class Reception:
@@ -74,6 +82,7 @@ class Node:
     #: probability (0..1, read at each arrival) that a frame to or from this node is lost, on top of the
     #: channel's: a modem taken out of range at run time (``SIM_MODEM_LOSS`` on its vehicle)
     loss: Callable[[], float] = lambda: NO_LOSS
+    address: int | None = None  # the modem's address: a transmission for it is counted apart
 
 
 class Channel:
@@ -84,6 +93,12 @@ class Channel:
         self.nodes: dict[str, Node] = {}
         self.log: list[dict[str, object]] = []
         self.stats = {"transmissions": 0, "receptions": 0, "lost": 0, "collisions": 0, "half_duplex": 0}
+        # in frames (a transmission without frames counts as one), at the modem each transmission is for
+        # (lost = collided + while it transmitted + to noise and range) and at every other modem
+        self.stats |= dict.fromkeys(
+            ("addressed", "addressed_lost", "addressed_collided", "addressed_deaf"), 0
+        )
+        self.stats |= dict.fromkeys(("overheard", "overheard_lost"), 0)
 
     def add_node(
         self,
@@ -91,8 +106,9 @@ class Channel:
         position: Callable[[], Position],
         on_receive: Callable[[Reception], None],
         loss: Callable[[], float] = lambda: NO_LOSS,
+        address: int | None = None,
     ) -> Node:
-        node = Node(name, position, on_receive, loss=loss)
+        node = Node(name, position, on_receive, loss=loss, address=address)
         self.nodes[name] = node
         return node
 
@@ -145,6 +161,7 @@ class Channel:
         self.stats["collisions"] += collided
         self.stats["half_duplex"] += deaf
         self.stats["lost"] += frames_ok.count(False)
+        self._count(node, tx, frames_ok, collided, deaf)
         self.log.append(
             {
                 "time": round(end, 6),
@@ -161,3 +178,14 @@ class Channel:
         horizon = end - 120.0
         node.arrivals = [a for a in node.arrivals if a[1] > horizon]
         node.on_receive(Reception(tx, frames_ok, snr, distance, collided or deaf))
+
+    def _count(self, node: Node, tx: Transmission, frames_ok: list[bool], collided: bool, deaf: bool) -> None:
+        frames, lost = len(frames_ok), frames_ok.count(False)
+        if node.address is None or node.address != tx.addressee:
+            self.stats["overheard"] += frames
+            self.stats["overheard_lost"] += lost
+            return
+        self.stats["addressed"] += frames
+        self.stats["addressed_lost"] += lost
+        self.stats["addressed_collided"] += frames if collided else 0
+        self.stats["addressed_deaf"] += frames if deaf and not collided else 0

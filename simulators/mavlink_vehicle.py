@@ -9,6 +9,12 @@ BATTERY_STATUS, ATTITUDE, RAW_IMU and SCALED_IMU2 (noise and a fixed bias per ax
 SCALED_PRESSURE2 (Bar30: absolute pressure and water temperature), VFR_HUD, GLOBAL_POSITION_INT,
 GPS_RAW_INT (a fix only at the surface), LOCAL_POSITION_NED (only with a position estimate), and
 NAMED_VALUE_FLOAT "DO" (dissolved oxygen, mg/L, as a companion sensor extension would publish it).
+SYS_STATUS's sensor bits are a healthy ArduSub's (``SENSORS_PRESENT``).
+
+Parameters are a real ArduSub's (``simulators.parameters``), for ground stations as ArduSub serves
+them: PARAM_REQUEST_LIST streams every one, in order, to the peer that asked; PARAM_REQUEST_READ (by
+name or index) answers that peer; a PARAM_SET that takes is echoed to every peer, one that does not (a
+name ArduSub lacks, NaN) gets no answer.
 """
 
 from __future__ import annotations
@@ -35,6 +41,7 @@ PHYSICS_HZ = 50.0
 WATER_DENSITY = 1000.0  # fresh water (river, lake)
 G = 9.80665
 ATMOSPHERE_HPA = 1013.25
+GPS_DEPTH = 0.3  # m: the GPS antenna has a fix above this depth only
 
 DEFAULT_RATES_HZ: dict[int, float] = {
     mavlink.MAVLINK_MSG_ID_HEARTBEAT: 1.0,
@@ -52,10 +59,38 @@ DEFAULT_RATES_HZ: dict[int, float] = {
 }
 
 
-class Links:
-    """Every connected MAVLink peer; incoming bytes are parsed per peer."""
+Reply = Callable[[bytes], None]  # sends to the peer a message came from
 
-    def __init__(self, on_message: Callable[[mavlink.MAVLink_message], None]) -> None:
+
+#: SYS_STATUS as a healthy ArduSub 4.1.1 reports it in MANUAL (tests/data/ardusub/small.tlog): sensors and
+#: controllers present, and of those, what is enabled and what is healthy. The depth and position
+#: controllers are present but neither enabled nor healthy; the geofence present, healthy, not enabled
+#: (a ground station that sees it unhealthy says "fence breach"). The GPS is healthy with a fix (at the
+#: surface), logging enabled while armed.
+SENSORS_PRESENT = (
+    mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+    | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+    | mavlink.MAV_SYS_STATUS_SENSOR_GPS | mavlink.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
+    | mavlink.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION | mavlink.MAV_SYS_STATUS_SENSOR_YAW_POSITION
+    | mavlink.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL | mavlink.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
+    | mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS | mavlink.MAV_SYS_STATUS_GEOFENCE | mavlink.MAV_SYS_STATUS_AHRS
+    | mavlink.MAV_SYS_STATUS_LOGGING | mavlink.MAV_SYS_STATUS_SENSOR_BATTERY | mavlink.MAV_SYS_STATUS_PREARM_CHECK
+)  # fmt: skip
+CONTROLLERS = (
+    mavlink.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL | mavlink.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
+)
+SENSORS_ENABLED = SENSORS_PRESENT & ~(
+    CONTROLLERS | mavlink.MAV_SYS_STATUS_GEOFENCE | mavlink.MAV_SYS_STATUS_LOGGING
+)
+SENSORS_HEALTHY = SENSORS_PRESENT & ~(CONTROLLERS | mavlink.MAV_SYS_STATUS_SENSOR_GPS)
+PARAMS_PER_TICK = 20  # PARAM_VALUEs a list request gets per physics step (1000/s), as a link's budget allows
+
+
+class Links:
+    """Every connected MAVLink peer; incoming bytes are parsed per peer, and each message is handled with
+    a way to answer that peer alone."""
+
+    def __init__(self, on_message: Callable[[mavlink.MAVLink_message, Reply], None]) -> None:
         self.on_message = on_message
         self.senders: dict[object, Callable[[bytes], None]] = {}
         self._parsers: dict[object, mavlink.MAVLink] = {}
@@ -78,11 +113,12 @@ class Links:
         except Exception as exc:  # pymavlink raises more than MAVError on some garbage
             log.warning("bad MAVLink from %s: %r", peer, exc)
             return
+        reply: Reply = lambda data: self.senders.get(peer, _nowhere)(data)  # noqa: E731
         for msg in messages:
             if msg.get_type() == "BAD_DATA":
                 continue
             try:
-                self.on_message(msg)
+                self.on_message(msg, reply)
             except Exception as exc:
                 log.warning("dropped %s from %s: %r", msg.get_type(), peer, exc)
 
@@ -132,6 +168,10 @@ class Links:
             server.close()
         for transport in self._transports:
             transport.close()
+
+
+def _nowhere(data: bytes) -> None:
+    """A peer that left: what was meant for it goes nowhere."""
 
 
 class SimulatedVehicle:
@@ -268,7 +308,7 @@ class SimulatedVehicle:
 
     def _gps_raw(self) -> mavlink.MAVLink_message:
         r = self.rov
-        at_surface = r.depth < 0.3
+        at_surface = r.depth < GPS_DEPTH
         lat, lon = self.origin.to_global(r.north + self.rng.gauss(0, 1.0), r.east + self.rng.gauss(0, 1.0))
         fix = mavlink.GPS_FIX_TYPE_3D_FIX if at_surface else mavlink.GPS_FIX_TYPE_NO_FIX
         sats = 12 if at_surface else 0
@@ -293,9 +333,13 @@ class SimulatedVehicle:
         return self.mav.local_position_ned_encode(self._boot_ms(), r.north, r.east, r.depth, vn, ve, vz)
 
     def _sys_status(self) -> mavlink.MAVLink_message:
-        volts = self.rov.battery_v
-        remaining = int(max(0.0, min(100.0, (volts - 13.0) / 3.0 * 100)))
-        return self.mav.sys_status_encode(0, 0, 0, 100, int(volts * 1000), 150, remaining, 0, 0, 0, 0, 0, 0)
+        r = self.rov
+        remaining = int(max(0.0, min(100.0, (r.battery_v - 13.0) / 3.0 * 100)))
+        enabled = SENSORS_ENABLED | (mavlink.MAV_SYS_STATUS_LOGGING if r.armed else 0)
+        healthy = SENSORS_HEALTHY | (mavlink.MAV_SYS_STATUS_SENSOR_GPS if r.depth < GPS_DEPTH else 0)
+        return self.mav.sys_status_encode(
+            SENSORS_PRESENT, enabled, healthy, 100, int(r.battery_v * 1000), 150, remaining, 0, 0, 0, 0, 0, 0
+        )
 
     def _battery(self) -> mavlink.MAVLink_message:
         volts = self.rov.battery_v
@@ -327,11 +371,12 @@ class SimulatedVehicle:
 
     # --- incoming ---------------------------------------------------------------------------------
 
-    def handle(self, msg: mavlink.MAVLink_message) -> None:
+    def handle(self, msg: mavlink.MAVLink_message, reply: Reply = _nowhere) -> None:
+        """A message from a peer; ``reply`` answers that peer alone (a parameter it asked for)."""
         self.counters["received"] += 1
         handler = self._HANDLERS.get(msg.get_type())
         if handler is not None and getattr(msg, "target_system", SYSTEM_ID) in (SYSTEM_ID, 0):
-            handler(self, msg)
+            handler(self, msg, reply)
 
     def _ack(self, command: int, result: int) -> None:
         self.send(self.mav.command_ack_encode(command, result))
@@ -339,7 +384,7 @@ class SimulatedVehicle:
     def _text(self, severity: int, text: str) -> None:
         self.send(self.mav.statustext_encode(severity, text.encode()[:50]))
 
-    def _on_command_long(self, msg: mavlink.MAVLink_command_long_message) -> None:
+    def _on_command_long(self, msg: mavlink.MAVLink_command_long_message, reply: Reply) -> None:
         command, r = msg.command, self.rov
         if command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
             r.arm(msg.param1 >= 0.5)
@@ -369,14 +414,16 @@ class SimulatedVehicle:
             return mavlink.MAV_RESULT_FAILED
         return mavlink.MAV_RESULT_ACCEPTED
 
-    def _on_set_mode(self, msg: mavlink.MAVLink_set_mode_message) -> None:
+    def _on_set_mode(self, msg: mavlink.MAVLink_set_mode_message, reply: Reply) -> None:
         self._ack(mavlink.MAV_CMD_DO_SET_MODE, self._set_mode(int(msg.custom_mode)))
 
-    def _on_manual_control(self, msg: mavlink.MAVLink_manual_control_message) -> None:
+    def _on_manual_control(self, msg: mavlink.MAVLink_manual_control_message, reply: Reply) -> None:
         if not self.rov.manual_control(msg.get_srcSystem(), msg.x, msg.y, msg.z, msg.r):
             self.counters["ignored_manual_control"] += 1
 
-    def _on_position_global(self, msg: mavlink.MAVLink_set_position_target_global_int_message) -> None:
+    def _on_position_global(
+        self, msg: mavlink.MAVLink_set_position_target_global_int_message, reply: Reply
+    ) -> None:
         r = self.rov
         depth = -float(msg.alt)
         ignore_position = msg.type_mask & (
@@ -388,38 +435,61 @@ class SimulatedVehicle:
         else:
             r.set_depth_target(depth)
 
-    def _on_position_local(self, msg: mavlink.MAVLink_set_position_target_local_ned_message) -> None:
+    def _on_position_local(
+        self, msg: mavlink.MAVLink_set_position_target_local_ned_message, reply: Reply
+    ) -> None:
         if not self.rov.set_position_target(msg.x, msg.y, msg.z):
             self._text(mavlink.MAV_SEVERITY_WARNING, "Position target needs GUIDED and a position estimate")
 
-    def _on_attitude_target(self, msg: mavlink.MAVLink_set_attitude_target_message) -> None:
+    def _on_attitude_target(self, msg: mavlink.MAVLink_set_attitude_target_message, reply: Reply) -> None:
         w, x, y, z = msg.q
         yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
         self.rov.set_attitude_target(yaw)
 
-    def _on_param_set(self, msg: mavlink.MAVLink_param_set_message) -> None:
-        name = msg.param_id if isinstance(msg.param_id, str) else msg.param_id.decode()
-        self.rov.params[name] = float(msg.param_value)
-        self._param_value(name)
+    # --- parameters, as ArduSub answers a ground station ------------------------------------------
 
-    def _on_param_read(self, msg: mavlink.MAVLink_param_request_read_message) -> None:
-        name = msg.param_id if isinstance(msg.param_id, str) else msg.param_id.decode()
-        if name in self.rov.params:
-            self._param_value(name)
+    def _on_param_set(self, msg: mavlink.MAVLink_param_set_message, reply: Reply) -> None:
+        """Set, then tell every peer the new value (as ArduSub does); a name it lacks or a value that is
+        not a number gets no answer."""
+        name = _param_name(msg.param_id)
+        if self.rov.params.set(name, msg.param_value):
+            self.send(self._param_value(name))
+        else:
+            log.info("PARAM_SET %s = %r refused: no such parameter, or not a number", name, msg.param_value)
 
-    def _param_value(self, name: str) -> None:
-        names = sorted(self.rov.params)
-        self.send(
-            self.mav.param_value_encode(
-                name.encode(),
-                self.rov.params[name],
-                mavlink.MAV_PARAM_TYPE_REAL32,
-                len(names),
-                names.index(name),
+    def _on_param_read(self, msg: mavlink.MAVLink_param_request_read_message, reply: Reply) -> None:
+        """One parameter, by index (``param_index`` >= 0) or by name, to the peer that asked."""
+        params = self.rov.params
+        if msg.param_index >= 0:
+            if msg.param_index < len(params):
+                self._reply(reply, self._param_value(params.names[msg.param_index]))
+        elif (name := _param_name(msg.param_id)) in params:
+            self._reply(reply, self._param_value(name))
+
+    def _on_param_list(self, msg: mavlink.MAVLink_param_request_list_message, reply: Reply) -> None:
+        """Every parameter, in order, to the peer that asked, a few per physics step."""
+        self._send_params(reply, 0)
+
+    def _send_params(self, reply: Reply, start: int) -> None:
+        names = self.rov.params.names
+        for name in names[start : start + PARAMS_PER_TICK]:
+            self._reply(reply, self._param_value(name))
+        if start + PARAMS_PER_TICK < len(names) and self._running:
+            self.scheduler.call_later(
+                1.0 / PHYSICS_HZ, lambda: self._send_params(reply, start + PARAMS_PER_TICK)
             )
+
+    def _param_value(self, name: str) -> mavlink.MAVLink_message:
+        params = self.rov.params
+        return self.mav.param_value_encode(
+            name.encode(), params[name], params.kinds[name], len(params), params.index(name)
         )
 
-    _HANDLERS: dict[str, Callable[[SimulatedVehicle, mavlink.MAVLink_message], None]] = {
+    def _reply(self, reply: Reply, msg: mavlink.MAVLink_message) -> None:
+        self.counters["sent"] += 1
+        reply(msg.pack(self.mav))
+
+    _HANDLERS: dict[str, Callable[[SimulatedVehicle, mavlink.MAVLink_message, Reply], None]] = {
         "COMMAND_LONG": _on_command_long,
         "SET_MODE": _on_set_mode,
         "MANUAL_CONTROL": _on_manual_control,
@@ -428,6 +498,7 @@ class SimulatedVehicle:
         "SET_ATTITUDE_TARGET": _on_attitude_target,
         "PARAM_SET": _on_param_set,
         "PARAM_REQUEST_READ": _on_param_read,
+        "PARAM_REQUEST_LIST": _on_param_list,
     }
 
     def describe(self) -> dict[str, object]:
@@ -440,3 +511,7 @@ class SimulatedVehicle:
             "mode": MODE_NAMES.get(r.mode, r.mode),
             "armed": r.armed,
         }
+
+
+def _param_name(param_id: str | bytes) -> str:
+    return param_id if isinstance(param_id, str) else param_id.decode(errors="replace").rstrip("\0")

@@ -78,7 +78,7 @@ class MicroModemEmulator:
         self._ack_until = 0.0  # an acknowledgement is due or on the air until then
         self._ping: _Ping | None = None
         self.counters = {"host_lines": 0, "errors": 0, "tx": 0, "rx_frames": 0, "bad_frames": 0}
-        channel.add_node(name, position, self._receive, loss)
+        channel.add_node(name, position, self._receive, loss, address)
 
     @property
     def address(self) -> int:

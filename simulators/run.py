@@ -53,15 +53,12 @@ from simulators.clock import RealtimeScheduler
 from simulators.environment import Environment
 from simulators.mavlink_vehicle import SimulatedVehicle
 from simulators.micromodem import MicroModemEmulator
+from simulators.parameters import MODEM_LOSS
 from simulators.ports import PtyPort, TcpPort
 from simulators.tlog_replay import TlogReplay
 from tacit.config import check_keys
 
 log = logging.getLogger("simulators")
-#: A simulated vehicle's parameter (PARAM_SET over MAVLink, as SITL's SIM_* failure parameters): the
-#: probability 0..1 that a frame to or from the modem riding it is lost, on top of the channel's. 1 takes
-#: the vehicle out of range of every other modem while it runs; 0 brings it back.
-MODEM_LOSS = "SIM_MODEM_LOSS"
 
 
 @dataclass

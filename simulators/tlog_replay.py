@@ -38,7 +38,7 @@ class TlogReplay:
         self.finished = asyncio.Event()
         links.on_message = self._ignore
 
-    def _ignore(self, msg: object) -> None:
+    def _ignore(self, msg: object, reply: object) -> None:
         self.ignored_commands += 1
 
     @property

@@ -11,9 +11,15 @@ import argparse
 import importlib
 import importlib.metadata
 import logging
+import os
 import re
+import signal
 import sys
+import threading
+import time
 from typing import NamedTuple
+
+PARENT = "TACIT_PARENT_PID"  # a launcher's child ends when that process is gone (``end_with_parent``)
 
 
 class Subcommand(NamedTuple):
@@ -29,7 +35,7 @@ COMMANDS: dict[str, Subcommand] = {
     "center": Subcommand("server.backhaul.center", "center", "Run the center: gateways' frames from NATS into the store"),
     "database": Subcommand("server.ops.backup", "", "Back up the center's database, or restore a backup into an empty one"),
     "backhaul-audit": Subcommand("server.backhaul.audit", "center", "Count each gateway's frames heard against those the center stored and decoded"),
-    "broker-config": Subcommand("server.backhaul.access", "", "Write the NATS broker's users, permissions and credentials for a list of gateways"),
+    "broker-config": Subcommand("server.backhaul.access", "", "Write the NATS broker's accounts and credentials for a deployment's gateways"),
     "agent": Subcommand("vehicle_agent.agent", "agent", "Run the vehicle agent between ArduSub and the vehicle's modem"),
     "sim": Subcommand("simulators.run", "sim", "Start simulated Micro-Modems, acoustic channel and BlueROV2"),
     "replay": Subcommand("launch.replay", "demo", "Run a real .tlog through the agent and the simulated link"),
@@ -52,6 +58,21 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def end_with_parent(parent: str | None, every: float = 0.5) -> None:
+    """A launcher's child (``tacit demo``'s simulator, agents and gateways): SIGTERM to itself once its
+    parent process ``parent`` is gone, however it ended (a SIGKILL leaves no chance to stop its
+    children: the child notices it has been handed to another parent)."""
+    if not parent or not parent.isdigit():
+        return
+
+    def watch() -> None:
+        while os.getppid() == int(parent):
+            time.sleep(every)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    threading.Thread(target=watch, name="end-with-parent", daemon=True).start()
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     top = _parser()
@@ -68,6 +89,7 @@ def main(argv: list[str] | None = None) -> int:
         module = importlib.import_module(command.module)
     except ModuleNotFoundError as exc:
         return _missing(options.command, [exc.name or str(exc)])
+    end_with_parent(os.environ.pop(PARENT, None))  # not handed down to its own children
     parser = argparse.ArgumentParser(prog=f"tacit {options.command}", description=command.help)
     module.add_arguments(parser)
     args = parser.parse_args(argv[first + 1 :])

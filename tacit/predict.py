@@ -14,7 +14,7 @@ both ends compute identical predictions; the quantizer in ``tacit.codec`` then g
     a random walk picks a large one (it follows the last value). (The method of moments on first
     differences was tried first: on 64 ticks of real IMU data it overestimates q/r by 4-40x.)
     This is the paper's model-based approach with its equations corrected.
-``kalman-cv`` -- a constant-velocity Kalman filter per channel (level and rate; filterpy), white-noise
+``kalman-cv`` -- a constant-velocity Kalman filter per channel (level and rate), white-noise
     acceleration of intensity q (same adaptive estimate), for smooth kinematic channels.
 ``mean`` -- the paper's model-free test (Algorithm 1) made dual-consistent: the prediction mu is the
     mean of the last ``MEAN_WINDOW`` reconstructed values; a sample is unpredictable when
@@ -29,6 +29,10 @@ A channel without a value in a tick (NaN: a blank cell, a sensor slower than the
 for that channel only: the Kalman update leaves its level untouched (zero innovation, R = 1e12), the
 window mean and hold ignore it, and the gain tuning leaves it out. ``current`` is the prediction for a
 second sample in the same tick (no time passes: the filter is not advanced).
+
+The vehicle (an ARM computer) and the shore (x86) must predict the same values to the bit: every filter
+here is element-wise arithmetic on each channel's own numbers and sums taken in a fixed order
+(``ordered``), never a BLAS product or a LAPACK inverse, whose results differ by CPU in their last bits.
 """
 
 from __future__ import annotations
@@ -38,7 +42,6 @@ from collections.abc import Callable
 from typing import Any, Protocol
 
 import numpy as np
-from filterpy.kalman import KalmanFilter
 
 ADAPT_EVERY = 16
 ADAPT_WINDOW = 64
@@ -70,6 +73,20 @@ class Predictor(Protocol):
         ...
 
     def restore(self, state: Any) -> None: ...
+
+
+def ordered(terms: list[float], weights: list[float] | None = None) -> float:
+    """The sum of ``terms`` (each times its weight, if given), added one by one in index order: the same
+    IEEE operations on every CPU and Python (``sum`` compensates since Python 3.12; a BLAS dot product
+    blocks and fuses by CPU)."""
+    total = 0.0
+    if weights is None:
+        for term in terms:
+            total += term
+    else:
+        for term, weight in zip(terms, weights, strict=True):
+            total += term * weight
+    return total
 
 
 GAINS = np.array([1 / 64, 1 / 32, 1 / 16, 1 / 8, 1 / 4, 1 / 2, 3 / 4, 7 / 8])
@@ -133,34 +150,52 @@ class _LocalLevel:
 
 
 class _ConstantVelocity:
-    """Every channel's constant-velocity filter (level and rate, white-noise acceleration): filterpy."""
+    """Every channel's constant-velocity filter (level and rate, white-noise acceleration of intensity q),
+    F = [[1, 1], [0, 1]], H = [1, 0]: the Kalman equations written out on each channel's 2 x 2 covariance
+    (``p``: its entries 00, 01, 11), element-wise in a fixed order. State as filterpy would hold it: x
+    interleaved (level, rate per channel), P block-diagonal."""
 
     def __init__(self, initial: np.ndarray) -> None:
         n = len(initial)
-        self.kf = KalmanFilter(dim_x=2 * n, dim_z=n)
-        self.kf.F = np.kron(np.eye(n), np.array([[1.0, 1.0], [0.0, 1.0]]))
-        self.kf.H = np.kron(np.eye(n), np.array([[1.0, 0.0]]))
-        self.kf.x = np.zeros(2 * n)
-        self.kf.x[::2] = initial
-        self.kf.P *= 1e6
+        self.x, self.v = np.array(initial, dtype=np.float64), np.zeros(n)
+        self.p = np.array([np.full(n, 1e6), np.zeros(n), np.full(n, 1e6)])
+        self.q = np.zeros(n)
 
     def tune(self, ratio: np.ndarray) -> None:
-        self.kf.Q = np.kron(np.diag(ratio), np.array([[1 / 3, 1 / 2], [1 / 2, 1.0]]))
+        self.q = ratio.copy()
 
     def predict(self) -> None:
-        self.kf.predict()
+        p00, p01, p11 = self.p
+        self.x = self.x + self.v
+        # F P F' + Q, Q = q [[1/3, 1/2], [1/2, 1]]
+        self.p = np.array([(p00 + p01) + (p01 + p11) + self.q / 3, p01 + p11 + self.q / 2, p11 + self.q])
 
     def update(self, z: np.ndarray, r: np.ndarray) -> None:
-        self.kf.update(z, R=np.diag(r))
+        p00, p01, p11 = self.p
+        s = p00 + r
+        k0, k1 = p00 / s, p01 / s  # K = P H' / (H P H' + R)
+        innovation = z - self.x
+        self.x, self.v = self.x + k0 * innovation, self.v + k1 * innovation
+        keep = 1.0 - k0  # Joseph form: (I - K H) P (I - K H)' + K R K'
+        a00, a01 = keep * p00, keep * p01
+        a10, a11 = p01 - k1 * p00, p11 - k1 * p01
+        self.p = np.array(
+            [a00 * keep + k0 * r * k0, a01 - a00 * k1 + k0 * r * k1, a11 - a10 * k1 + k1 * r * k1]
+        )
 
     def level(self) -> np.ndarray:
-        return self.kf.x[::2]
+        return self.x
 
     def state(self) -> tuple[np.ndarray, np.ndarray]:
-        return self.kf.x.copy(), self.kf.P.copy()
+        n = len(self.x)
+        x, p = np.zeros(2 * n), np.zeros((2 * n, 2 * n))
+        x[::2], x[1::2] = self.x, self.v
+        p[::2, ::2], p[::2, 1::2], p[1::2, ::2], p[1::2, 1::2] = (np.diag(e) for e in self.p[[0, 1, 1, 2]])
+        return x, p
 
     def restore(self, x: np.ndarray, p: np.ndarray) -> None:
-        self.kf.x, self.kf.P = x.copy(), p.copy()
+        self.x, self.v = np.array(x[::2], dtype=np.float64), np.array(x[1::2], dtype=np.float64)
+        self.p = np.array([np.diag(p[::2, ::2]), np.diag(p[::2, 1::2]), np.diag(p[1::2, 1::2])])
 
 
 class _AdaptiveKalman:
@@ -235,10 +270,10 @@ class WindowMean:
     def current(self) -> np.ndarray:
         if not self.values:
             return self.last.copy()
-        window = np.array(self.values)
-        present = ~np.isnan(window)
-        count = present.sum(axis=0)
-        total = np.where(present, window, 0.0).sum(axis=0)
+        total, count = np.zeros(len(self.last)), np.zeros(len(self.last))
+        for values in self.values:  # oldest first: a fixed order
+            present = ~np.isnan(values)
+            total, count = total + np.where(present, values, 0.0), count + present
         return np.where(count > 0, total / np.maximum(count, 1), self.last)
 
     def update(self, reconstructed: np.ndarray) -> None:

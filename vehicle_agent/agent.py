@@ -25,7 +25,6 @@ import asyncio
 import logging
 import math
 import signal
-import sys
 import time
 import tomllib
 from collections import deque
@@ -97,15 +96,13 @@ class AgentConfig:
 
     @classmethod
     def load(cls, path: str | Path) -> AgentConfig:
+        """The settings as written (``vehicle_agent.check`` says what is wrong with their values)."""
         data = tomllib.loads(Path(path).read_text())
         check_keys(str(path), data, cls)
-        limits = Limits(**data.pop("limits", {}))
-        nav = NavConfig(**data.pop("nav", {}))
-        config = cls(**data, limits=limits, nav=nav)
-        auth.parse_key(config.key)  # a clear error now rather than at the first control packet
-        if config.next_key:
-            auth.parse_key(config.next_key)
-        return config
+        limits, nav = data.pop("limits", {}), data.pop("nav", {})
+        check_keys(f"{path} [limits]", limits, Limits)
+        check_keys(f"{path} [nav]", nav, NavConfig)
+        return cls(**data, limits=Limits(**limits), nav=NavConfig(**nav))
 
     def keys(self) -> dict[int, bytes]:
         keys = {self.key_version: auth.parse_key(self.key)}
@@ -114,20 +111,23 @@ class AgentConfig:
         return keys
 
     def plans(self, base: Path) -> dict[int, MissionPlan]:
-        plans = {}
-        for entry in self.missions:
-            entry = dict(entry)
-            if "file" in entry:
-                plan = MissionPlan.load(base / entry["file"])
-            else:
-                builtin = entry.pop("builtin")
-                builders: dict[str, Callable[..., MissionPlan]] = {
-                    "square": MissionPlan.square,
-                    "lawnmower": MissionPlan.lawnmower,
-                }
-                plan = builders[builtin](**entry)
-            plans[plan.number] = plan
-        return plans
+        return {plan.number: plan for plan in (self.plan(entry, base) for entry in self.missions)}
+
+    @staticmethod
+    def plan(entry: dict, base: Path) -> MissionPlan:
+        """One entry of ``missions``: a file (relative to ``base``, the configuration's folder) or a
+        built-in plan with its arguments."""
+        entry = dict(entry)
+        if "file" in entry:
+            return MissionPlan.load(base / entry["file"])
+        builtin = entry.pop("builtin")
+        builders: dict[str, Callable[..., MissionPlan]] = {
+            "square": MissionPlan.square,
+            "lawnmower": MissionPlan.lawnmower,
+        }
+        if builtin not in builders:
+            raise ValueError(f"no built-in mission {builtin!r} (there are {', '.join(builders)})")
+        return builders[builtin](**entry)
 
 
 class Agent:
@@ -537,15 +537,23 @@ class Agent:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", required=True, help="the agent's TOML configuration")
+    parser.add_argument(
+        "--check",
+        action="store_true",
+        help="check the configuration, the modem's serial port and the autopilot before a dive: each "
+        "problem on one line, exit 0 if ready, 1 if not",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
-    try:
-        config = AgentConfig.load(args.config)
-        plans = config.plans(Path(args.config).resolve().parent)
-    except (OSError, ValueError, TypeError, tomllib.TOMLDecodeError) as exc:
-        print(f"tacit agent: {exc}", file=sys.stderr)
-        return 2
+    from vehicle_agent import check  # it reads AgentConfig from here
+
+    if args.check:
+        return check.check(args.config)
+    loaded = check.starting(args.config)
+    if loaded is None or loaded.config is None:
+        return check.EXIT_CONFIG
+    config, plans = loaded.config, loaded.plans
 
     async def main() -> None:
         stop = asyncio.Event()

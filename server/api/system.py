@@ -4,15 +4,17 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from server.api.deps import Reader, ScreensDep
+from server.api.deps import Reader, ScreensDep, SettingsDep
+from server.backhaul.access import BrokerMode
 from server.screens.schemas import Health, RoleOut
 
 router = APIRouter(prefix="/api/v1", tags=["data"])
 
 
 @router.get("/health", response_model=Health)
-def health(screens: ScreensDep) -> Health:
-    return Health(status="ok", modem=screens.link_status()["modem"])
+def health(screens: ScreensDep, settings: SettingsDep) -> Health:
+    broker = BrokerMode.of(settings.nats_credentials, settings.nats_insecure)
+    return Health(status="ok", modem=screens.link_status()["modem"], broker=broker)
 
 
 @router.get("/whoami", response_model=RoleOut)

@@ -46,14 +46,17 @@ import time
 from collections import Counter
 from collections.abc import Awaitable, Callable
 from datetime import UTC, datetime
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import nats
 from nats.aio.client import Client
 from nats.aio.msg import Msg
 from nats.errors import Error as NatsError
 from nats.js import JetStreamContext
 from nats.js.api import AckPolicy, ConsumerConfig, DeliverPolicy
 from nats.js.errors import NotFoundError
+from sqlalchemy.engine import make_url
 from sqlalchemy.exc import InterfaceError, OperationalError
 
 from server.backhaul import access, broker, subjects
@@ -62,7 +65,14 @@ from server.backhaul.guard import Guard
 from server.backhaul.leases import COORDINATOR, Leases, partition_key
 from server.backhaul.live import Live
 from server.backhaul.relay import RelayedIncoming, RelayIngest
-from server.backhaul.subjects import CommandMessage, EventMessage, PayloadError, ScheduleMessage
+from server.backhaul.subjects import (
+    UNNAMED,
+    CommandMessage,
+    Deployment,
+    EventMessage,
+    PayloadError,
+    ScheduleMessage,
+)
 
 if TYPE_CHECKING:
     from server.shore import Shore
@@ -82,7 +92,7 @@ class Center:
         self,
         ingest: RelayIngest,
         url: str,
-        durable: str = DURABLE,
+        deployment: Deployment = UNNAMED,
         batch: int = 64,
         ack_wait: float = 30.0,
         duplicate_window: float = subjects.DUPLICATE_WINDOW,
@@ -90,12 +100,16 @@ class Center:
         events_since: float = subjects.COMMAND_MAX_AGE,
         instance: str | None = None,
         lease: float = 5.0,
+        database: str = "",
     ) -> None:
+        """``database``: which database it stores into (``database_identity``), said to the others."""
         self.ingest = ingest
+        self.database = database
         self.events_since = events_since
         self.auth = auth
         self.url = url
-        self.durable = durable
+        self.deployment = deployment
+        self.durable = deployment.named(DURABLE)  # its consumers' names' prefix, and its leases' bucket
         self.batch = batch
         self.ack_wait = ack_wait
         self.duplicate_window = duplicate_window
@@ -104,7 +118,7 @@ class Center:
         self.nc: Client | None = None
         self.js: JetStreamContext | None = None
         self.leases: Leases | None = None
-        self.live = None if instance is None else Live(ingest.bus, instance)  # the others' live events
+        self.live = None if instance is None else Live(ingest.bus, instance, deployment)  # the others' events
         self.subs: dict[int, JetStreamContext.PullSubscription] = {}  # the partitions consumed here
         self.coordinator = instance is None  # runs the singletons (the events, routing, slots, retention)
         self.gateways: dict[str, dict[str, Any]] = {}  # each gateway's last heartbeat
@@ -127,13 +141,13 @@ class Center:
         """The broker, the streams and the events' consumer; without an instance, every partition."""
         self.nc = await broker.connect(self.url, self.instance or "tacit-center", self._state, auth=self.auth)
         self.js = self.nc.jetstream()
-        await broker.ensure_streams(self.js, self.duplicate_window)
+        await broker.ensure_streams(self.js, self.duplicate_window, self.deployment)
         if self.instance is None:
             self.events = await self._subscribe_events(self.js)
             for part in range(subjects.PARTITIONS):
                 self.subs[part] = await self._partition(self.js, part)
         else:
-            self.leases = Leases(self.js, self.durable, self.instance, self.lease)
+            self.leases = Leases(self.js, self.durable, self.instance, self.lease, self.database)
             await self.leases.open()
             await self.leases.renew()  # announced among the members
             await asyncio.to_thread(self.ingest.own, self.mine)  # none until it holds a partition
@@ -176,15 +190,20 @@ class Center:
     async def publish(self, subject: str, payload: bytes, message_id: str) -> None:
         """Publish to a stream with ``message_id`` as its ``Nats-Msg-Id`` (the dispatcher's way down)."""
         assert self.js is not None, "connect() first"
-        await self.js.publish(subject, payload, headers={subjects.MSG_ID: message_id})
+        await self.js.publish(
+            self.deployment.subject(subject), payload, headers={subjects.MSG_ID: message_id}
+        )
 
     async def kept_schedules(self) -> list[ScheduleMessage]:
         """The last schedule the stream keeps for each gateway (what gateways may still follow)."""
         assert self.js is not None, "connect() first"
-        info = await self.js.stream_info(subjects.SCHEDULE_STREAM, subjects_filter=subjects.schedule(">"))
+        stream = self.deployment.named(subjects.SCHEDULE_STREAM)
+        info = await self.js.stream_info(
+            stream, subjects_filter=self.deployment.subject(subjects.schedule(">"))
+        )
         kept = []
         for subject in sorted(info.state.subjects or {}):
-            msg = await self.js.get_last_msg(subjects.SCHEDULE_STREAM, subject)
+            msg = await self.js.get_last_msg(stream, subject)
             try:
                 kept.append(ScheduleMessage.decode(msg.data or b""))
             except PayloadError as exc:
@@ -315,7 +334,11 @@ class Center:
 
     def _partition(self, js: JetStreamContext, part: int) -> Awaitable[JetStreamContext.PullSubscription]:
         return self._durable(
-            js, subjects.FRAMES_STREAM, f"{self.durable}-{part}", subjects.frames("*", part), 10 * self.batch
+            js,
+            self.deployment.named(subjects.FRAMES_STREAM),
+            f"{self.durable}-{part}",
+            self.deployment.subject(subjects.frames("*", part)),
+            10 * self.batch,
         )
 
     async def _durable(
@@ -363,9 +386,9 @@ class Center:
         floor if its last holder left messages unacked), or made to start ``events_since`` s back."""
         return await self._durable(
             js,
-            subjects.EVENTS_STREAM,
+            self.deployment.named(subjects.EVENTS_STREAM),
             f"{self.durable}-events",
-            subjects.events(">"),
+            self.deployment.subject(subjects.events(">")),
             since=self.events_since,
         )
 
@@ -394,7 +417,7 @@ class Center:
             return 0
         batch: list[tuple[RelayedIncoming, Msg]] = []
         for msg in msgs:
-            frame = self.guard.frame(msg.subject, msg.data)
+            frame = self.guard.frame(self.deployment.local(msg.subject), msg.data)
             if frame is None:
                 self.counters["malformed"] += 1
                 await msg.term()
@@ -485,13 +508,14 @@ class Center:
 
     async def _event(self, msg: Msg) -> None:
         now = time.time()
-        event = self.guard.event(msg.subject, msg.data, now)
+        event = self.guard.event(self.deployment.local(msg.subject), msg.data, now)
         if event is None:
             await msg.term()
             return
         if event.kind == "heartbeat":
             if not self.guard.stale(event, now):  # a backlog's says nothing of now
                 self.gateways[event.gateway] = {**event.detail, "at": event.at, "seen": now}
+                await self._gateway_consumers(event)
         elif event.kind != "attempt":
             log.info("gateway %s: %s %s", event.gateway, event.kind, event.detail)
         try:
@@ -503,12 +527,25 @@ class Center:
             return
         await msg.ack()
 
+    async def _gateway_consumers(self, heartbeat: EventMessage) -> None:
+        """A gateway heard: its consumers made if missing (the center makes them, not the gateway), those
+        of the last messages made anew for a new outbox."""
+        assert self.js is not None, "connect() first"
+        try:
+            await broker.ensure_gateway_consumers(
+                self.js, heartbeat.gateway, str(heartbeat.detail["incarnation"]), self.deployment
+            )
+        except (NatsError, TimeoutError) as exc:  # its next heartbeat tries again
+            log.warning("backhaul: gateway %s's consumers not made: %s", heartbeat.gateway, exc)
+
     async def send_command(self, command: CommandMessage) -> bool:
         """Publish a signed command frame to its gateway (its id the message id); False if JetStream
         already had it (a retry within the duplicate window)."""
         assert self.js is not None, "connect() first"
         ack = await self.js.publish(
-            subjects.commands(command.gateway), command.encode(), headers={subjects.MSG_ID: command.id}
+            self.deployment.subject(subjects.commands(command.gateway)),
+            command.encode(),
+            headers={subjects.MSG_ID: command.id},
         )
         return not ack.duplicate
 
@@ -521,6 +558,50 @@ async def _pause(exc: Exception) -> None:
         await asyncio.sleep(0.5)
 
 
+def database_identity(url: str) -> str:
+    """Which database a URL names, told apart from another whatever the spelling: a SQLite file's path,
+    a server's address, port and database name (no user, no password)."""
+    parsed = make_url(url)
+    if parsed.get_backend_name() == "sqlite":
+        return f"sqlite:{Path(parsed.database or '').resolve()}"
+    try:
+        host = socket.gethostbyname(parsed.host or "localhost")
+    except OSError:
+        host = parsed.host or "localhost"
+    return f"{parsed.get_backend_name()}://{host}:{parsed.port or 5432}/{parsed.database}"
+
+
+async def refusal(
+    url: str, auth: BrokerAuth, deployment: Deployment, instance: str, database: str
+) -> str | None:
+    """Why this center process may not join its deployment's (one line), or None: another live process
+    has its instance name, or stores into another database (two databases would each hold half the
+    vehicles). A broker that does not answer yet refuses nothing: the process waits for it."""
+    try:
+        nc = await nats.connect(url, connect_timeout=2, allow_reconnect=False, max_reconnect_attempts=0,
+                                **auth.options())  # fmt: skip
+    except (NatsError, OSError, TimeoutError):
+        return None
+    try:
+        leases = Leases(nc.jetstream(), deployment.named(DURABLE), instance, 1.0)
+        entries = await leases.entries() if await leases.bind() else {}
+    except (NatsError, TimeoutError):
+        return None
+    finally:
+        await nc.close()
+    if instance in entries:
+        return (
+            f"a center process named {instance!r} runs already in deployment {deployment.name!r} (--instance)"
+        )
+    for name, entry in entries.items():
+        if entry.get("database") not in (None, "", database):
+            return (
+                f"deployment {deployment.name!r}'s center process {name!r} stores into {entry['database']}, "
+                f"this one into {database}: one database per deployment (--database-url, --deployment)"
+            )
+    return None
+
+
 def default_instance() -> str:
     """A center process's name unless given: its host's and its process id."""
     return f"{re.sub(r'[^A-Za-z0-9_-]', '-', socket.gethostname())[:40]}-{os.getpid()}"
@@ -529,7 +610,7 @@ def default_instance() -> str:
 async def serve(
     shore: Shore,
     url: str,
-    durable: str = DURABLE,
+    deployment: Deployment = UNNAMED,
     auth: BrokerAuth | None = None,
     instance: str | None = None,
 ) -> None:
@@ -544,10 +625,11 @@ async def serve(
     center = Center(
         shore.ingest,
         url,
-        durable=durable,
+        deployment=deployment,
         auth=auth,
         instance=instance or default_instance(),
         lease=shore.settings.center_lease,
+        database=database_identity(shore.settings.database_url),
     )
     dispatcher = Dispatcher(
         shore.commands,
@@ -575,12 +657,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="the center's store, e.g. postgresql+psycopg://user@host/tacit (default: "
         "TACIT_DATABASE_URL or the server's default)",
-    )
-    parser.add_argument(
-        "--durable",
-        default=DURABLE,
-        help="the consumers' durable names' prefix, the same for every process of one center "
-        "(default %(default)s)",
     )
     parser.add_argument(
         "--instance",
@@ -622,26 +698,38 @@ def run(args: argparse.Namespace) -> int:
         "nats_url": args.nats,
         "nats_credentials": args.nats_credentials,
         "nats_ca": args.nats_ca,
+        "nats_insecure": args.insecure or None,
+        "deployment": args.deployment,
         "metrics_port": args.metrics_port,
     }
     for name, value in overrides.items():
         if value is not None:
             setattr(settings, name, value)
+    instance = args.instance or default_instance()
     try:
-        auth = BrokerAuth.load(settings.nats_credentials, settings.nats_ca)
-    except access.CredentialsError as exc:
+        deployment = Deployment(settings.deployment)
+        auth = access.client_auth(
+            f"tacit center {instance}", settings.nats_credentials, settings.nats_ca, settings.nats_insecure,
+            deployment,
+        )  # fmt: skip
+    except (access.CredentialsError, ValueError) as exc:
         print(f"tacit center: {exc}", file=sys.stderr)
         return 2
-    instance = args.instance or default_instance()
+    refused = asyncio.run(
+        refusal(settings.nats_url, auth, deployment, instance, database_identity(settings.database_url))
+    )
+    if refused:
+        print(f"tacit center: {refused}", file=sys.stderr)
+        return 2
     app = create_app(
         settings,
         RelayIngest,
-        [lambda shore: serve(shore, settings.nats_url, args.durable, auth, instance)],
+        [lambda shore: serve(shore, settings.nats_url, deployment, auth, instance)],
     )
     log.info(
         "center %s: sharing %s from %s with the other center processes; API on %s:%d",
         instance,
-        subjects.frames(">"),
+        deployment.subject(subjects.frames(">")),
         settings.nats_url,
         settings.host,
         settings.port,

@@ -42,7 +42,6 @@ from nats.aio.client import Client
 from nats.aio.msg import Msg
 from nats.errors import Error as NatsError
 from nats.js import JetStreamContext
-from nats.js.api import AckPolicy, ConsumerConfig, DeliverPolicy
 from nats.js.errors import NotFoundError
 
 from server.backhaul import access, broker, subjects
@@ -50,7 +49,9 @@ from server.backhaul.access import BrokerAuth
 from server.backhaul.outbox import PUBLISH_TIMEOUT, Outbox, Publisher
 from server.backhaul.slots import ATTEMPT_AIRTIME, SYNC_WINDOW, Schedule, SlotPlan
 from server.backhaul.subjects import (
+    UNNAMED,
     CommandMessage,
+    Deployment,
     EventMessage,
     GatewayState,
     Outage,
@@ -76,10 +77,14 @@ class Gateway:
         auth: BrokerAuth | None = None,
         place: Place | None = None,
         address: int | None = None,
+        deployment: Deployment = UNNAMED,
     ) -> None:
-        """``place``: where its modem is (the screens show it); ``address``: its modem's."""
+        """``place``: where its modem is (the screens show it); ``address``: its modem's; ``deployment``:
+        the split shore it belongs to on its broker."""
         self.outbox = outbox
         self.auth = auth or BrokerAuth()
+        self.deployment = deployment
+        self.consumers = access.gateway_consumers(outbox.gateway, deployment)  # made by the center
         self.name = outbox.gateway
         self.url = url
         self.driver = driver
@@ -126,10 +131,8 @@ class Gateway:
         if self.driver is not None:  # frames heard from now on are stored, broker or not
             await self.driver.start()
         self.nc = await broker.connect(self.url, f"tacit-gateway-{self.name}", self._state, auth=self.auth)
-        js = self.nc.jetstream()
-        if not self.auth.restricted:  # on a broker with accounts, the streams are the center's
-            await broker.ensure_streams(js, self.duplicate_window)
-        self.publisher = Publisher(self.outbox, js)
+        js = self.nc.jetstream(prefix=self.auth.api_prefix)  # the streams and consumers are the center's
+        self.publisher = Publisher(self.outbox, js, self.deployment)
         self._tasks = [
             asyncio.create_task(self.publisher.run()),
             asyncio.create_task(self._commands(js)),
@@ -178,23 +181,12 @@ class Gateway:
 
     # --- commands down ---------------------------------------------------------------------------
 
-    async def _subscribe(self, js: JetStreamContext) -> JetStreamContext.PullSubscription:
-        """The gateway's own command consumer; retried while the commands stream does not exist yet (the
-        center creates it) or the broker does not answer."""
-        while True:
-            try:
-                return await js.pull_subscribe(
-                    subjects.commands(self.name),
-                    durable=access.GATEWAY_CONSUMER.format(name=self.name),
-                    stream=subjects.COMMANDS_STREAM,
-                    config=ConsumerConfig(ack_policy=AckPolicy.EXPLICIT, ack_wait=30.0),
-                )
-            except (NatsError, TimeoutError) as exc:
-                log.info("backhaul: no command consumer yet (%s); retrying", type(exc).__name__)
-                await asyncio.sleep(0.5)
+    def _bind(self, js: JetStreamContext, which: int) -> Awaitable[JetStreamContext.PullSubscription]:
+        """One of its consumers (0 commands, 1 schedule, 2 SYNC budgets), once the center has made it."""
+        return broker.bind(js, self.consumers[which], f"gateway {self.name}")
 
     async def _commands(self, js: JetStreamContext) -> None:
-        await _consume(await self._subscribe(js), self._command)
+        await _consume(await self._bind(js, 0), self._command)
 
     async def _command(self, msg: Msg) -> None:
         """Keep a command (once, whatever the redeliveries), ack it, report it, send it if a modem is here."""
@@ -315,44 +307,39 @@ class Gateway:
         self.outbox.set_command(command.id, outcome)
         self.outbox.add_event("attempt", {"command": command.id, "outcome": outcome, "final": True})
 
-    async def _latest(
-        self, js: JetStreamContext, stream: str, durable: str, subject: str
-    ) -> JetStreamContext.PullSubscription:
-        """One of the gateway's own consumers of what a stream keeps last per subject (its schedule, its
-        vehicles' SYNC budgets), made anew so that it starts at those last messages; retried while the
-        stream does not exist yet (the center creates it) or the broker does not answer."""
-        while True:
-            try:
-                with contextlib.suppress(NotFoundError):
-                    await js.delete_consumer(stream, durable)
-                return await js.pull_subscribe(
-                    subject,
-                    durable=durable,
-                    stream=stream,
-                    config=ConsumerConfig(
-                        ack_policy=AckPolicy.EXPLICIT, deliver_policy=DeliverPolicy.LAST_PER_SUBJECT
-                    ),
-                )
-            except (NatsError, TimeoutError) as exc:
-                log.info("backhaul: no %s consumer yet (%s); retrying", durable, type(exc).__name__)
-                await asyncio.sleep(0.5)
-
     async def _schedules(self, js: JetStreamContext) -> None:
-        durable = access.SCHEDULE_CONSUMER.format(name=self.name)
-        sub = await self._latest(js, subjects.SCHEDULE_STREAM, durable, subjects.schedule(self.name))
+        """Its schedule: the last the stream keeps for it (a restart resumes its slots, center or not),
+        then each new one through its consumer."""
+        sub = await self._bind(js, 1)
+        await self._last_schedule(js)
         while True:
             try:
                 msgs = await sub.fetch(1, timeout=1.0)
             except TimeoutError:
+                broker.stop_if_cancelled()
                 self._planned.set()  # none kept: at will until the center hands one out
                 continue
             except NatsError:  # failed at once (closed, consumer gone): never spin without yielding
+                broker.stop_if_cancelled()
                 await asyncio.sleep(0.5)
                 continue
             for msg in msgs:
                 await msg.ack()
                 self._schedule(msg.data)
             self._planned.set()
+
+    async def _last_schedule(self, js: JetStreamContext) -> None:
+        """The last schedule the stream keeps for this gateway, read directly (none: it waits for one)."""
+        consumer = self.consumers[1]
+        try:
+            msg = await js.get_last_msg(consumer.stream, consumer.subject, direct=True)
+        except NotFoundError:
+            return
+        except (NatsError, TimeoutError) as exc:  # its consumer brings the next one all the same
+            broker.stop_if_cancelled()
+            log.warning("gateway %s: the last schedule kept not read (%s)", self.name, type(exc).__name__)
+            return
+        self._schedule(msg.data or b"")
 
     def _schedule(self, data: bytes) -> None:
         """The center's TDMA frame for the gateways on this band."""
@@ -374,12 +361,10 @@ class Gateway:
     # --- the SYNC budget -------------------------------------------------------------------------
 
     async def _budgets(self, js: JetStreamContext) -> None:
-        durable = access.SYNCS_CONSUMER.format(name=self.name)
-        sub = await self._latest(js, subjects.SYNCS_STREAM, durable, subjects.syncs(self.name))
-        await _consume(sub, self._budget)
+        await _consume(await self._bind(js, 2), self._budget)
 
     async def _budget(self, msg: Msg) -> None:
-        self.keep_budget(msg.subject, msg.data)
+        self.keep_budget(self.deployment.local(msg.subject), msg.data)
         await msg.ack()
 
     def keep_budget(self, subject: str, data: bytes) -> bool:
@@ -448,7 +433,7 @@ class Gateway:
                     self.state().detail(),
                 )  # fmt: skip
                 with contextlib.suppress(NatsError):
-                    await self.nc.publish(subjects.events(self.name), beat.encode())
+                    await self.nc.publish(self.deployment.subject(subjects.events(self.name)), beat.encode())
             self._beat_now.clear()
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._beat_now.wait(), self.heartbeat)
@@ -471,8 +456,10 @@ async def _consume(sub: JetStreamContext.PullSubscription, handle: Callable[[Msg
         try:
             msgs = await sub.fetch(16, timeout=1.0)
         except TimeoutError:
+            broker.stop_if_cancelled()
             continue
         except NatsError:  # failed at once (closed, consumer gone): never spin without yielding
+            broker.stop_if_cancelled()
             await asyncio.sleep(0.5)
             continue
         for msg in msgs:
@@ -518,8 +505,10 @@ def _place(text: str) -> Place:
 def run(args: argparse.Namespace) -> int:
     name = subjects.gateway_name(args.name)
     try:
-        auth = BrokerAuth.load(args.nats_credentials, args.nats_ca)
-    except access.CredentialsError as exc:
+        deployment = Deployment(args.deployment or "")
+        who = f"tacit gateway {name}"
+        auth = access.client_auth(who, args.nats_credentials, args.nats_ca, args.insecure, deployment)
+    except (access.CredentialsError, ValueError) as exc:
         print(f"tacit gateway: {exc}", file=sys.stderr)
         return 2
     outbox = Outbox(args.outbox or Path(f"gateway-{name}.db"), name)
@@ -536,7 +525,7 @@ def run(args: argparse.Namespace) -> int:
     async def main() -> None:
         gateway = Gateway(
             outbox, args.nats, driver, auth=auth, place=args.position,
-            address=args.modem_address if driver else None,
+            address=args.modem_address if driver else None, deployment=deployment,
         )  # fmt: skip
         await gateway.start()
         log.info(

@@ -2,7 +2,8 @@
 named as the center's durables (``tacit-center``: two centers on one broker, each with its ``--durable``,
 do not share theirs), whose entries' age limit is the lease.
 
-* ``member.<instance>``: each live center process, written at every renewal; a dead one's expires.
+* ``member.<instance>``: each live center process, written at every renewal with its database (a
+  process whose database is not its group's is refused: ``tacit center``); a dead one's expires.
 * ``partition.<p>``: the process that consumes frames partition ``p`` (``subjects.partition``) and
   decodes its vehicles.
 * ``coordinator``: the process that runs the singletons (the routing, the TDMA schedules, the SYNC
@@ -30,7 +31,7 @@ import time
 
 from nats.errors import Error as NatsError
 from nats.js import JetStreamContext
-from nats.js.errors import BadRequestError, KeyNotFoundError, KeyWrongLastSequenceError
+from nats.js.errors import BadRequestError, KeyNotFoundError, KeyWrongLastSequenceError, NotFoundError
 from nats.js.kv import KeyValue
 
 from server.backhaul import subjects
@@ -45,8 +46,12 @@ def partition_key(part: int) -> str:
 
 
 class Leases:
-    def __init__(self, js: JetStreamContext, bucket: str, instance: str, ttl: float) -> None:
+    def __init__(
+        self, js: JetStreamContext, bucket: str, instance: str, ttl: float, database: str = ""
+    ) -> None:
+        """``database``: which database this process stores into (``center.database_identity``)."""
         self.js = js
+        self.database = database
         self.bucket = bucket
         self.instance = subjects.gateway_name(instance)  # one subject token, as a gateway's name
         self.ttl = ttl
@@ -63,6 +68,14 @@ class Leases:
             self.ttl = info.config.max_age or self.ttl
             log.warning("center %s: the leases bucket's lease is %.1f s", self.instance, self.ttl)
 
+    async def bind(self) -> bool:
+        """The bucket if it exists (made by a running or earlier process), without making it."""
+        try:
+            self.kv = await self.js.key_value(self.bucket)
+        except NotFoundError:
+            return False
+        return True
+
     def holds(self, key: str) -> bool:
         return key in self.held
 
@@ -73,17 +86,25 @@ class Leases:
 
     async def members(self) -> list[str]:
         """The live processes' instances in name order."""
+        return list(await self.entries())
+
+    async def entries(self) -> dict[str, dict[str, object]]:
+        """The live processes' entries (``instance``, ``database``, ``at``) by instance, in name order."""
         kv = self._kv()
         prefix = f"$KV.{self.bucket}.member."
         info = await self.js.stream_info(f"KV_{self.bucket}", subjects_filter=f"{prefix}>")
-        names = []
+        found: dict[str, dict[str, object]] = {}
         for subject in sorted(info.state.subjects or {}):
             try:
-                await kv.get(subject.removeprefix(f"$KV.{self.bucket}."))
+                entry = await kv.get(subject.removeprefix(f"$KV.{self.bucket}."))
             except KeyNotFoundError:  # a member that left (deleted)
                 continue
-            names.append(subject.removeprefix(prefix))
-        return names
+            try:
+                value = json.loads(entry.value or b"")
+            except json.JSONDecodeError:
+                value = {}
+            found[subject.removeprefix(prefix)] = value if isinstance(value, dict) else {}
+        return found
 
     @staticmethod
     def wanted(members: list[str], instance: str) -> set[int]:
@@ -149,7 +170,7 @@ class Leases:
             log.warning("center %s: not deleted from the members: %s", self.instance, exc)
 
     def _value(self) -> bytes:
-        return json.dumps({"instance": self.instance, "at": time.time()}).encode()
+        return json.dumps({"instance": self.instance, "database": self.database, "at": time.time()}).encode()
 
     def _kv(self) -> KeyValue:
         assert self.kv is not None, "open() first"

@@ -24,9 +24,10 @@ log = logging.getLogger("tacit.backhaul.live")
 
 
 class Live:
-    def __init__(self, bus: Bus, instance: str) -> None:
+    def __init__(self, bus: Bus, instance: str, deployment: subjects.Deployment = subjects.UNNAMED) -> None:
         self.bus = bus
-        self.subject = subjects.live(instance)
+        self.deployment = deployment
+        self.subject = deployment.subject(subjects.live(instance))
         self.peers = False  # other center processes are alive: publish (set by the leases' renewal)
         self.nc: Client | None = None
         self._sending: set[asyncio.Task[None]] = set()
@@ -34,7 +35,7 @@ class Live:
 
     async def start(self, nc: Client) -> None:
         self.nc = nc
-        await nc.subscribe(subjects.live(), cb=self._in)
+        await nc.subscribe(self.deployment.subject(subjects.live()), cb=self._in)
 
     def _out(self, event: Event) -> None:
         """A local event (from the event loop), to the other processes."""

@@ -303,10 +303,17 @@ class Publisher:
     on a failure (broker down, no stream, timeout) waits and tries the same message again."""
 
     def __init__(
-        self, outbox: Outbox, js: JetStreamContext, timeout: float = PUBLISH_TIMEOUT, retry: float = 0.5
+        self,
+        outbox: Outbox,
+        js: JetStreamContext,
+        deployment: subjects.Deployment = subjects.UNNAMED,
+        timeout: float = PUBLISH_TIMEOUT,
+        retry: float = 0.5,
     ) -> None:
+        """``deployment``: the outbox keeps the wire's subjects, published on the deployment's."""
         self.outbox = outbox
         self.js = js
+        self.deployment = deployment
         self.timeout = timeout
         self.retry = retry
         self.wake = asyncio.Event()
@@ -343,7 +350,10 @@ class Publisher:
             tried = time.time()
             try:
                 ack = await self.js.publish(
-                    item.subject, item.payload, timeout=self.timeout, headers={subjects.MSG_ID: item.id}
+                    self.deployment.subject(item.subject),
+                    item.payload,
+                    timeout=self.timeout,
+                    headers={subjects.MSG_ID: item.id},
                 )
             except (NatsError, TimeoutError, OSError) as exc:
                 if self.healthy:

@@ -98,6 +98,37 @@ def sync_id(address: int, counter: int) -> str:
     return f"sync-{address}-{counter}"
 
 
+@dataclass(frozen=True)
+class Deployment:
+    """One split shore's names on a broker that others may share. ``name`` (a subject token; "", the
+    default: none) prefixes every subject (``<name>.tacit.v1.frames.ship.3``) and every stream, consumer
+    and bucket name (``<name>-TACIT_FRAMES``), so two deployments on one broker, even in one account,
+    share none (JetStream refuses two streams of overlapping subjects in one account). The code speaks
+    of the subjects without it (``frames``, ``commands``, ...): the broker's clients add it to what they
+    publish and subscribe to (``subject``) and take it off what they receive (``local``)."""
+
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        if self.name and not _TOKEN.match(self.name):
+            raise ValueError(f"a deployment name is 1-64 letters, digits, '_' or '-': {self.name!r}")
+
+    def subject(self, subject: str) -> str:
+        """A subject of the wire as it is on this deployment's broker."""
+        return f"{self.name}.{subject}" if self.name else subject
+
+    def local(self, subject: str) -> str:
+        """A subject received from the broker, as the wire names it (without the deployment)."""
+        return subject.removeprefix(f"{self.name}.") if self.name else subject
+
+    def named(self, name: str) -> str:
+        """A stream's, consumer's or bucket's name on this deployment's broker."""
+        return f"{self.name}-{name}" if self.name else name
+
+
+UNNAMED = Deployment()  # the default: the wire's subjects and names as they are
+
+
 def is_sync(command_id: str) -> bool:
     """Whether a command id is a SYNC's: its outcome is not a command's (the next check-point says
     whether it arrived)."""

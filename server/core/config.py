@@ -77,7 +77,9 @@ class Settings(BaseSettings):
     nats_url: str = "nats://127.0.0.1:4222"  # the center's broker (docs/backhaul.md)
     nats_credentials: str = ""  # this role's credentials file (`tacit broker-config`); empty: no accounts
     nats_ca: str = ""  # the CA of the broker's certificate, for a tls:// URL
-    metrics_host: str = "127.0.0.1"  # the center's /metrics listener (Prometheus)
+    nats_insecure: bool = False  # no credentials, on a broker without accounts: development only
+    deployment: str = ""  # the split shore's name on its broker: prefixes its subjects, streams, consumers
+    metrics_host: str = "127.0.0.1"  # a shore process's /metrics listener (Prometheus: server.ops)
     metrics_port: int = Field(9464, ge=0, le=65535)  # 0: none
     retention_days: float = Field(0.0, ge=0)  # relayed frames' records older are deleted; 0: kept for ever
     max_skew: float = Field(120.0, gt=0)  # s a check-point may be ahead of the shore's clock and raise the
@@ -91,8 +93,8 @@ class Settings(BaseSettings):
     restructure_vehicles: int = Field(2, ge=0)
     restructure_radius: float = Field(15.0, gt=0)  # m
     restructure_auto: bool = False  # apply the proposal at once; otherwise an operator confirms it
-    # --- what the exported data say of themselves (ACDD-1.3 attributes of the NetCDF export) ---
-    deployment: str = "tacit"  # the deployment's (campaign's) name: the files' project and id
+    # --- what the exported data say of themselves (ACDD-1.3 attributes of the NetCDF export; the
+    # deployment's name above is their project) ---
     summary: str = ""  # a paragraph on what the data are; empty: one the shore writes (vehicle, stream)
     creator_name: str = ""  # who collected the data (a person or an institution); empty: not said
     creator_email: str = ""

@@ -18,6 +18,7 @@ from server.backhaul.guard import Guard
 from server.core.db import writing
 from server.ops import repository
 from server.ops.exposition import Family, render
+from tacit.modem import LinkState
 
 log = logging.getLogger("tacit.ops")
 
@@ -139,16 +140,53 @@ class Metrics:
         return [frames, up, since, waiting]
 
     def _ingest(self) -> list[Family]:
-        stats = self.center.ingest.stats
-        counters = Family(
-            "tacit_ingest_total", "The ingest pipeline's counters, by what they count", "counter"
-        )
-        for what, count in sorted(stats.items()):
+        return ingest_families(self.center.ingest.stats)
+
+
+def ingest_families(stats: Mapping[str, int]) -> list[Family]:
+    """The ingest pipeline's counters (every shore process has one)."""
+    counters = Family("tacit_ingest_total", "The ingest pipeline's counters, by what they count", "counter")
+    for what, count in sorted(stats.items()):
+        counters.add(count, counter=what)
+    errors = Family("tacit_decode_errors_total", "Packets that did not decode or verify", "counter")
+    for what in ("rejected", "forged", "unverifiable"):
+        errors.add(stats.get(what, 0), kind=what)
+    return [counters, errors]
+
+
+class Link(Protocol):
+    """What the metrics read of a shore's link engine (``server.link.engine.LinkEngine``)."""
+
+    def status(self) -> dict[str, Any]: ...
+
+
+class ShoreMetrics:
+    """What ``/metrics`` shows for a shore with its own modem (``tacit serve``, the demo): the modem,
+    the link's counters, each vehicle's frames and packets, the ingest pipeline's counters."""
+
+    def __init__(self, link: Link) -> None:
+        self.link = link
+
+    def text(self) -> str:
+        status = self.link.status()
+        return render([*self._link(status), *self._vehicles(status), *ingest_families(status["ingest"])])
+
+    def _link(self, status: dict[str, Any]) -> list[Family]:
+        counters = Family("tacit_link_total", "The link engine's counters, by what they count", "counter")
+        for what, count in sorted(status["counters"].items()):
             counters.add(count, counter=what)
-        errors = Family("tacit_decode_errors_total", "Packets that did not decode or verify", "counter")
-        for what in ("rejected", "forged", "unverifiable"):
-            errors.add(stats.get(what, 0), kind=what)
-        return [counters, errors]
+        ready = Family("tacit_modem_ready", "The shore modem: 1 configured and answering, else 0")
+        return [ready.add(int(status["modem"] == LinkState.READY.value)), counters]
+
+    def _vehicles(self, status: dict[str, Any]) -> list[Family]:
+        frames = Family("tacit_vehicle_frames_total", "Frames heard from each vehicle", "counter")
+        packets = Family("tacit_vehicle_packets_total", "Packets stored from each vehicle", "counter")
+        heard = Family("tacit_vehicle_last_heard_timestamp_seconds", "When each vehicle was last heard")
+        for name, v in sorted(status["vehicles"].items()):
+            frames.add(v["frames"], vehicle=name)
+            packets.add(v["packets"], vehicle=name)
+            heard.add(_number(v["last_heard"]), vehicle=name)
+        return [frames, packets, heard]
 
 
 def _number(value: object) -> float:

@@ -7,6 +7,8 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
+from server.backhaul.access import BrokerMode
+
 
 class CommandSpec(BaseModel):
     hint: str
@@ -153,6 +155,10 @@ class ScreenConfig(BaseModel):
 class Health(BaseModel):
     status: str
     modem: str
+    broker: BrokerMode | None = Field(
+        None,
+        description="a center's broker: accounts (credentials) or insecure (--insecure); none: no broker",
+    )
 
 
 class RoleOut(BaseModel):

@@ -80,9 +80,10 @@ class About:
 
     @classmethod
     def of(cls, settings: Any) -> About:
-        """From the server's ``Settings`` (the fields of the same names)."""
-        names = [f.name for f in fields(cls)]
-        return cls(**{name: getattr(settings, name) for name in names})
+        """From the server's ``Settings`` (the fields of the same names; an unnamed deployment is
+        "tacit")."""
+        said = {f.name: getattr(settings, f.name) for f in fields(cls)}
+        return cls(**{**said, "deployment": said["deployment"] or cls.deployment})
 
 
 @dataclass(frozen=True)
@@ -113,7 +114,7 @@ def columns(spec: StreamSpec) -> dict[str, Attributes]:
             "coverage_content_type": "coordinate",
         },  # fmt: skip
         "tick": {
-            "long_name": "the codec's tick number (time dates a sample within half the stream's period)",
+            "long_name": "the codec's tick number (time dates a sample within the stream's time_precision)",
             "units": "1",
             "coverage_content_type": "auxiliaryInformation",
         },
@@ -197,6 +198,8 @@ def attributes(d: Dataset) -> Attributes:
         "stream": d.spec.name,
         "stream_period": d.spec.period,
         "stream_period_units": "s",
+        "time_precision": d.spec.time_precision,  # half a period, or the stream's time tolerance
+        "time_precision_units": "s",
         "standard_name_vocabulary": STANDARD_NAME_VOCABULARY,
         "date_created": now,
         "history": f"{now} exported by Tacit",

@@ -9,6 +9,7 @@ module:
 - ``prediction``: the dual predictor (per-channel predictor plus cross-channel regression);
 - ``grid``: the tick grid a sample's time is placed on, and its phase;
 - ``format``: the payload's layout, its header and its errors;
+- ``tokens``: the kinds of token a stream's section is made of;
 - ``grammar``: the tokens of a stream's section and the coding of a sample, written and read;
 - ``models``: the adaptive models both ends keep per stream, and their contexts;
 - ``state``: the chain of states packets continue from, and how the shore saves it;

@@ -16,13 +16,10 @@ import numpy as np
 from tacit.arithmetic import Decoder
 from tacit.codec.format import CODE_BITS, CodecError, UnknownBase, next_id, unpack
 from tacit.codec.grammar import (
-    END,
-    LOST,
-    PHASE,
-    SAME,
-    START,
     RawValue,
+    continues,
     placed,
+    presence_before,
     read_sample,
     read_token,
     started,
@@ -31,6 +28,8 @@ from tacit.codec.grid import PHASES, regrid
 from tacit.codec.prediction import Dual
 from tacit.codec.spec import StreamSpec
 from tacit.codec.state import Chain, Position, restore, save
+from tacit.codec.tokens import END, LOST, PHASE, SAME, START
+from tacit.codec.versions import coding
 
 
 @dataclass
@@ -43,6 +42,9 @@ class DecodedSpan:
     lost: tuple[int, int] | None  # [start, end) ticks in a lost packet (the shore cannot vouch for them)
     phases: np.ndarray  # each sample's grid phase, sixteenths of a tick
     lost_phase: int  # the grid the lost ticks are on
+    # the first row is the rest of the stream's last row in the packet before (a sample sent in parts:
+    # the same tick, the channels that row lacks); parts within one packet are merged into one row
+    continues: bool = False
 
     @property
     def first_tick(self) -> int:
@@ -63,9 +65,12 @@ class DecodedSpan:
 class PacketDecoder:
     """The shore's side: payloads in, each stream's reconstructed samples out, in the vehicle's chain."""
 
-    def __init__(self, specs: list[StreamSpec]) -> None:
+    def __init__(self, specs: list[StreamSpec], protocol: int = 3) -> None:
+        """``protocol``: the version the vehicle speaks, which says what its payloads code
+        (``tacit.codec.versions``)."""
         self.specs = list(specs)
-        self.predictors = [Dual(s) for s in self.specs]
+        self.coding = coding(protocol)
+        self.predictors = [Dual(s, self.coding) for s in self.specs]
         self._initial = Chain.initial(self.specs, self.predictors)
         self.snapshots: dict[int, Chain] = {}
 
@@ -126,9 +131,9 @@ class PacketDecoder:
         self.snapshots = restore(self.specs, data)
 
     @classmethod
-    def from_bytes(cls, specs: list[StreamSpec], data: bytes) -> PacketDecoder:
-        """``PacketDecoder(specs)`` holding the state ``to_bytes`` saved (see ``load``)."""
-        decoder = PacketDecoder(specs)
+    def from_bytes(cls, specs: list[StreamSpec], data: bytes, protocol: int = 3) -> PacketDecoder:
+        """``PacketDecoder(specs, protocol)`` holding the state ``to_bytes`` saved (see ``load``)."""
+        decoder = PacketDecoder(specs, protocol)
         decoder.load(data)
         return decoder
 
@@ -141,7 +146,7 @@ class PacketDecoder:
         ticks: list[int] = []
         phases: list[int] = []
         rows: list[np.ndarray] = []
-        lost = None
+        lost, first_continues, last_phase = None, False, base.phase
         while True:
             token = read_token(coder, decoder)
             if token.kind == END:
@@ -174,15 +179,28 @@ class PacketDecoder:
                 index = placed(cursor, token)
                 predictor.skip(index - cursor - 1)
                 prediction = predictor.predict()
+            before, same_tick = presence_before(coder), token.kind == SAME and phase == last_phase
+            row = _reconstruct(predictor, prediction, read_sample(coder, decoder))
+            if continues(before, (~np.isnan(row)).tolist(), same_tick) and (rows or lost is None):
+                if rows:  # a part of the row before: one row
+                    rows[-1] = np.where(np.isnan(rows[-1]), row, rows[-1])
+                    continue
+                first_continues = True
             ticks.append(index)
             phases.append(phase)
-            rows.append(_reconstruct(predictor, prediction, read_sample(coder, decoder)))
-            cursor = index
+            rows.append(row)
+            cursor, last_phase = index, phase
             if len(rows) > CODE_BITS * 64:
                 raise CodecError("more samples than a packet can hold")
         values = np.array(rows) if rows else np.zeros((0, len(spec.channels)))
         span = DecodedSpan(
-            spec, np.array(ticks, dtype=np.int64), values, lost, np.array(phases, dtype=np.int64), base.phase
+            spec,
+            np.array(ticks, dtype=np.int64),
+            values,
+            lost,
+            np.array(phases, dtype=np.int64),
+            base.phase,
+            first_continues,
         )
         return span, Position(predictor.state(), coder, cursor, phase)
 
@@ -209,8 +227,8 @@ def _reconstruct(predictor: Dual, prediction: np.ndarray, q: list[int | None]) -
 class StreamDecoder(PacketDecoder):
     """A single stream's decoder: ``decode`` returns its one span."""
 
-    def __init__(self, spec: StreamSpec) -> None:
-        super().__init__([spec])
+    def __init__(self, spec: StreamSpec, protocol: int = 3) -> None:
+        super().__init__([spec], protocol)
         self.spec = spec
 
     def decode(self, payload: bytes, received_at: float) -> DecodedSpan:  # type: ignore[override]

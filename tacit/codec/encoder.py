@@ -20,13 +20,24 @@ import numpy as np
 
 from tacit.arithmetic import Encoder
 from tacit.codec.format import CODE_BITS, next_id, pack
-from tacit.codec.grammar import END, LOST, RAW_Q, RawValue, Token, placing, write_sample, write_token
-from tacit.codec.grid import Grid, regrid, unregrid
+from tacit.codec.grammar import (
+    RAW_Q,
+    RawValue,
+    Token,
+    continues,
+    placing,
+    presence_before,
+    write_sample,
+    write_token,
+)
+from tacit.codec.grid import PHASES, Grid, regrid, unregrid
 from tacit.codec.models import Coder
 from tacit.codec.policy import SendPolicy
 from tacit.codec.prediction import Dual
 from tacit.codec.spec import MARGIN, StreamSpec
 from tacit.codec.state import Chain, Position
+from tacit.codec.tokens import END, LOST
+from tacit.codec.versions import coding
 from tacit.packets import Priority, PriorityPacket
 
 
@@ -61,6 +72,8 @@ class EncodedPacket:
     surprises: dict[str, list[int]] = field(
         default_factory=dict
     )  # per stream and channel: values not predicted
+    # per stream and sample: its row in the shore's span (a part of the sample before it shares its row)
+    rows: list[list[int]] = field(default_factory=list)
 
 
 def _code_sample(
@@ -110,6 +123,21 @@ def _quantise(
     return out
 
 
+def _rows(section: _Section, taken: list[_Sample]) -> list[int]:
+    """For each of ``taken`` (a section's samples), the row of the shore's span it is decoded into: a
+    sample that is a part of the one before it in the same packet (``tacit.codec.grammar.continues``:
+    the same tick, other channels) is merged into that one's row."""
+    base, rows = section.base, list[int]()
+    before = presence_before(section.base.coder)
+    tick, phase = (base.cursor, base.phase) if section.lost is None else (None, base.phase)
+    for x in taken:
+        present = [v is not None for v in x.q]
+        merged = rows and continues(before, present, x.index == tick and x.phase == phase)
+        rows.append(rows[-1] if merged else len(rows) and rows[-1] + 1)
+        before, tick, phase = present, x.index, x.phase
+    return rows
+
+
 @dataclass
 class _Section:
     """One stream's part of the packet being filled."""
@@ -134,14 +162,17 @@ class PacketEncoder:
         max_latency: float = 10.0,
         urgent_threshold: float | None = None,
         max_silence: float | None = 60.0,
+        protocol: int = 3,
     ) -> None:
         """When packets leave: ``SendPolicy(max_latency, max_silence, urgent_threshold)`` (``max_silence``
-        None: no packet leaves only to confirm predictable samples)."""
+        None: no packet leaves only to confirm predictable samples). ``protocol``: the version the vehicle
+        speaks, which says what its payloads code (``tacit.codec.versions``)."""
         if not specs:
             raise ValueError("at least one stream")
         self.specs = list(specs)
+        self.coding = coding(protocol)
         self.policy = SendPolicy(max_latency, max_silence, urgent_threshold)
-        self.predictors = [Dual(s) for s in self.specs]
+        self.predictors = [Dual(s, self.coding) for s in self.specs]
         self.initial = Chain.initial(self.specs, self.predictors)
         self.delivered = self.initial
         self._queues: list[list[_Sample]] = [[] for _ in self.specs]
@@ -198,14 +229,32 @@ class PacketEncoder:
         """The tick of a sample taken at ``time``, on its stream's grid (``Grid``)."""
         spec, grid = self.specs[stream], self._grids[stream]
         if grid is None:
-            grid = self._grids[stream] = Grid.start(spec, time)
-        elif (phase := grid.follow(spec, time)) is not None:
+            grid = self._grids[stream] = Grid.start(spec.period, time)
+        elif (phase := grid.follow(spec.period, time)) is not None:
             cursor = self._cursor[stream]
             # not on a sample the new grid would date at a tick after its own (the cursor re-expressed
             # on the new grid may be up to half a tick later than the latest sample)
             if cursor is None or spec.tick(time, phase) >= regrid(cursor, self._phase[stream], phase):
                 grid.move(phase)
-        return spec.tick(time, grid.phase)
+        index = spec.tick(time, grid.phase)
+        return self._stepped(stream, time, index, grid.phase) if self.coding.tolerance else index
+
+    def _stepped(self, stream: int, time: float, index: int, phase: int) -> int:
+        """Version 4: the tick after the last sample's if it dates ``time`` within the stream's time
+        tolerance (``StreamSpec.time_precision``): a sampler whose intervals wander about the period then
+        costs a STEP, not SAME and JUMP; else ``index``, the nearest tick. A gap longer than the
+        tolerance stays a gap, exact."""
+        spec, cursor = self.specs[stream], self._cursor[stream]
+        if cursor is None:
+            return index
+        if phase != self._phase[stream]:
+            cursor = regrid(cursor, self._phase[stream], phase)
+        following = cursor + 1
+        return (
+            following
+            if abs((following + phase / PHASES) * spec.period - time) <= spec.time_precision
+            else index
+        )
 
     def _process(self, stream: int, sample: _Sample, draft: bool = True) -> None:
         spec, predictor = self.specs[stream], self.predictors[stream]
@@ -326,7 +375,7 @@ class PacketEncoder:
         urgent = any(x.urgent for x in draft)
         main = self._main_stream(urgent)  # before the taken samples leave the queues
         main_first = self._first_index(main)
-        positions, counts, serials, surprises = [], {}, [], {}
+        positions, counts, serials, rows, surprises = [], {}, [], [], {}
         for s, section in enumerate(self._sections):
             taken, rest = self._queues[s][: section.count], self._queues[s][section.count :]
             predictor = rest[0].state_before if rest else self.predictors[s].state()
@@ -338,6 +387,7 @@ class PacketEncoder:
                 sum(1 for x in taken if x.q[c]) for c in range(len(self.specs[s].channels))
             ]
             serials.append([x.serial for x in taken])
+            rows.append(_rows(section, taken))
             self._queues[s] = rest
         chain = Chain(next_id(self._base.id), positions)
         packet = PriorityPacket(
@@ -358,6 +408,7 @@ class PacketEncoder:
             serials,
             len(bits),
             surprises,
+            rows,
         )
         carried = [sec.count > 0 or sec.lost is not None for sec in self._sections]
         self.in_flight = (chain, carried)
@@ -489,8 +540,9 @@ class StreamEncoder(PacketEncoder):
         max_latency: float = 10.0,
         urgent_threshold: float | None = None,
         max_silence: float | None = 60.0,
+        protocol: int = 3,
     ) -> None:
-        super().__init__([spec], max_latency, urgent_threshold, max_silence)
+        super().__init__([spec], max_latency, urgent_threshold, max_silence, protocol)
         self.spec = spec
 
     def push(self, time: float, values: np.ndarray | list[float], urgent: bool = False) -> bool:  # type: ignore[override]

@@ -30,18 +30,16 @@ stream's first sample (at 256 Hz, 18 hours).
 from __future__ import annotations
 
 import struct
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
 from tacit.arithmetic import Decoder, Encoder
 from tacit.codec.format import CodecError
 from tacit.codec.grid import PHASE_BITS, regrid
+from tacit.codec.models import Coder
+from tacit.codec.tokens import JUMP, LOST, PHASE, SAME, START, STEP
 
-if TYPE_CHECKING:
-    from tacit.codec.models import Coder
-
-END, STEP, SAME, JUMP, LOST, START, PHASE = range(7)
 TICK_BITS = 24
 SMALL = 6
 ESC_NEG, ESC_POS, RAW = 2 * SMALL + 1, 2 * SMALL + 2, 2 * SMALL + 3
@@ -121,6 +119,17 @@ def placed(cursor: int, token: Token) -> int:
 def started(low: int, now: int) -> int:
     """The tick of a stream's first sample, from START's low bits and the tick after the reception's."""
     return now - ((now - low) % (1 << TICK_BITS))
+
+
+def presence_before(coder: Coder) -> list[bool]:
+    """Which channels the last sample coded with ``coder`` had (all, when it had every one)."""
+    return [True] * len(coder.q) if coder.previous_all else [bool(p) for p in coder.previous_present]
+
+
+def continues(before: list[bool], present: list[bool], same_tick: bool) -> bool:
+    """A sample is a part of the one before it (a sample too large for a packet, sent as parts with
+    some of its channels each): same tick and grid, none of the channels the one before had."""
+    return same_tick and not any(b and p for b, p in zip(before, present, strict=True))
 
 
 def write_sample(coder: Coder, enc: Encoder, q: list[int | None]) -> None:

@@ -15,12 +15,8 @@ burst, duplicate times: each is coded, in order, with the same tick).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
-
-if TYPE_CHECKING:
-    from tacit.codec.spec import StreamSpec
 
 PHASE_BITS = 4  # the grid phase in sixteenths of a tick
 PHASES = 1 << PHASE_BITS
@@ -28,6 +24,16 @@ PHASE_FOLLOW = 1 / 8  # the vehicle follows a sensor's phase and misplacement ra
 PHASE_GAIN = 0.15  # the grid moves to the followed phase when that would misplace 15 % fewer samples ...
 PHASE_SURE = 0.4  # ... and the samples agree on it (mean resultant length: 1 for a steady clock, 0.5 for
 # +-30 % uniform jitter, ~0.25 for random phases)
+
+
+def tick(period: float, time: float, phase: int = 0) -> int:
+    """The tick a sample taken at ``time`` belongs to, on the grid of ``phase`` (sixteenths)."""
+    return round(time / period - phase / PHASES)
+
+
+def phasor(period: float, time: float) -> complex:
+    """Where ``time`` falls within a tick, as a unit phasor (so phases average across the wrap)."""
+    return complex(np.exp(2j * np.pi * (time / period % 1.0)))
 
 
 def nearest_phase(phasor: complex) -> int:
@@ -55,24 +61,24 @@ class Grid:
     sits near a tick boundary or drifts is followed; a loose one (intervals from half to one and a half
     periods) misplaces as many samples on any grid, and does not pay for PHASE tokens chasing it."""
 
-    followed: complex  # the sensor's phase, as a phasor (``StreamSpec.phase_of``) averaged
+    followed: complex  # the sensor's phase, as a phasor (``phasor``) averaged
     phase: int  # the grid's, sixteenths of a tick
     last: float  # the previous sample's time
     misplaced: tuple[float, float] = (0.0, 0.0)  # forgetting rates: on this grid, on the followed phase's
 
     @classmethod
-    def start(cls, spec: StreamSpec, time: float) -> Grid:
-        """The grid a stream's first sample, taken at ``time``, sets."""
-        here = spec.phase_of(time)
+    def start(cls, period: float, time: float) -> Grid:
+        """The grid a stream's first sample, taken at ``time``, sets (ticks ``period`` seconds apart)."""
+        here = phasor(period, time)
         return cls(here, nearest_phase(here), time)
 
-    def follow(self, spec: StreamSpec, time: float) -> int | None:
+    def follow(self, period: float, time: float) -> int | None:
         """Take a sample's time into account; the phase the grid should move to (None: stay)."""
-        self.followed += PHASE_FOLLOW * (spec.phase_of(time) - self.followed)
+        self.followed += PHASE_FOLLOW * (phasor(period, time) - self.followed)
         candidate = nearest_phase(self.followed)
-        apart = round((time - self.last) / spec.period)
+        apart = round((time - self.last) / period)
         rates = [
-            rate + PHASE_FOLLOW * ((spec.tick(time, grid) - spec.tick(self.last, grid) != apart) - rate)
+            rate + PHASE_FOLLOW * ((tick(period, time, grid) - tick(period, self.last, grid) != apart) - rate)
             for rate, grid in zip(self.misplaced, (self.phase, candidate), strict=True)
         ]
         self.misplaced, self.last = (rates[0], rates[1]), time

@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from tacit.arithmetic import AdaptiveModel
-from tacit.codec.grammar import END
+from tacit.codec.tokens import END
 
 PRIOR = [1, 1, 1, 2, 4, 8, 24, 8, 4, 2, 1, 1, 1, 1, 1, 1]  # q = -6..6, ESC_NEG, ESC_POS, RAW
 TOKEN_PRIOR = [2, 24, 1, 2, 1, 1, 1]  # END, STEP, SAME, JUMP, LOST, START, PHASE

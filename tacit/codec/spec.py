@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tacit.codec.grid import PHASES
+from tacit.codec import grid
 from tacit.packets import Stream
 from tacit.predict import Predictor, make_predictor
 
@@ -34,6 +34,7 @@ class StreamSpec:
     method: str = "kalman"
     initial: tuple[float, ...] | None = None
     cross: bool = True  # predict each channel's residual from the channels coded before it (``Dual``)
+    time_tolerance: float | None = None  # s; version 4 dates each sample within this (None: period / 2)
 
     def __post_init__(self) -> None:
         if len(self.eps) != len(self.channels):
@@ -42,6 +43,8 @@ class StreamSpec:
             raise ValueError("every eps must be positive")
         if not self.period > 0:
             raise ValueError("period must be positive")
+        if self.time_tolerance is not None and not self.time_tolerance >= 0:
+            raise ValueError("time_tolerance must be at least 0")
 
     @property
     def step(self) -> np.ndarray:
@@ -49,8 +52,10 @@ class StreamSpec:
 
     @property
     def time_precision(self) -> float:
-        """The shore dates every sample to within this many seconds (half a tick)."""
-        return self.period / 2
+        """The shore dates every sample to within this many seconds: half a tick, or (version 4) the
+        stream's time tolerance, where the vehicle dates a sample on the tick after the last sample's
+        rather than its nearest, to keep a wandering clock's samples a tick apart."""
+        return self.period / 2 if self.time_tolerance is None else max(self.time_tolerance, self.period / 2)
 
     def predictor(self) -> Predictor:
         return make_predictor(
@@ -59,8 +64,4 @@ class StreamSpec:
 
     def tick(self, time: float, phase: int = 0) -> int:
         """The tick a sample taken at ``time`` belongs to, on the grid of ``phase`` (sixteenths)."""
-        return round(time / self.period - phase / PHASES)
-
-    def phase_of(self, time: float) -> complex:
-        """Where ``time`` falls within a tick, as a unit phasor (so phases average across the wrap)."""
-        return complex(np.exp(2j * np.pi * (time / self.period % 1.0)))
+        return grid.tick(self.period, time, phase)

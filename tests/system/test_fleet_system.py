@@ -24,7 +24,7 @@ from launch.stack import Stack, StackConfig, wait_for
 from server.app import create_app
 from server.core.config import Settings
 from server.core.events import Event, LinkNotice
-from simulators.run import MODEM_LOSS
+from simulators.parameters import MODEM_LOSS
 
 OP = {"Authorization": "Bearer operator"}
 KEYS = ["a1" * 32, "b2" * 32, "c3" * 32]

@@ -20,6 +20,9 @@ from pathlib import Path
 
 import pytest
 
+from launch.pi_install import fresh_root, install_agent
+from vehicle_agent.check import EXIT_CONFIG, EXIT_UNREADY
+
 ROOT = Path(__file__).resolve().parents[2]
 INSTALL_TIMEOUT = 900  # s: a first install downloads numpy, scipy, viser...
 
@@ -183,26 +186,42 @@ def test_core_alone_runs_the_core_and_names_the_missing_extras(checkout: Path, t
         assert f"pip install 'tacit[{extra}]'" in result.stderr and "Traceback" not in result.stderr
 
 
-def test_agent_extra_alone_runs_the_agent(checkout: Path, tmp_path: Path) -> None:
-    """``pip install tacit[agent]`` on the Pi: the agent and nothing of the web stack."""
-    bin_dir = fresh_venv(tmp_path / "venv", f"{checkout}[agent]")
+def test_the_pi_install_runs_the_agent_without_the_web_stack_or_plotting(tmp_path: Path) -> None:
+    """docs/agent.md's install (``deploy/install-agent``, its Python environment included) into a temporary
+    root: the agent's packages only (deploy/agent-requirements.txt), and the agent checks its configuration."""
+    clone = fresh_checkout(tmp_path)
+    root = fresh_root(tmp_path / "root")
+    done = install_agent(root, clone=clone, env=user_env(), timeout=INSTALL_TIMEOUT)
+    assert done.returncode == 0, done.stderr
+    bin_dir = root / "opt/tacit/.venv/bin"
     assert tacit(bin_dir, "agent", "--help").returncode == 0
-    web = subprocess.run([str(bin_dir / "python"), "-c", "import fastapi"], capture_output=True)
-    assert web.returncode != 0  # the Pi does not carry the shore's packages
-    config = tmp_path / "agent.toml"
-    config.write_text('key = "not hex"\n')
-    result = tacit(bin_dir, "agent", "--config", str(config))
-    assert result.returncode == 2 and "key" in result.stderr and "Traceback" not in result.stderr
+    for absent in (
+        "fastapi",
+        "matplotlib",
+        "lxml",
+    ):  # the shore's packages; filterpy's and pymavlink's extras
+        found = subprocess.run([str(bin_dir / "python"), "-c", f"import {absent}"], capture_output=True)
+        assert found.returncode != 0, f"{absent} is installed on the Pi"
+    config = root / "etc/tacit/agent.toml"
+    checked = tacit(bin_dir, "agent", "--check", "--config", str(config))
+    assert checked.returncode == EXIT_UNREADY and "Traceback" not in checked.stderr, checked.stderr
+    assert [x.removeprefix(f"{config}: ").split(":")[0] for x in checked.stdout.splitlines()][:3] == [
+        "key",
+        "modem_url",
+        "mavlink_url",
+    ]
+    assert tacit(bin_dir, "agent", "--config", str(config)).returncode == EXIT_CONFIG
     assert "tacit[server]" in tacit(bin_dir, "serve", "--help").stderr
 
 
 def test_server_extra_alone_serves_the_api_and_the_dashboard(checkout: Path, tmp_path: Path) -> None:
-    """``pip install tacit[server]``: the API, its migrations and the dashboard ship in the package."""
+    """``pip install tacit[server]``: the API, its migrations and the dashboard ship in the package, and
+    ``/metrics`` is served beside them."""
     bin_dir = fresh_venv(tmp_path / "venv", f"{checkout}[server]")
-    port = free_port()
+    port, metrics = free_port(), free_port()
     env = user_env(TACIT_DATABASE_URL=f"sqlite:///{tmp_path}/tacit.db", TACIT_WRITE_TOKENS="op")
     proc = subprocess.Popen(
-        [str(bin_dir / "tacit"), "serve", "--port", str(port), "--no-map"],
+        [str(bin_dir / "tacit"), "serve", "--port", str(port), "--no-map", "--metrics-port", str(metrics)],
         cwd=tmp_path,
         env=env,
         stdout=subprocess.DEVNULL,
@@ -213,6 +232,7 @@ def test_server_extra_alone_serves_the_api_and_the_dashboard(checkout: Path, tmp
         health = json.loads(wait_http(f"http://127.0.0.1:{port}/api/v1/health", 60))
         assert health["status"] == "ok"
         assert b"Tacit" in wait_http(f"http://127.0.0.1:{port}/", 10)
+        assert b"\ntacit_modem_ready " in wait_http(f"http://127.0.0.1:{metrics}/metrics", 10)
     finally:
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=30) == 0, (proc.stderr.read() if proc.stderr else "")[-3000:]

@@ -90,7 +90,7 @@ def center(tmp_path_factory: pytest.TempPathFactory, postgres_server: str) -> It
     try:
         with postgres_database(postgres_server) as url, (folder / "center.log").open("w") as log:
             proc = subprocess.Popen(
-                [sys.executable, "-m", "tacit.cli", "center", "--nats", broker.url, "--database-url", url,
+                [sys.executable, "-m", "tacit.cli", "center", "--nats", broker.url, "--insecure", "--database-url", url,
                  "--port", str(port), "--no-map"],
                 stdout=log, stderr=subprocess.STDOUT, env=env, text=True,
             )  # fmt: skip

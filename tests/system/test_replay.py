@@ -4,6 +4,7 @@ live view's URL and token at once. Its progress bar: tests/unit/launch; its one-
 from __future__ import annotations
 
 import json
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -31,6 +32,9 @@ def tacit(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
 
 
 def test_replay_of_a_real_dive(real_data: Path, tmp_path: Path) -> None:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        map_port = probe.getsockname()[1]
     proc = subprocess.Popen(
         [
             sys.executable,
@@ -46,6 +50,8 @@ def test_replay_of_a_real_dive(real_data: Path, tmp_path: Path) -> None:
             str(tmp_path),
             "--port",
             "18577",
+            "--map-port",
+            str(map_port),
             "--json",
         ],
         stdout=subprocess.PIPE,
@@ -58,6 +64,9 @@ def test_replay_of_a_real_dive(real_data: Path, tmp_path: Path) -> None:
         headers = {"Authorization": f"Bearer {live['token']}"}
         assert httpx.get(live["api_url"] + "/whoami", headers=headers).json()["role"] == "write"
         assert httpx.get(live["dashboard_url"]).status_code == 200
+        assert live["sign_in_url"] == f"http://127.0.0.1:18577/#token={live['token']}"
+        assert live["map_url"] == f"http://127.0.0.1:{map_port}"
+        assert httpx.get(live["map_url"]).status_code == 200
         wait_for(
             lambda: httpx.get(live["api_url"] + "/packets", headers=headers).json()["total"] > 0,
             timeout=90,

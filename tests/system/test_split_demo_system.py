@@ -1,7 +1,8 @@
-"""``tacit demo --gateways 2 --vehicles 3`` as a user runs it, on its own nats-server and the machine's
-PostgreSQL: both gateways beat, every vehicle gets a gateway and its check-points are verified; the
-broker is stopped and started again mid-run (every gateway's backhaul cut at once); at exit the channel
-saw no collision and the audit names no frame heard but not stored (issue 24's own check, counted)."""
+"""``tacit demo --gateways 2 --vehicles 3`` as a user runs it, on a broker with the demo deployment's
+accounts and the machine's PostgreSQL: both gateways beat, every vehicle gets a gateway and its
+check-points are verified; the broker is stopped and started again mid-run (every gateway's backhaul cut
+at once); at exit the channel saw no collision and the audit names no frame heard but not stored. Killed
+(SIGKILL) on a nats-server of its own, it leaves no process behind."""
 
 from __future__ import annotations
 
@@ -20,14 +21,15 @@ import pytest
 
 from launch import split
 from launch.stack import wait_for
-from tests.support.nats import NatsServer, free_port
+from tests.support.nats import Secured, free_port
 
 POSTGRES = "postgresql+psycopg://postgres@127.0.0.1:5432/test"
 
 
 @pytest.fixture
-def broker(tmp_path: Path) -> Iterator[NatsServer]:
-    server = NatsServer(tmp_path)
+def broker(tmp_path: Path) -> Iterator[Secured]:
+    """A broker configured as `tacit broker-config --deployment demo --gateway gw1 --gateway gw2` does."""
+    server = Secured(tmp_path / "broker", ["gw1", "gw2"], deployment=split.DEPLOYMENT)
     server.start()
     yield server
     server.stop()
@@ -41,13 +43,41 @@ def drop_database(data: Path) -> None:
             c.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
 
 
-def demo(data: Path, broker: NatsServer) -> subprocess.Popen[str]:
+def demo(data: Path, broker: Secured | None) -> subprocess.Popen[str]:
+    """The split demo, on ``broker`` (None: a nats-server of its own)."""
+    on = ["--nats", broker.url, "--broker-dir", str(broker.folder)] if broker is not None else []
     return subprocess.Popen(
         [sys.executable, "-m", "tacit.cli", "demo", "--gateways", "2", "--vehicles", "3", "--time-scale", "4",
-         "--headless", "--json", "--data-dir", str(data), "--nats", broker.url, "--postgres", POSTGRES,
+         "--headless", "--json", "--data-dir", str(data), *on, "--postgres", POSTGRES,
          "--port", str(free_port()), "--map-port", str(free_port())],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
+
+
+def children(pid: int) -> set[int]:
+    """The processes whose parent is ``pid`` (from /proc)."""
+    found = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:  # gone meanwhile
+            continue
+        if int(fields[1]) == pid:
+            found.add(int(stat.parent.name))
+    return found
+
+
+def alive(pids: set[int]) -> set[int]:
+    """Those of ``pids`` still running (not zombies)."""
+    running = set()
+    for pid in pids:
+        try:
+            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            continue
+        if state != "Z":
+            running.add(pid)
+    return running
 
 
 def verified_checkpoints(http: httpx.Client) -> dict[int, int]:
@@ -60,9 +90,7 @@ def verified_checkpoints(http: httpx.Client) -> dict[int, int]:
     return counts
 
 
-def test_the_split_demo_survives_a_broker_restart_and_loses_no_frame(
-    tmp_path: Path, broker: NatsServer
-) -> None:
+def test_the_split_demo_survives_a_broker_restart_and_loses_no_frame(tmp_path: Path, broker: Secured) -> None:
     data = tmp_path / "demo"
     proc = demo(data, broker)
     try:
@@ -85,7 +113,25 @@ def test_the_split_demo_survives_a_broker_restart_and_loses_no_frame(
         out, err = proc.communicate(timeout=120)
         drop_database(data)
     assert proc.returncode == 0, err[-3000:]
-    collisions = re.search(r"channel: \d+ transmissions, (\d+) collisions", out)
+    collisions = re.search(r"were lost: (\d+) in collisions", out)
     assert collisions and collisions.group(1) == "0", out[-3000:]
     audit = [line for line in out.splitlines() if re.match(r"\s*gw\d: \d+ frames heard", line)]
     assert len(audit) == 2 and not any("NOT STORED" in line for line in audit), out[-3000:]
+
+
+def test_a_killed_split_demo_leaves_no_process_behind(tmp_path: Path) -> None:
+    """SIGKILL: no chance to stop anything. Its nats-server, simulator, gateways and agents end by
+    themselves."""
+    data = tmp_path / "demo"
+    proc = demo(data, None)
+    try:
+        json.loads(proc.stdout.readline())  # type: ignore[union-attr]  # everything started
+        started = children(proc.pid)
+        assert len(started) == 10  # nats-server, the center, the simulator, 2 relays, 2 gateways, 3 agents
+        proc.kill()
+        proc.wait(timeout=10)
+        wait_for(lambda: not alive(started), 60, what="every child of the killed demo gone")
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        drop_database(data)

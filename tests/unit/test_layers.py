@@ -65,8 +65,13 @@ MAY_RUN_SQL = {"repository.py", "db.py"}  # a domain's repository; the database'
 
 
 def server_modules() -> dict[str, Path]:
+    return package_modules(SERVER)
+
+
+def package_modules(package: Path) -> dict[str, Path]:
+    """A package's modules by dotted name (a package by its own name, not ``__init__``)."""
     modules = {}
-    for path in sorted(SERVER.rglob("*.py")):
+    for path in sorted(package.rglob("*.py")):
         if "migrations" in path.parts:
             continue
         parts = path.relative_to(ROOT).with_suffix("").parts
@@ -75,7 +80,7 @@ def server_modules() -> dict[str, Path]:
 
 
 def module_imports(path: Path, modules: dict[str, Path]) -> list[tuple[int, str]]:
-    """The server modules ``path`` imports, ``from package import module`` resolved to the module."""
+    """The ``modules`` that ``path`` imports, ``from package import module`` resolved to the module."""
     found = []
     for node in ast.walk(ast.parse(path.read_text())):
         if isinstance(node, ast.Import):
@@ -121,10 +126,11 @@ def test_routes_and_screens_go_through_services() -> None:
     assert bad == []
 
 
-def test_the_server_has_no_import_cycle() -> None:
+@pytest.mark.parametrize("package", ["tacit", "server"])
+def test_no_import_cycle(package: str) -> None:
     """Every import counts, those made only for type checking too: a cycle is a design that only runs
     because of the order things happen to be imported in."""
-    modules = server_modules()
+    modules = package_modules(ROOT / package)
     graph = {
         name: {m for _, m in module_imports(path, modules) if m != name} for name, path in modules.items()
     }

@@ -150,3 +150,43 @@ def test_clock_columns_are_told_by_their_words(tmp_path: Path) -> None:
         "x",
     )  # measurements, though "time" and "date" are in them
     assert any("time_boot_ms" in note for note in series.notes) and series.times[1] - series.times[0] == 1.0
+
+
+def test_a_glider_log_as_it_writes_it(tmp_path: Path) -> None:
+    """A SeaExplorer's log: semicolons (a trailing one too), day-first slashed times, blank cells; with a
+    time tolerance every sample is dated within it."""
+    lines = ["Timestamp;NavState;Depth;Pitch;"]
+    for i in range(200):
+        second = i * 10 + (3 if i % 3 == 0 else 0)  # a clock that wanders about its 10 s
+        minute, second = divmod(second, 60)
+        pitch = "" if i % 40 == 7 else f"{-20 + (i % 9) * 0.5:.2f}"
+        lines.append(
+            f"13/09/2020 {17 + minute // 60:02d}:{minute % 60:02d}:{second:02d};117;{i * 0.4:.1f};{pitch};"
+        )
+    path = tmp_path / "sea046.gli.sub.csv"
+    path.write_text("\n".join(lines) + "\n")
+    result = evaluate(str(path), "--eps", "0.2", "--time-tolerance", "7.5", "--max-latency", "600", "--json")
+    assert result.returncode == 0, result.stderr
+    assert "dd/mm/yyyy HH:MM:SS, no zone given: read as UTC" in result.stderr
+    report = json.loads(result.stdout)
+    assert report["channels"] == ["NavState", "Depth", "Pitch"] and report["protocol"] == 4
+    assert report["samples_absent"] == 5 and report["samples_not_represented"] == 0
+    assert report["time_precision_s"] == 7.5 and report["max_time_error_s"] <= 7.5
+    assert report["max_error_ratio"] <= 1.0
+
+
+def test_a_ship_logger_splits_date_and_time_of_day(tmp_path: Path) -> None:
+    """A thermosalinograph's file: the date in one column (year first, with slashes), the time of day in
+    another, a reading every 5 s."""
+    lines = ["Date,Time,TSG_temp,TSG_sal"]
+    for i in range(120):
+        minute, second = divmod(i * 5, 60)
+        lines.append(f"2019/07/21,12:{minute:02d}:{second:02d},{14 + 0.003 * i:.3f},{32 + 0.001 * i:.3f}")
+    path = tmp_path / "tsg.csv"
+    path.write_text("\n".join(lines) + "\n")
+    result = evaluate(str(path), "--eps", "0.01", "--json")
+    assert result.returncode == 0, result.stderr
+    assert "the date in column 'Date', the time of day in column 'Time'" in result.stderr
+    report = json.loads(result.stdout)
+    assert report["channels"] == ["TSG_temp", "TSG_sal"] and report["period_s"] == 5.0
+    assert report["max_time_error_s"] <= 2.5 and report["max_error_ratio"] <= 1.0

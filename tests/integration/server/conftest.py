@@ -31,9 +31,9 @@ def broker(tmp_path: Path) -> Iterator[NatsServer]:
 
 @pytest.fixture
 def secured(tmp_path: Path) -> Iterator[Secured]:
-    """A nats-server with the users and permissions ``tacit broker-config`` writes for the gateways
-    ``ship`` and ``buoy`` (and the center)."""
-    yield from running(Secured(tmp_path / "broker", ["ship", "buoy"]))
+    """A nats-server with the accounts ``tacit broker-config`` writes for the gateways ``ship`` and
+    ``buoy`` (and the center), its monitoring on (``Secured.received``)."""
+    yield from running(Secured(tmp_path / "broker", ["ship", "buoy"], monitor=True))
 
 
 @pytest.fixture

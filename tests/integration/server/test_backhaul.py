@@ -320,6 +320,7 @@ def test_commands_go_down_once_and_are_kept_by_the_gateway(
         await gateway.start()
         await center.connect()
         try:
+            await until(lambda: "ship" in center.gateways, center.step_events)  # its consumers made
             command = CommandMessage(
                 "cmd-7-1", "ship", address=1, data=b"signed", expires_at=time.time() + 600
             )
@@ -469,6 +470,7 @@ def test_a_gateway_on_a_modem_relays_what_it_hears_and_sends_what_it_is_given(
             modem.send(f"${cst}*{nmea.checksum(cst)}\r\n")
             await until(lambda: len(stored(sqlite_url)) == 1, center.step)
             assert stored(sqlite_url) == [(2, b"\x01" * 32, 3.0)]  # $CACST: SNR in 3, out 4
+            await until(lambda: "ship" in center.gateways, center.step_events)  # its consumers made
             command = CommandMessage("cmd-1-1", "ship", address=2, data=b"signed command", ack_timeout=2.0)
             assert await center.send_command(command)
             await until(lambda: outbox.commands("acked") == [command], lambda: asyncio.sleep(0.05))

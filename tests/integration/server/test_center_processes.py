@@ -23,12 +23,15 @@ from sqlalchemy import create_engine, text
 
 from launch.split import throwaway_database as postgres_database
 from server.backhaul import subjects
+from server.backhaul.center import Center, database_identity, refusal
 from server.backhaul.gateway import Gateway
 from server.backhaul.outbox import Outbox
+from server.backhaul.subjects import UNNAMED
 from server.core.db import migrate
 from tacit import auth
 from tacit.packets import CheckpointPacket, MissionState
-from tests.support.nats import NATS_SERVER, NatsServer, free_port
+from tests.integration.server.test_backhaul import ingest_on
+from tests.support.nats import NATS_SERVER, Secured, free_port
 
 pytestmark = pytest.mark.skipif(not Path(NATS_SERVER).exists(), reason="nats-server is not installed")
 
@@ -39,7 +42,7 @@ ADDRESSES = range(1, 7)  # six vehicles: partitions 1 to 6, three for each of tw
 class CenterProcess:
     """``tacit center --instance NAME`` on its own API and metrics ports, its log in a file."""
 
-    def __init__(self, name: str, database_url: str, nats_url: str, folder: Path) -> None:
+    def __init__(self, name: str, database_url: str, broker: Secured, folder: Path) -> None:
         self.name = name
         self.port, self.metrics_port = free_port(), free_port()
         self.log = folder / f"center-{name}.log"
@@ -51,8 +54,8 @@ class CenterProcess:
             "TACIT_GATEWAY_TIMEOUT": "5",
         }
         command = [
-            sys.executable, "-m", "tacit.cli", "center", "--instance", name, "--nats", nats_url,
-            "--database-url", database_url, "--port", str(self.port), "--metrics-port",
+            sys.executable, "-m", "tacit.cli", "center", "--instance", name, "--nats", broker.url,
+            "--nats-credentials", str(broker.credentials_file("center")), "--database-url", database_url, "--port", str(self.port), "--metrics-port",
             str(self.metrics_port), "--no-map",
         ]  # fmt: skip
         with self.log.open("w") as out:
@@ -122,13 +125,13 @@ def frames_of(url: str, address: int) -> list[bytes]:
 
 
 def test_two_center_processes_share_the_vehicles_and_one_takes_over_when_the_other_dies(
-    broker: NatsServer, postgres_server: str, tmp_path: Path
+    secured: Secured, postgres_server: str, tmp_path: Path
 ) -> None:
     with postgres_database(postgres_server) as url:
         migrate(url)  # before both start: they would both migrate an empty database at once
-        centers = [CenterProcess(name, url, broker.url, tmp_path) for name in ("alpha", "bravo")]
+        centers = [CenterProcess(name, url, secured, tmp_path) for name in ("alpha", "bravo")]
         try:
-            asyncio.run(_scenario(centers, url, broker, tmp_path))
+            asyncio.run(_scenario(centers, url, secured, tmp_path))
         except BaseException:
             for center in centers:
                 print(f"--- {center.name}:\n{center.log.read_text()[-6000:]}")
@@ -138,7 +141,7 @@ def test_two_center_processes_share_the_vehicles_and_one_takes_over_when_the_oth
                 center.stop()
 
 
-async def _scenario(centers: list[CenterProcess], url: str, broker: NatsServer, tmp_path: Path) -> None:
+async def _scenario(centers: list[CenterProcess], url: str, broker: Secured, tmp_path: Path) -> None:
     alpha, bravo = centers
 
     async def shared() -> bool:
@@ -159,7 +162,7 @@ async def _scenario(centers: list[CenterProcess], url: str, broker: NatsServer, 
     shown: list[dict[str, object]] = []  # the packet events a browser on bravo's event stream gets
     browser = asyncio.create_task(follow(bravo, shown))
     outbox = Outbox(tmp_path / "ship.db", "ship")
-    gateway = Gateway(outbox, broker.url, heartbeat=0.2)
+    gateway = Gateway(outbox, broker.url, heartbeat=0.2, auth=broker.credentials("gateway-ship"))
     await gateway.start()
     heard: dict[int, list[bytes]] = {a: [] for a in ADDRESSES}
     start = int(time.time()) - 100
@@ -246,3 +249,39 @@ async def _scenario(centers: list[CenterProcess], url: str, broker: NatsServer, 
         await gateway.stop()
         for center in centers:
             await center.api.aclose()
+
+
+def test_a_second_center_process_joins_its_deployment_or_refuses_in_one_line(
+    secured: Secured, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """With a process "alpha" of the (unnamed) deployment running on one database: another name on the
+    same database joins; alpha's name again, or another database, is refused in one line before
+    anything starts."""
+    from tacit.cli import main
+
+    ours, other = (f"sqlite:///{tmp_path}/{name}.db" for name in ("center", "other"))
+    migrate(ours)
+    auth = secured.credentials("center")
+
+    async def scenario() -> list[str | None]:
+        alpha = Center(
+            ingest_on(ours), secured.url, auth=auth, instance="alpha", database=database_identity(ours)
+        )
+        await alpha.connect()
+        try:
+            answers = [
+                await refusal(secured.url, auth, UNNAMED, name, database_identity(url))
+                for name, url in (("bravo", ours), ("alpha", ours), ("bravo", other))
+            ]
+            cli = ["center", "--nats", secured.url, "--nats-credentials", str(secured.credentials_file("center")),
+                   "--instance", "bravo", "--database-url", other, "--no-map"]  # fmt: skip
+            assert await asyncio.to_thread(main, cli) == 2
+            return answers
+        finally:
+            await alpha.close()
+
+    joins, same_name, other_database = asyncio.run(scenario())
+    assert joins is None
+    assert same_name is not None and "named 'alpha' runs already" in same_name
+    assert other_database is not None and "one database per deployment" in other_database
+    assert capsys.readouterr().err.count("\n") == 1

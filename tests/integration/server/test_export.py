@@ -253,6 +253,7 @@ def test_parquet_says_what_its_values_mean(client: TestClient, tmp_path: Path) -
     meta = {k.decode(): v.decode() for k, v in schema.metadata.items()}
     assert meta["vehicle_name"] == "rov1" and meta["vehicle_id"] == "1" and meta["stream"] == "env"
     assert meta["stream_period"] == str(ENV_PERIOD) and meta["stream_period_units"] == "s"
+    assert meta["time_precision"] == str(ENV_PERIOD / 2) and meta["time_precision_units"] == "s"
     field = {k.decode(): v.decode() for k, v in schema.field("temperature").metadata.items()}
     assert field["units"] == "degree_Celsius" and field["error_bound"] == "0.05"
     assert field["standard_name"] == "sea_water_temperature"

@@ -1,5 +1,5 @@
-"""Operations of a center: ``/metrics`` in Prometheus' text format, parsed here, from a
-center consuming a gateway's frames through a real nats-server; retention of the relayed frames'
+"""Operations of a shore process: ``/metrics`` in Prometheus' text format, parsed here, from a center
+consuming a gateway's frames through a real nats-server and from a shore with its own modem; retention of the relayed frames'
 records; backup and restore of the center's database, PostgreSQL and SQLite, restored into a fresh one
 and read back."""
 
@@ -15,9 +15,11 @@ from pathlib import Path
 
 import httpx
 import pytest
+from fastapi.testclient import TestClient
 from sqlalchemy import create_engine, text
 
 from launch.split import throwaway_database as postgres_database
+from server.app import shore_app
 from server.backhaul.center import Center
 from server.backhaul.gateway import Gateway
 from server.backhaul.outbox import Outbox
@@ -28,12 +30,16 @@ from server.commands.service import CommandDesk
 from server.core.config import Settings, SettingsError
 from server.core.db import make_engine, migrate
 from server.core.events import Bus
+from server.link.state import IncomingFrame
 from server.ops.process import operate
 from server.ops.service import DAY, Retention
 from server.vehicles.schemas import VehicleIn
 from server.vehicles.service import Vehicles
+from tacit import auth
 from tacit.cli import main
+from tacit.packets import CheckpointPacket, MissionState
 from tests.integration.server.test_backhaul import hear, ingest_on, stored, until
+from tests.support.api import OP, offline_settings
 from tests.support.nats import NATS_SERVER, NatsServer, free_port
 
 SAMPLE = re.compile(r'^([a-zA-Z_:][a-zA-Z0-9_:]*)(\{((?:[a-zA-Z_]\w*="(?:[^"\\]|\\.)*",?)*)\})? (\S+)$')
@@ -249,3 +255,37 @@ def test_database_has_help(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as stop:
         main(["database", "--help"])
     assert stop.value.code == 0 and "restore" in capsys.readouterr().out
+
+
+def test_a_shore_with_its_own_modem_serves_its_metrics(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """``tacit serve`` and the demo (``shore_app``): the shore modem, the link's counters, each vehicle's
+    frames, packets and last heard, the ingest's counters, on a listener of their own, which stops with
+    the app without a traceback."""
+    settings = offline_settings(tmp_path, metrics_port=free_port())
+    key = "6b" * 32
+    with TestClient(shore_app(settings)) as client:
+        body = {"name": "rov1", "address": 2, "key": key}
+        assert client.post("/api/v1/vehicles", json=body, headers=OP).status_code == 201
+        heard = time.time()
+        frame = auth.sign_checkpoint(
+            CheckpointPacket(seq=1, time=int(heard), state=MissionState.WAITING), bytes.fromhex(key), 1, 2, []
+        )
+        client.app.state.shore.ingest.handle(IncomingFrame(2, 1, frame))  # type: ignore[attr-defined]
+        for _ in range(100):  # the listener starts beside the app
+            with contextlib.suppress(httpx.ConnectError):
+                response = httpx.get(f"http://127.0.0.1:{settings.metrics_port}/metrics")
+                break
+            time.sleep(0.05)
+        assert client.get("/metrics").status_code == 404  # not on the operators' API
+    assert response.headers["content-type"].startswith("text/plain; version=0.0.4")
+    m = parse(response.text)
+    rov1 = (("vehicle", "rov1"),)
+    assert m["tacit_modem_ready"][()] == 0  # no modem: the API alone
+    assert m["tacit_vehicle_frames_total"][rov1] == 1 and m["tacit_vehicle_packets_total"][rov1] == 1
+    assert heard - 1 <= m["tacit_vehicle_last_heard_timestamp_seconds"][rov1] <= time.time()
+    assert m["tacit_ingest_total"][(("counter", "frames"),)] == 1
+    assert m["tacit_link_total"][(("counter", "polls"),)] == 0
+    assert m["tacit_decode_errors_total"][(("kind", "forged"),)] == 0
+    assert "Traceback" not in capfd.readouterr().err

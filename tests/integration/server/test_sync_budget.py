@@ -21,7 +21,7 @@ from fastapi.testclient import TestClient
 from nats.errors import Error as NatsError
 
 from server.app import create_app
-from server.backhaul import subjects
+from server.backhaul import access, subjects
 from server.backhaul.budget import scheduled_syncs
 from server.backhaul.center import Center, serve
 from server.backhaul.gateway import Gateway
@@ -264,9 +264,9 @@ def test_a_gateway_reads_no_other_gateways_budgets(secured: Secured, sqlite_url:
         await center.connect()
         errors: list[str] = []
         ship = await broker_client(secured, "gateway-ship", errors)
-        js = ship.jetstream(timeout=0.5)
+        js = ship.jetstream(prefix=access.GATEWAY_API, timeout=0.5)
         outbox = Outbox(tmp_path / "buoy.db", "buoy")
-        buoy = Gateway(outbox, secured.url, auth=secured.credentials("gateway-buoy"))
+        buoy = Gateway(outbox, secured.url, heartbeat=0.2, auth=secured.credentials("gateway-buoy"))
         row = VehicleRow(name="rov1", address=ADDRESS, key_hex=KEY.hex())
         budget = SyncBudgetMessage(
             "syncs-buoy-2-1", "buoy", ADDRESS, tuple(scheduled_syncs(row, 10**9, 60.0, 3))
@@ -274,6 +274,7 @@ def test_a_gateway_reads_no_other_gateways_budgets(secured: Secured, sqlite_url:
         await center.publish(subjects.syncs("buoy", ADDRESS), budget.encode(), budget.id)
         await buoy.start()
         try:
+            await until_async(lambda: "buoy" in center.gateways, center.step_events)  # its consumers made
             await until_async(lambda: outbox.budget_left(ADDRESS)[0] == 3, lambda: asyncio.sleep(0.05))
             for name in ("syncs-buoy", "syncs-ship", "mine"):
                 with pytest.raises(NatsError):  # the buoy's consumer, its own name, another on buoy's subject

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from pymavlink import mavutil
 
-from simulators.run import MODEM_LOSS
+from simulators.parameters import MODEM_LOSS
 from tacit.modem import DriverSettings, LinkState, ModemDriver
 from tests.conftest import tacit_process
 

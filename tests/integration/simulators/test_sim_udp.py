@@ -56,3 +56,27 @@ def test_the_first_line_of_sim_json_is_the_json_object() -> None:
     assert proc.stdout is not None and proc.stderr is not None
     assert "report" in json.loads(proc.stdout.readline())  # the only other line: the report at exit
     assert "Traceback" not in proc.stderr.read()
+
+
+def test_a_ground_station_over_udp_loads_every_parameter_and_sees_no_alarm() -> None:
+    """As QGroundControl and MAVProxy join: the whole list over UDP (none lost to the burst), each sensor
+    present and enabled healthy, the geofence too (MAVProxy says "fence breach" otherwise)."""
+    with tacit_process("sim", "--time-scale", "2") as (_, info):
+        gcs = mavutil.mavlink_connection(udp_url(info), source_system=255, source_component=190)
+        gcs.mav.heartbeat_send(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, mav.MAV_STATE_ACTIVE)
+        assert gcs.wait_heartbeat(timeout=10) is not None
+        gcs.mav.param_request_list_send(1, 1)
+        values: dict[int, tuple[str, float]] = {}
+        count = None
+        deadline = time.monotonic() + 30
+        while (count is None or len(values) < count) and time.monotonic() < deadline:
+            msg = gcs.recv_match(type="PARAM_VALUE", blocking=True, timeout=1)
+            if msg is not None:
+                values[msg.param_index], count = (msg.param_id, msg.param_value), msg.param_count
+        assert count is not None and sorted(values) == list(range(count)), f"{len(values)} of {count}"
+        assert values[3] == ("SYSID_MYGCS", 255.0)
+        status = gcs.recv_match(type="SYS_STATUS", blocking=True, timeout=5)
+        assert status is not None
+        present, enabled = status.onboard_control_sensors_present, status.onboard_control_sensors_enabled
+        assert present & enabled & ~status.onboard_control_sensors_health == 0
+        assert status.onboard_control_sensors_health & mav.MAV_SYS_STATUS_GEOFENCE

@@ -241,3 +241,30 @@ def test_a_recorder_reports_every_data_frame_and_acknowledges_none() -> None:
     (rxd,) = [s for s in heard if isinstance(s, nmea.RxData)]
     assert rxd.data == bytes(range(32)) and (rxd.src, rxd.dest) == (1, 2)
     assert [ack.src for _, ack in pair.of(1, nmea.Ack)] == [2]  # the vehicle's ACK alone: no collision
+
+
+def test_frames_are_counted_at_the_modem_each_transmission_is_for_and_add_up() -> None:
+    """A shore (1) polls a vehicle (2) beside another (3): each transmission's frames are counted once at
+    its addressee (arrived + lost in collisions + lost while transmitting + lost to noise) and once more
+    at every other modem (overheard)."""
+    sched = VirtualScheduler()
+    channel = Channel(sched, ChannelParameters(seed=3))
+    for name, address, place in (("shore", 1, (0, 0, 0)), ("rov2", 2, (300, 0, 0)), ("rov3", 3, (0, 300, 0))):
+        channel.add_node(name, lambda p=place: p, lambda rec: None, address=address)
+    poll = Transmission(Kind.CYCLE_INIT, 1, 1, 0, 1.0, info={"src": 2, "dest": 1, "rate": 0, "ack": False})
+    assert poll.addressee == 2 and data(2, 1).addressee == 1
+    channel.transmit("shore", poll)
+    sched.call_later(30.0, lambda: channel.transmit("rov2", data(2, 1, frames=3)))
+    sched.call_later(60.0, lambda: channel.transmit("rov3", data(3, 1)))  # these two collide at the shore
+    sched.call_later(60.2, lambda: channel.transmit("rov2", data(2, 1)))
+    sched.call_later(90.0, lambda: channel.transmit("shore", data(1, 2)))  # each deaf to the other
+    sched.call_later(90.0, lambda: channel.transmit("rov2", data(2, 1)))
+    sched.run()
+    s = channel.stats
+    assert s["transmissions"] == 6
+    assert s["addressed"] == 1 + 3 + 1 + 1 + 1 + 1  # frames, each counted at its one addressee
+    assert s["overheard"] == 8  # and at the one other modem
+    assert s["receptions"] == 12 and s["addressed"] + s["overheard"] == 12 + 2 * 2  # 3 frames in one
+    assert s["addressed_collided"] == 2 and s["addressed_deaf"] == 2
+    assert s["addressed_collided"] + s["addressed_deaf"] <= s["addressed_lost"] <= s["addressed"]
+    assert s["addressed_lost"] + s["overheard_lost"] == s["lost"]

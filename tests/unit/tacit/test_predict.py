@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter
 
-from tacit.predict import ABSENT_R, _LocalLevel
+from tacit.predict import ABSENT_R, _ConstantVelocity, _LocalLevel
 
 
 def _filterpy_level(initial: np.ndarray) -> KalmanFilter:
@@ -61,3 +61,32 @@ def test_a_state_saved_by_either_restores_the_same_filter() -> None:
     again = _LocalLevel(np.ones(3))
     again.restore(x, p)
     assert np.array_equal(again.x, ours.x) and np.array_equal(again.p, ours.p)
+
+
+def test_constant_velocity_filter_is_the_kalman_filter() -> None:
+    """The constant-velocity filter written out per channel makes filterpy's predictions (to rounding:
+    filterpy's matrix products run on BLAS kernels that round differently on each CPU)."""
+    rng = np.random.default_rng(3)
+    n = 4
+    ours = _ConstantVelocity(np.zeros(n))
+    theirs = KalmanFilter(dim_x=2 * n, dim_z=n)
+    theirs.F = np.kron(np.eye(n), np.array([[1.0, 1.0], [0.0, 1.0]]))
+    theirs.H = np.kron(np.eye(n), np.array([[1.0, 0.0]]))
+    theirs.x, theirs.P = np.zeros(2 * n), theirs.P * 1e6
+    for step in range(300):
+        if step % 16 == 0:
+            ratio = 10.0 ** rng.uniform(-4, 1, n)
+            ours.tune(ratio)
+            theirs.Q = np.kron(np.diag(ratio), np.array([[1 / 3, 1 / 2], [1 / 2, 1.0]]))
+        ours.predict()
+        theirs.predict()
+        r = np.where(rng.random(n) < 0.2, ABSENT_R, 1.0)
+        z = np.where(r == 1.0, 0.01 * step**2 + rng.normal(0, 1, n), ours.level())
+        ours.update(z, r)
+        theirs.update(z, R=np.diag(r))
+        x, p = ours.state()
+        assert np.allclose(x, theirs.x, rtol=1e-9, atol=1e-9)
+        assert np.allclose(p, theirs.P, rtol=1e-6, atol=1e-9)
+    restored = _ConstantVelocity(np.zeros(n))
+    restored.restore(*ours.state())
+    assert all(np.array_equal(a, b) for a, b in zip(restored.state(), ours.state(), strict=True))

@@ -1,0 +1,44 @@
+"""What the codec does for each payload version: the vehicle and the shore build their coders for the
+version the vehicle speaks (passed in where an encoder or decoder is made), so a mixed fleet is no flag
+day. Version 3's payloads (today's vehicles) decode exactly as they always have; what came later is a
+``Coding`` flag that version 3 leaves off.
+
+Version 4 adds:
+
+- **time tolerance** (``tacit.codec.encoder``): a stream may be given a time tolerance
+  (``StreamSpec.time_tolerance``, protocol like the rest of the stream's definition, and shown in the
+  exports' metadata as the time precision); the vehicle then dates a sample on the tick after the last
+  sample's when that is within the tolerance of when it was taken, instead of its nearest tick. A
+  sampler whose intervals wander about its period (a glider's CTD reporting every one, two or three of its
+  own cycles) then costs a STEP per sample instead of SAME and JUMP tokens; a gap longer than the
+  tolerance stays a gap. Nothing changes on the shore: any tick is decoded as before.
+- **the line** (``tacit.codec.prediction``): each channel may also predict by extending the line through
+  its last two values (a profile's steady change with depth or time, which the Kalman filter fed
+  reconstructions lags and hold follows a step at a time); both ends use it while it has lately missed
+  and erred 20 % less than the prediction it replaces, so the choice costs no bits.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+VERSIONS = (3, 4)
+NEWEST = VERSIONS[-1]
+
+
+@dataclass(frozen=True)
+class Coding:
+    """What a payload version's coder does beyond version 3's."""
+
+    version: int
+    tolerance: bool = False  # date a sample on the next tick when within the stream's time tolerance
+    trend: bool = False  # a channel may predict by extending the line through its last two values
+
+
+def coding(protocol: int) -> Coding:
+    """What a vehicle speaking ``protocol`` codes; ValueError for a version this codec does not know."""
+    if protocol == 3:
+        return Coding(3)
+    if protocol == 4:
+        return Coding(4, tolerance=True, trend=True)
+    raise ValueError(f"protocol {protocol}: this codec codes versions {', '.join(map(str, VERSIONS))}")
