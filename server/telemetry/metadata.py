@@ -163,23 +163,12 @@ TRACK: dict[str, Attributes] = {
 
 def attributes(d: Dataset) -> Attributes:
     """The file's attributes (ACDD/CF names where they have one), what the deployment's settings say
-    included; the coverage, which only the rows give, is ``coverage``'s."""
+    included; the coverage, which only the rows give, is ``export.Coverage``'s."""
     a = d.about
-    said = {
-        name: value
-        for name, value in (
-            ("creator_name", a.creator_name),
-            ("creator_email", a.creator_email),
-            ("creator_url", a.creator_url),
-            ("institution", a.institution),
-            ("publisher_name", a.publisher_name),
-            ("publisher_email", a.publisher_email),
-            ("publisher_url", a.publisher_url),
-            ("naming_authority", a.naming_authority),
-            ("license", a.license),
-            ("acknowledgment", a.acknowledgment),
-        )
-        if value
+    said = {  # the deployment's own words, those it said
+        f.name: getattr(a, f.name)
+        for f in fields(About)
+        if f.name not in ("deployment", "summary", "origin") and getattr(a, f.name)
     }
     now = datetime.now(UTC).isoformat(timespec="seconds")
     return {
