@@ -6,6 +6,11 @@ Every row has a test in the suite at a small budget (named in the last column); 
             SYNC heartbeats (the only packets besides commands that hold off the link-lost failsafe);
             forged, bit-flipped and replayed check-points and forged priority packets through the
             shore's ingest (accepted = applied, or telemetry marked verified)
+  safety    the separation check's doors: two queued moves, a mission start, "return all home" to one home,
+            a lost-link return set by set_param, each across another vehicle (accepted = queued)
+  tokens    a revoked token's open event stream, an expiring operator minting a longer-lived token
+  backups   a backup with a byte flipped or cut anywhere (restored, or files left behind)
+            (each row counts only the cases that reached the check: otherwise NOT MEASURED)
   api       schemathesis over the server's OpenAPI (every operation, --api-examples each): 5xx = failure
   rest      non-finite numbers, oversized keys and names, partial updates (tests/integration/server/test_bad_input.py)
   faults    the running system (sim, serve, agent as processes): 50 % frame loss, the server SIGKILLed
@@ -341,6 +346,181 @@ def late_checkpoints(ingest: Any, cases: int, make: Callable[[int], bytes]) -> N
     )
 
 
+def doors(cases: int) -> None:
+    """The safety functions' doors, the tokens' limits and the backups' checksum, attacked through the
+    API of a server on a SQLite file (check-points through its ingest, as the modem delivers them). A
+    row counts only the cases whose attack reached the check (the setup it needs was accepted, the
+    request was answered by the check, not refused before it): fewer than ``cases`` says NOT MEASURED."""
+    import itertools
+    import tempfile
+
+    from fastapi.testclient import TestClient
+
+    from server.app import create_app
+    from server.core.config import Settings
+    from server.link.state import IncomingFrame
+    from tacit.params import LostAction, Param
+
+    scratch = Path(tempfile.mkdtemp(prefix="tacit-doors-"))
+    settings = Settings(
+        database_url=f"sqlite:///{scratch}/tacit.db", modem_url="", map_enabled=False, write_tokens=["op"],
+        ping_interval=3600,
+    )  # fmt: skip
+    op = {"Authorization": "Bearer op"}
+    keys = [bytes([k + 1]) * 32 for k in range(3)]
+    stamps = itertools.count(int(time.time()) - 100_000)
+    with TestClient(create_app(settings)) as c:
+        for k, key in enumerate(keys):
+            c.post(
+                "/api/v1/vehicles",
+                json={"name": f"rov{k + 1}", "address": k + 2, "key": key.hex()},
+                headers=op,
+            )
+        ingest = c.app.state.shore.ingest  # type: ignore[attr-defined]
+
+        def place(*where: tuple[float, float]) -> None:
+            for k, (north, east) in enumerate(where):
+                cp = CheckpointPacket(seq=next(stamps) % 256, time=next(stamps), state=MissionState.HOLDING,
+                                      north=north, east=east, depth=2.0)  # fmt: skip
+                ingest.handle(IncomingFrame(k + 2, 1, auth.sign_checkpoint(cp, keys[k], 1, k + 2, [])))
+
+        def send(vehicle: int, body: dict) -> int:
+            return c.post(f"/api/v1/vehicles/{vehicle}/commands", json=body, headers=op).status_code
+
+        def move(bearing: float) -> dict:
+            return {"command": "move", "distance": 20.0, "angle": bearing, "absolute_angle": True}
+
+        def two_moves(x: float, y: float) -> tuple[bool, bool]:
+            place((x, y), (x + 100, y + 100), (x + 10, y + 10))  # rov3 inside east-then-north
+            first, second = send(1, move(90.0)), send(1, move(0.0))
+            return first == 202 and second in (202, 422), second == 202
+
+        def mission_start(x: float, y: float) -> tuple[bool, bool]:
+            place((x, y), (x + 100, y + 100), (x, y + 14))
+            route = [{"north": x, "east": y, "depth": 2.0}, {"north": x, "east": y + 28, "depth": 2.0}]
+            body = {"name": "across", "number": 1, "waypoints": route}
+            mission = c.post("/api/v1/vehicles/1/missions", json=body, headers=op).json()
+            started = c.post(f"/api/v1/missions/{mission['id']}/start", headers=op).status_code
+            return started in (202, 422), started == 202
+
+        def shared_home(x: float, y: float) -> tuple[bool, bool]:
+            place((x, y), (x + 100, y + 100), (x - 100, y + 100))  # every home is the origin
+            answer = c.post("/api/v1/fleet/commands", json={"command": "return_home"}, headers=op).status_code
+            return answer in (202, 422), answer == 202
+
+        def lost_return(x: float, y: float) -> tuple[bool, bool]:
+            place((x + 100, y - 100), (x, y), (x / 2, y / 2))  # rov3 halfway home from rov2
+            body = {
+                "command": "set_param",
+                "param_id": int(Param.LOST_ACTION),
+                "param_value": float(LostAction.RETURN.code),
+            }
+            answer = send(2, body)
+            return answer in (202, 422), answer == 202
+
+        attacks = {
+            "two queued moves around another vehicle": two_moves,
+            "a mission start whose route crosses one": mission_start,
+            "return all home to one shared home": shared_home,
+            "lost-link return set across another (set_param)": lost_return,
+        }
+        rng = random.Random(11)
+        for name, attack in attacks.items():
+            reached = accepted = 0
+            for _ in range(cases):
+                hit, bad = attack(rng.uniform(-300, 300), rng.uniform(-300, 300))
+                reached += hit
+                accepted += bad
+                c.post(
+                    "/api/v1/fleet/commands", json={"command": "abort_mission"}, headers=op
+                )  # a clean slate
+            counted = (
+                f"{accepted} accepted" if reached == cases else f"NOT MEASURED ({reached} of {cases} reached)"
+            )
+            row("safety", name, f"{cases:,}", counted, "test_separation")
+        token_attacks(c, op, cases)
+    backup_attacks(Path(settings.database_url.removeprefix("sqlite:///")), cases)
+
+
+def token_attacks(c: Any, op: dict[str, str], cases: int) -> None:
+    """A revoked token's event stream (events after the revocation), and an expiring operator minting a
+    longer-lived token."""
+    streams = min(cases, 20)
+    leaked = reached = 0
+    for i in range(streams):
+        made = c.post("/api/v1/operators", json={"name": f"watcher{i}", "role": "read"}, headers=op).json()
+        with c.stream(
+            "GET", "/api/v1/events", headers={"Authorization": f"Bearer {made['token']}"}
+        ) as stream:
+            for line in stream.iter_lines():
+                if line == ": connected":
+                    reached += 1
+                    c.delete(f"/api/v1/operators/{made['id']}", headers=op)
+                    c.post("/api/v1/vehicles/1/commands", json={"command": "hold"}, headers=op)
+                if line.startswith("event: command"):  # the stream outlived its token: counted, closed
+                    leaked += 1
+                    break
+    outcome = (
+        f"{leaked} events after revocation"
+        if reached == streams
+        else f"NOT MEASURED ({reached} of {streams})"
+    )
+    row("tokens", "a revoked token's open event stream", f"{streams:,}", outcome, "test_operators")
+    minted = reached = 0
+    for i in range(cases):
+        short = c.post(
+            "/api/v1/operators", json={"name": f"short{i}", "role": "write", "expires_in_s": 60}, headers=op
+        )
+        mine = {"Authorization": f"Bearer {short.json()['token']}"}
+        asked = {"name": f"long{i}", "role": "write", "expires_in_s": None if i % 2 else 3600.0}
+        answer = c.post("/api/v1/operators", json=asked, headers=mine).status_code
+        reached += answer in (201, 422)
+        minted += answer == 201
+    outcome = f"{minted} minted" if reached == cases else f"NOT MEASURED ({reached} of {cases})"
+    row("tokens", "an expiring operator mints a longer-lived token", f"{cases:,}", outcome, "test_operators")
+
+
+def backup_attacks(database: Path, cases: int) -> None:
+    """A backup of the running database with a byte flipped anywhere, or cut anywhere: restored (bad), or
+    refused leaving files behind (bad); reached: the untouched backup restores."""
+    import tempfile
+
+    from server.ops import backup
+
+    scratch = Path(tempfile.mkdtemp(prefix="tacit-backups-"))
+    good = scratch / "good.backup"
+    backup.backup(f"sqlite:///{database}", good)
+    backup.restore(good, f"sqlite:///{scratch}/check.db")
+    reached = (scratch / "check.db").exists()
+    data, rng, restored, left = good.read_bytes(), random.Random(13), 0, 0
+    for i in range(cases):
+        bad = bytearray(data)
+        if i % 2:
+            bad = bad[: rng.randrange(len(bad))]
+        else:
+            bad[rng.randrange(len(bad))] ^= 1 << rng.randrange(8)
+        path, target = scratch / "bad.backup", scratch / "restored" / f"{i}.db"
+        path.write_bytes(bytes(bad))
+        try:
+            backup.restore(path, f"sqlite:///{target}")
+            restored += 1
+        except backup.BackupError:
+            pass
+        left += (scratch / "restored").exists()
+    outcome = (
+        f"{restored} restored, {left} left files"
+        if reached
+        else "NOT MEASURED (the good backup did not restore)"
+    )
+    row(
+        "backups",
+        "a backup flipped or truncated anywhere",
+        f"{cases:,}",
+        outcome,
+        "test_ops: corrupt_truncated",
+    )
+
+
 def api(examples: int) -> None:
     passed, failed = pytest_counts("test_schemathesis.py", {"TACIT_API_EXAMPLES": str(examples)})
     row(
@@ -507,6 +687,7 @@ def main() -> None:
     attacks(max(100, options.cases // 20))
     attacks(max(100, options.cases // 20), Command.SYNC, "SYNC ", False, "test_auth: sync_corrects_the_clock")
     shore_attacks(max(100, options.cases // 100))
+    doors(max(20, options.cases // 400))
     api(options.api_examples)
     if not options.no_faults:
         faults()

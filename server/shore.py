@@ -22,6 +22,7 @@ from server.operators.service import Operators
 from server.routing.service import Routing
 from server.safety.service import Separation
 from server.screens.service import Screens
+from server.telemetry.metadata import About
 from server.telemetry.service import TelemetryReader
 from server.vehicles.service import Vehicles
 from tacit.streams import default_streams
@@ -58,7 +59,8 @@ class Shore:
         operators = Operators(settings, db)
         routing = Routing(db, settings, bus)
         screens = Screens(settings, db, link, routing)
-        safety = Separation(settings, screens, vehicles, commands, bus)
+        missions = Missions(db, commands)
+        safety = Separation(settings, screens, vehicles, commands, missions, bus)
         commands.guard = safety.check  # every command's path, against the other vehicles'
         teams = Teams(settings, db, commands, vehicles, safety, bus)
         watcher = Watcher(bus, settings.separation_check_interval / settings.time_scale)
@@ -73,8 +75,8 @@ class Shore:
             link,
             vehicles,
             commands,
-            Missions(db, commands),
-            TelemetryReader(db, ingest.streams),
+            missions,
+            TelemetryReader(db, ingest.streams, About.of(settings)),
             screens,
             operators,
             Throttle(settings, operators.actor),

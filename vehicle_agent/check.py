@@ -26,9 +26,10 @@ from typing import Any
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from tacit import auth
+from tacit.params import LostAction
 from vehicle_agent.agent import AgentConfig
 from vehicle_agent.mavlink_io import GCS_SYSTEM_ID
-from vehicle_agent.mission import LOST_ACTIONS, MissionPlan
+from vehicle_agent.mission import MissionPlan
 
 EXIT_CONFIG = 2  # the configuration is refused: the unit's RestartPreventExitStatus
 EXIT_UNREADY = 1  # --check found a problem
@@ -136,9 +137,9 @@ def _values(config: AgentConfig) -> list[Problem]:
         for name in POSITIVE
         if not (values[name] > 0 and math.isfinite(values[name]))
     ]
-    if config.lost_action not in LOST_ACTIONS:
+    if config.lost_action not in {a.value for a in LostAction}:
         problems.append(
-            Problem("lost_action", f"is one of {', '.join(LOST_ACTIONS)}, not {config.lost_action!r}")
+            Problem("lost_action", f"is one of {', '.join(LostAction)}, not {config.lost_action!r}")
         )
     if config.address == config.shore_address or config.address in config.gateways:
         problems.append(Problem("address", f"{config.address} is also the shore's modem address"))

@@ -33,6 +33,7 @@ from tacit import navigation
 from tacit.limits import Limits
 from tacit.navigation import Pose, Target
 from tacit.packets import Command, CommandStatus, ControlFlag, ControlPacket, MissionState, Reason
+from tacit.params import LostAction, Param
 
 log = logging.getLogger("tacit.agent.mission")
 
@@ -46,8 +47,6 @@ ACTIVE = {
 }
 HOME = Target(0.0, 0.0, 0.0)  # compared with, never handed out (a Target is mutable)
 FOLLOWING = (MissionState.PREPROGRAMMED, MissionState.AWAITING_COMMAND)  # on the pre-programmed trajectory
-LOST_ACTIONS = ("hold", "surface", "return")  # what a vehicle does when the shore falls silent
-PARAMS = {1: "plume_threshold", 2: "checkpoint_interval", 3: "cruise_speed", 4: "link_lost_timeout"}
 
 
 @dataclass
@@ -140,20 +139,24 @@ class MissionFSM:
         lost_action: str = "hold",
         checkpoint_interval: float = 60.0,
     ) -> None:
-        if lost_action not in LOST_ACTIONS:
-            raise ValueError(f"lost_action is one of {', '.join(LOST_ACTIONS)}")
+        self.configured_lost_action = LostAction.named(lost_action)  # until a SET_PARAM changes it
         self.plans = plans
         self.limits = limits
         self.status = status or MissionProgress()
         self.status.params.setdefault("link_lost_timeout", link_lost_timeout)
         self.status.params.setdefault("checkpoint_interval", checkpoint_interval)
-        self.lost_action = lost_action
         self.checkpoint_due = True
         self._last_checkpoint = -math.inf
 
     @property
     def state(self) -> MissionState:
         return self.status.state
+
+    @property
+    def lost_action(self) -> LostAction:
+        """What it does when the link is lost: its configuration's, or the last SET_PARAM's."""
+        code = self.status.params.get(Param.LOST_ACTION.setting)
+        return (None if code is None else LostAction.of_code(code)) or self.configured_lost_action
 
     def _go(self, state: MissionState) -> None:
         if state is not self.status.state:
@@ -249,10 +252,13 @@ class MissionFSM:
         return CommandStatus.EXECUTING, Reason.OK
 
     def _set_param(self, p: ControlPacket, _pose: Pose, _now: float) -> tuple[CommandStatus, Reason]:
-        name = PARAMS.get(p.param_id)
-        if name is None or not math.isfinite(p.param_value) or p.param_value < 0:
+        known = p.param_id in Param.__members__.values()
+        if not known or not math.isfinite(p.param_value) or p.param_value < 0:
             return CommandStatus.REFUSED, Reason.UNKNOWN_PARAM
-        self.status.params[name] = p.param_value
+        param = Param(p.param_id)
+        if param is Param.LOST_ACTION and LostAction.of_code(p.param_value) is None:
+            return CommandStatus.REFUSED, Reason.UNKNOWN_PARAM
+        self.status.params[param.setting] = p.param_value
         return CommandStatus.EXECUTED, Reason.OK
 
     # --- data events ----------------------------------------------------------------------------
@@ -310,9 +316,9 @@ class MissionFSM:
 
     def _lost(self, pose: Pose) -> None:
         targets = {
-            "hold": (pose.north, pose.east, pose.depth),
-            "surface": (pose.north, pose.east, 0.0),
-            "return": (0.0, 0.0, 0.0),
+            LostAction.HOLD: (pose.north, pose.east, pose.depth),
+            LostAction.SURFACE: (pose.north, pose.east, 0.0),
+            LostAction.RETURN: (0.0, 0.0, 0.0),
         }
         self.status.target = targets[self.lost_action]
         self._go(MissionState.LINK_LOST)

@@ -12,7 +12,7 @@ from server.commands.service import CommandDesk
 from server.core.config import Settings
 from server.core.events import Bus
 from server.core.schemas import DB_INT_MAX
-from server.core.security import Actor, Role, open_reads
+from server.core.security import Actor, Role, Throttle, open_reads
 from server.link.engine import LinkEngine
 from server.missions.service import Missions
 from server.missions.teams import Teams
@@ -83,6 +83,10 @@ def _routing(shore: ShoreDep) -> Routing:
     return shore.routing
 
 
+def _sign_ins(shore: ShoreDep) -> Throttle:
+    return shore.sign_ins
+
+
 VehiclesDep = Annotated[Vehicles, Depends(_vehicles)]
 CommandsDep = Annotated[CommandDesk, Depends(_commands)]
 MissionsDep = Annotated[Missions, Depends(_missions)]
@@ -94,6 +98,7 @@ LinkDep = Annotated[LinkEngine, Depends(_link)]
 BusDep = Annotated[Bus, Depends(_bus)]
 OperatorsDep = Annotated[Operators, Depends(_operators)]
 RoutingDep = Annotated[Routing, Depends(_routing)]
+SignInsDep = Annotated[Throttle, Depends(_sign_ins)]
 
 bearer = HTTPBearer(
     auto_error=False,

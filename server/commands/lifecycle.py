@@ -19,6 +19,7 @@ from server.commands.models import CommandState
 from tacit.packets import CommandStatus
 
 PENDING = (CommandState.QUEUED, CommandState.SENT)  # waiting for the link
+NOT_STARTED = (*PENDING, CommandState.ACKNOWLEDGED)  # the vehicle has not said it runs it
 FINAL = frozenset({CommandState.EXECUTED, CommandState.REFUSED, CommandState.SUPERSEDED})
 _FROM_VEHICLE = frozenset({CommandState.EXECUTING, *FINAL})
 NEXT: Mapping[CommandState, frozenset[CommandState]] = {

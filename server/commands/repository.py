@@ -5,7 +5,7 @@ from __future__ import annotations
 from sqlalchemy import insert, update
 from sqlmodel import Session, col, select
 
-from server.commands.lifecycle import PENDING
+from server.commands.lifecycle import NOT_STARTED, PENDING
 from server.commands.models import CommandRecord, CommandState, CommandStep
 from server.core.db import now, saved_id
 
@@ -121,3 +121,11 @@ def statuses(s: Session, command_id: int | None) -> list[CommandState]:
         select(CommandStep.status).where(CommandStep.command_id == command_id).order_by(col(CommandStep.id))
     )
     return [CommandState(x) for x in s.exec(query).all()]
+
+
+def not_started(s: Session, vehicle_id: int) -> list[CommandRecord]:
+    """The vehicle's commands it has not said it runs (queued, sent, acknowledged), oldest first."""
+    query = select(CommandRecord).where(
+        CommandRecord.vehicle_id == vehicle_id, col(CommandRecord.status).in_(NOT_STARTED)
+    )
+    return list(s.exec(query.order_by(col(CommandRecord.id))))

@@ -43,6 +43,7 @@ from tacit.packets import (
     FieldRangeError,
     unpack_settled,
 )
+from tacit.params import LostAction, Param
 
 log = logging.getLogger("tacit.server.commands")
 
@@ -64,6 +65,13 @@ def check_limits(body: CommandIn, vehicle: Vehicle, pose: Pose | None = None) ->
     is in the fleet's frame (a check-point's), the geofence around the vehicle's home."""
     if not math.isfinite(body.param_value):
         raise CommandRefused("param_value must be a finite number", "param_value")
+    lost = body.kind() is Command.SET_PARAM and body.param_id == Param.LOST_ACTION
+    if lost and LostAction.of_code(body.param_value) is None:
+        raise CommandRefused(
+            f"parameter {int(Param.LOST_ACTION)} ({Param.LOST_ACTION.hint}) takes "
+            + ", ".join(str(a.code) for a in LostAction),
+            "param_value",
+        )
     from_home = (
         None
         if pose is None
@@ -171,6 +179,17 @@ def _caught_up(s: Tx, vehicle: Vehicle, reported: int) -> int:
     return latest
 
 
+def _took_effect(s: Tx, vehicle: Vehicle, command: CommandRecord) -> None:
+    """What the shore keeps of a command the vehicle executed: a new lost-link action."""
+    if command.command == Command.SET_PARAM.name.lower() and command.param_id == Param.LOST_ACTION:
+        action = LostAction.of_code(command.param_value)
+        if action is not None:
+            vehicle_repo.set_lost_action(s, saved_id(vehicle), action)
+            log.info(
+                "vehicle %s: lost-link action now %s (command seq %d)", vehicle.name, action, command.seq
+            )
+
+
 def apply_checkpoint(s: Tx, vehicle: Vehicle, cp: CheckpointPacket, body: dict) -> list[CommandChanged]:
     """What a verified check-point says of the vehicle's commands, through the one lifecycle:
     last_command's status, with where and when (``body``, the check-point), and the final statuses of the
@@ -203,6 +222,8 @@ def apply_checkpoint(s: Tx, vehicle: Vehicle, cp: CheckpointPacket, body: dict) 
                 saved_id(command), command.seq, status, vehicle=vehicle.name, reason=reason, report=where
             )
         )
+        if status is CommandState.EXECUTED:
+            _took_effect(s, vehicle, command)
         if where is not None and status in (CommandState.EXECUTING, CommandState.EXECUTED):
             newest = command
     if newest is not None:  # after the settled finals: only what the vehicle left unsettled is superseded
@@ -224,8 +245,9 @@ class CommandDesk:
         self.pose = pose  # by modem address: the last check-point's pose, if any
         self.max_queued = max_queued  # Settings.max_queued_commands
         self.wake: Callable[[], None] = lambda: None  # the link's: send what was queued now
-        # the safety functions' check of the command's path against the other vehicles' (raises Refused)
-        self.guard: Callable[[int, CommandIn], None] = lambda _vehicle_id, _body: None
+        # the safety functions' check of the command's path for each of the vehicles against the other
+        # vehicles' (``server.safety``; raises Refused)
+        self.guard: Callable[[list[int], CommandIn], None] = lambda _vehicle_ids, _body: None
 
     def submit(
         self, vehicle_id: int, body: CommandIn, issued_by: str, then: Callable[[Tx], None] | None = None
@@ -233,7 +255,7 @@ class CommandDesk:
         """Queue a command sent by the operator named ``issued_by``; ``then(s)`` runs in the same transaction (a mission's new status).
         First the guard: a command whose path passes too close to another vehicle's is refused
         (``server.safety``)."""
-        self.guard(vehicle_id, body)
+        self.guard([vehicle_id], body)
         events: list[CommandChanged] = []
         with writing(self.db) as s:
             command = self._queue(s, vehicles.get(s, vehicle_id), body, issued_by, events)
@@ -248,15 +270,19 @@ class CommandDesk:
     ) -> list[CommandRecord]:
         """One operator action for several vehicles (every registered one if ``vehicle_ids`` is None): the
         command queued once per vehicle, each with its own seq and status, all or none (one transaction:
-        an unknown vehicle, or one whose queue is full, refuses the action before anything is queued)."""
+        an unknown vehicle, or one whose queue is full, refuses the action before anything is queued).
+        The guard checks every vehicle's new path against the others' new and planned ones: a return of
+        all home to one shared home is refused saying so."""
+        with reading(self.db) as s:
+            fleet = [vehicles.get(s, i) for i in vehicle_ids] if vehicle_ids else vehicle_repo.every(s)
+        if not fleet:
+            raise Refused("no vehicle is registered", "vehicle_ids")
+        if len({v.id for v in fleet}) < len(fleet):
+            raise Refused("a vehicle is named twice", "vehicle_ids")
+        self.guard([saved_id(v) for v in fleet], body)
         events: list[CommandChanged] = []
         with writing(self.db) as s:
-            fleet = [vehicles.get(s, i) for i in vehicle_ids] if vehicle_ids else vehicle_repo.every(s)
-            if not fleet:
-                raise Refused("no vehicle is registered", "vehicle_ids")
-            if len({v.id for v in fleet}) < len(fleet):
-                raise Refused("a vehicle is named twice", "vehicle_ids")
-            queued = [self._queue(s, vehicle, body, issued_by, events) for vehicle in fleet]
+            queued = [self._queue(s, vehicles.get(s, saved_id(v)), body, issued_by, events) for v in fleet]
             s.commit()
         self._announce(events)
         return queued
@@ -370,6 +396,11 @@ class CommandDesk:
             s.commit()
         self.bus.publish(CommandChanged(saved_id(command), command.seq, status, detail=detail))
         return True
+
+    def not_started(self, vehicle_id: int) -> list[CommandRecord]:
+        """The vehicle's commands it has not said it runs, oldest first: where it will go next."""
+        with reading(self.db) as s:
+            return repo.not_started(s, vehicle_id)
 
     def pending(self, vehicle_id: int) -> int:
         """How many of the vehicle's commands wait for the link."""

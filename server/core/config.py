@@ -93,6 +93,19 @@ class Settings(BaseSettings):
     restructure_vehicles: int = Field(2, ge=0)
     restructure_radius: float = Field(15.0, gt=0)  # m
     restructure_auto: bool = False  # apply the proposal at once; otherwise an operator confirms it
+    # --- what the exported data say of themselves (ACDD-1.3 attributes of the NetCDF export; the
+    # deployment's name above is their project) ---
+    summary: str = ""  # a paragraph on what the data are; empty: one the shore writes (vehicle, stream)
+    creator_name: str = ""  # who collected the data (a person or an institution); empty: not said
+    creator_email: str = ""
+    creator_url: str = ""
+    institution: str = ""
+    publisher_name: str = ""  # who distributes the data
+    publisher_email: str = ""
+    publisher_url: str = ""
+    naming_authority: str = ""  # reverse-DNS of the ids' authority, e.g. edu.whoi
+    license: str = ""  # the data's licence, e.g. CC-BY-4.0
+    acknowledgment: str = ""  # funding and thanks
     # --- the center and its gateways (docs/backhaul.md) ---
     routing_window: float = Field(120.0, gt=0)  # s of frames a gateway's score for a vehicle is made of
     routing_margin: float = Field(3.0, ge=0)  # dB another gateway must score better by to take a vehicle

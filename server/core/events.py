@@ -161,6 +161,15 @@ class TeamChanged(Event):
 
 
 @dataclass(frozen=True, kw_only=True)
+class StreamEnded(Event):
+    """The last event of a live event stream whose token no longer holds (``detail``: revoked or expired,
+    and when). Sent to that stream only, never published on the bus."""
+
+    kind: ClassVar[str] = "end"
+    detail: str
+
+
+@dataclass(frozen=True, kw_only=True)
 class GatewayChanged(Event):
     """A gateway's heartbeat came (its state, outbox, modem, place), or a vehicle's gateway changed
     (``what``: ``heartbeat``, ``assignment``, ``pin``, ``unpin``; ``vehicle`` names it): the screens read

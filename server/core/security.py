@@ -26,10 +26,12 @@ class Role(enum.StrEnum):
 
 @dataclass(frozen=True)
 class Actor:
-    """Who sends a request: a named operator (write) or observer (read)."""
+    """Who sends a request: a named operator (write) or observer (read), and when its token expires
+    (UNIX s; None: never, as the settings' tokens)."""
 
     name: str
     role: Role
+    expires_at: float | None = None
 
 
 Lookup = Callable[[str], Actor | None]  # a token's actor; raises ``Unauthorized`` if expired or revoked
@@ -93,6 +95,15 @@ class Throttle:
             raise
         if found is None:
             self._fail(client, now)
+        return found
+
+    def still(self, token: str) -> Actor:
+        """Who holds ``token`` now, asked again of a sign-in that lasts (the map's panel at each send, the
+        event stream at each event): ``Unauthorized`` saying why once it has expired or been revoked.
+        Not counted as a failure: the client signed in with it."""
+        found = self.lookup(token)
+        if found is None:
+            raise Unauthorized("this token is no longer accepted here")
         return found
 
     def _fail(self, client: str, now: float) -> None:

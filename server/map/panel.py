@@ -275,10 +275,10 @@ class OperatorPanel:
         if self.token is None:
             return None
         try:
-            found = self.map.sign_ins.lookup(self.token)
+            found = self.map.sign_ins.still(self.token)
         except ApiError:
             return None
-        return found if found is not None and found.role is Role.WRITE else None
+        return found if found.role is Role.WRITE else None
 
     def _show_role(self, rejected: bool = False) -> None:
         if self.role is Role.WRITE:

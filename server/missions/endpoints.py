@@ -79,9 +79,18 @@ def get_team(team_id: Id, teams: TeamsDep) -> TeamOut:
 
 @router.post("/teams/{team_id}/start", status_code=202, response_model=TeamOut)
 def start_team(team_id: Id, teams: TeamsDep, actor: Writer) -> TeamOut:
-    """Queue each vehicle's first leg; refused (422) if a first leg passes too close to another
-    vehicle's path or the lost-link actions could bring two vehicles together."""
+    """Take each vehicle over (``abort_mission``, and ``set_param`` of its lost-link action if the team
+    names another); its first leg follows when it reports it stopped. Refused (422, the team then
+    ``refused`` with the reason in ``detail``) if any vehicle's plan (where it may stop, its lanes, its
+    lost-link action) would come closer than the separation to another's."""
     return _team(teams.start(team_id, actor.name), teams)
+
+
+@router.delete("/teams/{team_id}", status_code=204, dependencies=[Depends(require_write)])
+def delete_team(team_id: Id, teams: TeamsDep) -> None:
+    """Delete a team mission that is not running (created, refused, aborted or finished) with its
+    proposals; 409 while it runs (abort it first)."""
+    teams.delete(team_id)
 
 
 @router.post("/teams/{team_id}/abort", status_code=202, response_model=TeamOut)

@@ -33,6 +33,7 @@ class TeamStatus(enum.StrEnum):
     """A team mission as the shore runs it: legs are queued only while it is ``started``."""
 
     CREATED = "created"
+    REFUSED = "refused"  # its start was refused: ``detail`` says why; it may be started again or deleted
     STARTED = "started"
     ABORTED = "aborted"
     FINISHED = "finished"
@@ -50,7 +51,8 @@ class MemberState(enum.StrEnum):
 class TeamMission(SQLModel, table=True):
     """A survey area split among vehicles. ``members`` (JSON, in lane order, west to east): each one's
     ``vehicle_id``, ``name``, ``lost_action``, ``home``, ``waypoints`` ([north, east, depth]), the index
-    of the waypoint its current leg goes to (``next``), that leg's ``command_id``, ``state``, ``reason``."""
+    of the waypoint its current leg goes to (``next``), that leg's ``command_id``, ``state``, ``reason``;
+    ``stopping`` while its command is the abort that takes it over at the start."""
 
     id: int | None = Field(default=None, primary_key=True)
     name: str = Field(max_length=128)
@@ -59,6 +61,7 @@ class TeamMission(SQLModel, table=True):
     depth: float
     members: list = Field(default_factory=list, sa_column=Column(JSON, nullable=False))
     status: TeamStatus = Field(default=TeamStatus.CREATED, sa_type=AutoString(16))
+    detail: str = Field(default="", max_length=1024, sa_column_kwargs={"server_default": ""})
     created_at: float = Field(default_factory=now)
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from sqlalchemy import update
+from sqlalchemy import delete, update
 from sqlmodel import Session, col, select
 
 from server.missions.models import (
@@ -69,6 +69,21 @@ def save_team(s: Session, team_id: int, members: list, status: TeamStatus) -> No
     s.execute(
         update(TeamMission).where(col(TeamMission.id) == team_id).values(members=members, status=status.value)
     )
+
+
+def refuse_team(s: Session, team_id: int, detail: str) -> None:
+    """The team's start was refused: why."""
+    s.execute(
+        update(TeamMission)
+        .where(col(TeamMission.id) == team_id)
+        .values(status=TeamStatus.REFUSED.value, detail=detail[:1024])
+    )
+
+
+def delete_team(s: Session, team_id: int) -> None:
+    """The team mission and its proposals."""
+    s.execute(delete(TeamProposal).where(col(TeamProposal.team_id) == team_id))
+    s.execute(delete(TeamMission).where(col(TeamMission.id) == team_id))
 
 
 def add_proposal(s: Session, proposal: TeamProposal) -> TeamProposal:

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated
 
 from pydantic import BaseModel, Field, model_validator
 
 from server.core.schemas import STRICT
 from server.missions.models import MemberState, MissionStatus, ProposalStatus, TeamStatus
 from tacit.packets import CheckpointPacket, ControlPacket
+from tacit.params import LostAction
 
 _NORTH = CheckpointPacket.field("north")
 _DEPTH = ControlPacket.field("depth")  # a waypoint's depth is one a control packet can command
@@ -71,10 +72,11 @@ class AreaIn(BaseModel):
 class TeamVehicleIn(BaseModel):
     model_config = STRICT
     vehicle: str = Field(min_length=1, max_length=64, description="the vehicle's name")
-    lost_action: Literal["hold", "surface", "return"] = Field(
-        "hold",
-        description="what its agent does when the link is lost (its lost_action setting); 'return' goes "
-        "to the vehicle's registered home",
+    lost_action: LostAction | None = Field(
+        None,
+        description="what it is to do when the link is lost ('return' goes to its registered home); "
+        "default its own (the vehicle's lost_action); another is set on the vehicle (set_param) when "
+        "the team starts",
     )
 
 
@@ -90,13 +92,17 @@ class TeamIn(BaseModel):
 class MemberOut(BaseModel):
     vehicle_id: int
     name: str
-    lost_action: str
+    lost_action: LostAction
     home: list[float]
     waypoints: list[list[float]]
     next: int
     command_id: int | None
     state: MemberState
     reason: str
+    stopping: bool = Field(
+        False,
+        description="its current command stops what it did before (abort_mission): its first leg follows",
+    )
 
 
 class LinkCostOut(BaseModel):
@@ -116,6 +122,7 @@ class TeamOut(BaseModel):
     spacing: float
     depth: float
     status: TeamStatus
+    detail: str = Field(description="why its last start was refused (status refused)")
     members: list[MemberOut]
     link: LinkCostOut
     created_at: float

@@ -8,12 +8,14 @@ from sqlalchemy import Engine
 from server.commands.models import CommandRecord
 from server.commands.schemas import CommandIn
 from server.commands.service import CommandDesk
-from server.core.db import Tx, reading, writing
+from server.core.db import Tx, reading, saved_id, writing
 from server.core.errors import NotFound
 from server.missions import repository as repo
-from server.missions.models import Mission, MissionStatus
+from server.missions.models import MemberState, Mission, MissionStatus
 from server.missions.schemas import MissionIn
+from server.safety.geometry import Point
 from server.vehicles import service as vehicles
+from server.vehicles.models import Vehicle
 
 
 class Missions:
@@ -60,9 +62,27 @@ class Missions:
             mission.vehicle_id, CommandIn(command=command, param_id=mission.number), issued_by, new_status
         )
 
-    def route(self, vehicle_id: int) -> list[tuple[float, float, float]]:
-        """The waypoints (north, east, depth) of the vehicle's started mission: its planned trajectory."""
+    def routes(self, vehicle: Vehicle) -> dict[int, list[Point]]:
+        """The waypoints of every mission the vehicle has on record, by number (the newest of each), in
+        the fleet's frame (a plan's are relative to the vehicle's home)."""
         with reading(self.db) as s:
-            mission = repo.started(s, vehicle_id)
-        waypoints = mission.plan.get("waypoints", []) if mission else []
-        return [(w["north"], w["east"], w["depth"]) for w in waypoints]
+            recorded = repo.of_vehicle(s, saved_id(vehicle))
+        north, east = vehicle.home
+        return {
+            m.number: [
+                (north + w["north"], east + w["east"], w["depth"]) for w in m.plan.get("waypoints", [])
+            ]
+            for m in recorded  # oldest first: a newer one with the same number replaces it
+        }
+
+    def team_ahead(self, vehicle_id: int) -> list[Point]:
+        """The waypoints a running member of a started team will still be sent to after its current leg
+        (every one while the team first stops it), in the fleet's frame; none if it runs no team's lanes."""
+        with reading(self.db) as s:
+            started = repo.started_teams(s)
+        for team in started:
+            for m in team.members:
+                if m["vehicle_id"] == vehicle_id and m["state"] == MemberState.RUNNING:
+                    first = m["next"] + (0 if m.get("stopping") else 1)
+                    return [(p[0], p[1], p[2]) for p in m["waypoints"][first:]]
+        return []

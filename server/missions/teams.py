@@ -38,12 +38,14 @@ from server.missions.models import (
 )
 from server.missions.schemas import TeamIn
 from server.safety.geometry import Point
-from server.safety.service import LostLinkPlan, Planned, Separation, lost_link_conflict
+from server.safety.paths import Planned, Unplaced
+from server.safety.service import Separation
 from server.telemetry.models import PacketTrust
 from server.vehicles.models import Vehicle
 from server.vehicles.service import Vehicles
 from tacit.navigation import Pose, distance_and_angle
 from tacit.packets import Command, ControlPacket, Priority, Stream
+from tacit.params import LostAction, Param
 
 log = logging.getLogger("tacit.server.teams")
 ARRIVE_M = 2.0  # m: a leg that ends farther from its waypoint is run once more (``off_target``)
@@ -69,6 +71,20 @@ def leg(start: Point, end: Point) -> CommandIn:
         depth=round(change, 2),
         absolute_angle=True,
     )
+
+
+def takeover(member: dict[str, Any], vehicle: Vehicle) -> list[CommandIn]:
+    """What the team sends a vehicle first: ``abort_mission`` (it holds where it is and drops a mission of
+    its own, which it would otherwise go back to between legs, and whose time could run out mid-survey);
+    then its lost-link action if the team names another than the vehicle's (``set_param``; after the
+    abort, which would supersede it)."""
+    bodies = [CommandIn(command="abort_mission")]
+    action = LostAction(member["lost_action"])
+    if action != vehicle.lost_action:
+        bodies.append(
+            CommandIn(command="set_param", param_id=int(Param.LOST_ACTION), param_value=float(action.code))
+        )
+    return bodies
 
 
 def check_fit(vehicle: Vehicle, waypoints: list[Point]) -> None:
@@ -150,6 +166,12 @@ class Teams:
         chosen = [self._named(v.vehicle) for v in body.vehicles]
         if len({saved_id(v) for v in chosen}) < len(chosen):
             raise Refused("a vehicle is named twice", "vehicles")
+        if len(chosen) > 1 and body.spacing < self.settings.separation:
+            raise Refused(
+                f"lanes {body.spacing:g} m apart would bring neighbouring vehicles closer than the "
+                f"{self.settings.separation:g} m separation: space them at least that far",
+                "spacing",
+            )
         try:
             groups = plans.split(plans.lanes(body.area.corners(), body.spacing), len(chosen))
         except plans.PlanError as exc:
@@ -162,7 +184,7 @@ class Teams:
                 {
                     "vehicle_id": saved_id(vehicle),
                     "name": vehicle.name,
-                    "lost_action": spec.lost_action,
+                    "lost_action": spec.lost_action or vehicle.lost_action,
                     "home": list(vehicle.home),
                     "waypoints": [list(p) for p in waypoints],
                     "next": 0,
@@ -182,20 +204,46 @@ class Teams:
             return repo.add_team(s, team)
 
     def start(self, team_id: int, issued_by: str) -> TeamMission:
-        """Check the lost-link actions and every first leg, then queue the first legs."""
+        """Take each vehicle over (``takeover``) and check every vehicle's whole plan (where it may be when
+        it stops, its lanes, its lost-link action) against the others'; then queue the takeovers: each
+        vehicle's first leg follows when it reports it stopped. A refused start leaves the team
+        ``refused`` with the reason (it may be started again, or deleted)."""
         with self._lock:
             team = self.get(team_id)
-            if team.status != TeamStatus.CREATED:
+            if team.status not in (TeamStatus.CREATED, TeamStatus.REFUSED):
                 raise Conflict(f"team mission {team_id} is {team.status}", "team_id")
             members = copy.deepcopy(team.members)
-            firsts = self._first_legs(members)
-            self._check_lost_link(members, firsts)
-            for member, (body, _) in zip(members, firsts, strict=True):
-                command = self.desk.submit(member["vehicle_id"], body, issued_by)
-                member.update(command_id=saved_id(command), state=MemberState.RUNNING.value)
+            try:
+                self._check_free(members)
+                self._check_start(members)
+                for member in members:
+                    vehicle = self.vehicles.get(member["vehicle_id"])
+                    queued = [
+                        self.desk.submit(saved_id(vehicle), b, issued_by) for b in takeover(member, vehicle)
+                    ]
+                    member.update(
+                        command_id=saved_id(queued[0]), state=MemberState.RUNNING.value, stopping=True
+                    )
+            except ApiError as exc:  # refused, or a vehicle's queue is full (those before it hold)
+                with writing(self.db) as s:
+                    repo.refuse_team(s, team_id, exc.detail)
+                    s.commit()
+                self.bus.publish(TeamChanged(team_id=team_id, what="refused", detail={"reason": exc.detail}))
+                raise
             self._save(team_id, members, TeamStatus.STARTED)
         self.bus.publish(TeamChanged(team_id=team_id, what="started"))
         return self.get(team_id)
+
+    def delete(self, team_id: int) -> None:
+        """Delete a team mission that is not running (created, refused, aborted or finished)."""
+        with self._lock:
+            team = self.get(team_id)
+            if team.status == TeamStatus.STARTED:
+                raise Conflict(f"team mission {team_id} is running: abort it first", "team_id")
+            with writing(self.db) as s:
+                repo.delete_team(s, team_id)
+                s.commit()
+        self.bus.publish(TeamChanged(team_id=team_id, what="deleted"))
 
     def abort(self, team_id: int, issued_by: str) -> TeamMission:
         """No more legs are queued; each vehicle finishes the leg it has and holds there."""
@@ -288,14 +336,17 @@ class Teams:
                 return
             team, members, member = found
             if event.status == CommandState.EXECUTED:
-                if off_target(member, event.report):
+                if member.pop("stopping", False):
+                    pass  # it stopped where it reported: its first leg starts there
+                elif off_target(member, event.report):
                     member["corrected"] = member["next"]  # the same waypoint once more, from there
                 else:
                     member["next"] += 1
                 self._next_leg(member, event.report, "team")
             else:
                 why = event.reason or event.detail
-                ended = f"leg {member['next'] + 1} {event.status}"
+                ended = "its takeover" if member.pop("stopping", False) else f"leg {member['next'] + 1}"
+                ended = f"{ended} {event.status}"
                 member.update(state=MemberState.STOPPED.value, reason=f"{ended}: {why}" if why else ended)
             done = all(m["state"] != MemberState.RUNNING.value for m in members)
             self._save(saved_id(team), members, TeamStatus.FINISHED if done else TeamStatus(team.status))
@@ -385,35 +436,44 @@ class Teams:
             raise Refused("the vehicle has not reported its position yet", "vehicles")
         return planned.start
 
-    def _first_legs(self, members: list[dict[str, Any]]) -> list[tuple[CommandIn, Planned]]:
-        """Each member's leg to its first waypoint, checked against the others' paths, the earlier
-        members' first legs included."""
-        firsts: list[tuple[CommandIn, Planned]] = []
-        assumed: dict[int, Planned] = {}
+    def _check_free(self, members: list[dict[str, Any]]) -> None:
+        """Refuse (``Conflict``) a start while one of its vehicles runs another team's lanes."""
+        ids = {m["vehicle_id"] for m in members}
+        for other in self._running():
+            busy = [
+                m["name"]
+                for m in other.members
+                if m["vehicle_id"] in ids and m["state"] == MemberState.RUNNING
+            ]
+            if busy:
+                raise Conflict(
+                    f"{', '.join(busy)} {'runs' if len(busy) == 1 else 'run'} team mission {other.id} "
+                    f"({other.name}): abort it first",
+                    "team_id",
+                )
+
+    def _running(self) -> list[TeamMission]:
+        with reading(self.db) as s:
+            return repo.started_teams(s)
+
+    def _check_start(self, members: list[dict[str, Any]]) -> None:
+        """Refuse (``Refused``) a start whose plans would bring two vehicles closer than the separation:
+        each member's plan is its takeover and then all its lanes, with its lost-link action."""
+        candidates = {}
         for m in members:
-            here = self._planned(m["name"])
-            if here is None:
+            vehicle = self.vehicles.get(m["vehicle_id"])
+            try:
+                found = self.separation.candidate(
+                    vehicle, takeover(m, vehicle), [tuple(p) for p in m["waypoints"]]
+                )
+            except Unplaced as exc:
+                raise Refused(str(exc), "vehicles") from None
+            if found is None:
                 raise Refused(
                     f"{m['name']} has not reported its position yet: its first leg starts there", "vehicles"
                 )
-            end = tuple(m["waypoints"][0])
-            body = leg(here.start, end)
-            self.separation.check(m["vehicle_id"], body, assumed)
-            path = Planned(m["name"], here.start, end, here.radius, here.heading)
-            assumed[m["vehicle_id"]] = path
-            firsts.append((body, path))
-        return firsts
-
-    def _check_lost_link(
-        self, members: list[dict[str, Any]], firsts: list[tuple[CommandIn, Planned]]
-    ) -> None:
-        lost = []
-        for m, (_, path) in zip(members, firsts, strict=True):
-            points = [path.start, *(tuple(p) for p in m["waypoints"])]
-            lost.append(LostLinkPlan(m["name"], points, m["lost_action"], (m["home"][0], m["home"][1])))
-        conflict = lost_link_conflict(lost, self.settings.separation)
-        if conflict is not None:
-            raise Refused(conflict, "vehicles")
+            candidates[m["vehicle_id"]] = found
+        self.separation.refuse_closer(candidates, "the team's start")
 
     def _redirect(self, members: list[dict[str, Any]], work: dict[str, Any], issued_by: str) -> str:
         """One helper's new waypoint replaces the rest of its lanes; its leg there is queued now."""

@@ -17,9 +17,10 @@ def _out(operator: Operator) -> OperatorOut:
 
 @router.post("/operators", status_code=201, response_model=OperatorCreated)
 def create_operator(body: OperatorIn, operators: OperatorsDep, actor: Writer) -> OperatorCreated:
-    """A person's own token, which expires after ``expires_in_s`` (null: never). The token is in this
-    answer only: the shore keeps its hash, so a lost token is revoked and a new one created."""
-    operator, token = operators.create(body, actor.name)
+    """A person's own token, which expires after ``expires_in_s`` (null: never), and never after the
+    creator's own token (422 otherwise). The token is in this answer only: the shore keeps its hash, so a
+    lost token is revoked and a new one created."""
+    operator, token = operators.create(body, actor)
     return OperatorCreated(**_out(operator).model_dump(), token=token)
 
 

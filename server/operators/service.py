@@ -38,7 +38,7 @@ def _accepted(operator: Operator, at: float) -> Actor:
         raise Unauthorized(
             f"this token expired at {_when(operator.expires_at)}; ask an operator for a new one"
         )
-    return Actor(operator.name, Role(operator.role))  # the table holds its text
+    return Actor(operator.name, Role(operator.role), operator.expires_at)  # the table holds its text
 
 
 class Operators:
@@ -56,13 +56,21 @@ class Operators:
             operator = repo.by_hash(s, digest(token))
         return None if operator is None else _accepted(operator, now())
 
-    def create(self, body: OperatorIn, created_by: str) -> tuple[Operator, str]:
-        """A new operator and its token (returned this once: only its hash is stored)."""
+    def create(self, body: OperatorIn, creator: Actor) -> tuple[Operator, str]:
+        """A new operator and its token (returned this once: only its hash is stored). A token never
+        outlives its creator's: an operator whose own token expires cannot create one that expires later
+        or never (only an operator creates tokens at all: ``require_write``)."""
         if body.name.startswith(RESERVED):
             raise Refused(f"names starting with {RESERVED!r} belong to the settings' tokens", "name")
         token = secrets.token_urlsafe(24)
         created = now()
         expires = None if body.expires_in_s is None else created + body.expires_in_s
+        if creator.expires_at is not None and (expires is None or expires > creator.expires_at):
+            raise Refused(
+                f"your token expires at {_when(creator.expires_at)}: a token you create may not outlive it "
+                f"(expires_in_s at most {max(0, int(creator.expires_at - created))})",
+                "expires_in_s",
+            )
         with writing(self.db) as s:
             if repo.by_name(s, body.name) is not None:
                 raise Conflict(f"an operator named {body.name!r} exists", "name")
@@ -72,7 +80,7 @@ class Operators:
                 token_hash=digest(token),
                 created_at=created,
                 expires_at=expires,
-                created_by=created_by,
+                created_by=creator.name,
             )
             return repo.save(s, operator), token
 

@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
-from pydantic import BaseModel
+from pydantic import BaseModel, Field
 
 
 class PathOut(BaseModel):
     vehicle: str
-    start: list[float]
-    end: list[float]
-    radius_m: float
+    start: list[float] = Field(description="where it is predicted now: north, east, depth (m)")
+    end: list[float] = Field(description="where its plan ends")
+    route: list[list[float]] = Field(description="the plan's line: its position, then each target in turn")
+    radius_m: float = Field(description="the uncertainty about its position now")
 
 
 class WarningOut(BaseModel):

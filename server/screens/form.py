@@ -10,6 +10,7 @@ import math
 
 from tacit.limits import Limits
 from tacit.packets import ControlPacket
+from tacit.params import Param
 
 COMMAND_HINTS = {
     "move": "Go a distance in a direction, optionally changing depth.",
@@ -19,8 +20,9 @@ COMMAND_HINTS = {
     "start_mission": "Start a mission the vehicle has on board, by its number.",
     "abort_mission": "Abort the mission and hold where it is.",
     "return_home": "Head home now.",
-    "set_param": "Set one of the vehicle's parameters (1 plume threshold, 2 check-point interval s, "
-    "3 cruise speed m/s, 4 link-lost timeout s).",
+    "set_param": "Set one of the vehicle's parameters ("
+    + ", ".join(f"{p.value} {p.hint}" for p in Param)
+    + ").",
     "request_checkpoint": "Ask for a check-point (the vehicle's state) now.",
 }
 FIELDS_OF = {

@@ -2,18 +2,17 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query
-from fastapi.responses import Response, StreamingResponse
+from fastapi.responses import StreamingResponse
 
 from server.api.deps import Offset, OptionalId, QueryId, TelemetryDep, require_read
 from server.core.schemas import Page
 from server.telemetry import export, metadata
 from server.telemetry.metadata import Dataset
 from server.telemetry.schemas import PacketOut, TelemetryOut
-from server.telemetry.service import Sample, Window
+from server.telemetry.service import Exported, Window
 from tacit.streams import UNITS
 
 router = APIRouter(prefix="/api/v1", tags=["data"], dependencies=[Depends(require_read)])
@@ -91,12 +90,12 @@ def exported(
     since: float | None = None,
     until: float | None = None,
     include_forged: Annotated[bool, Query(description="also the samples of forged packets")] = False,
-) -> tuple[Dataset, Iterator[Sample]]:
+) -> Exported:
     """What every export route takes and checks (404 / 422 before anything is sent), and the samples."""
     return reader.export(vehicle_id, stream, Window(since, until), include_forged)
 
 
-Export = Annotated[tuple[Dataset, Iterator[Sample]], Depends(exported)]
+Export = Annotated[Exported, Depends(exported)]
 
 
 @router.get(
@@ -105,32 +104,40 @@ Export = Annotated[tuple[Dataset, Iterator[Sample]], Depends(exported)]
     description=EXPORT_DOC,
     responses={200: {"content": {"text/csv": {}}}},
 )
-def telemetry_csv(export_: Export) -> StreamingResponse:
-    d, samples = export_
-    return StreamingResponse(export.csv_lines(d, samples), media_type="text/csv", headers=_headers(d, "csv"))
+def telemetry_csv(out: Export) -> StreamingResponse:
+    d = out.dataset
+    return StreamingResponse(
+        export.csv_lines(d, out.samples), media_type="text/csv", headers=_headers(d, "csv")
+    )
 
 
 @router.get(
     "/telemetry.parquet",
-    response_class=Response,
+    response_class=StreamingResponse,
     description=EXPORT_DOC,
     responses={200: {"content": {export.PARQUET: {}}}},
 )
-def telemetry_parquet(export_: Export) -> Response:
+def telemetry_parquet(out: Export) -> StreamingResponse:
     """The same as ``telemetry.csv`` as an Apache Parquet file (typed columns: float64 channels, null where
     absent), for pandas, polars, DuckDB or R's arrow."""
-    d, samples = export_
-    return Response(export.parquet(d, samples), media_type=export.PARQUET, headers=_headers(d, "parquet"))
+    d = out.dataset
+    return StreamingResponse(
+        export.parquet(d, out.samples), media_type=export.PARQUET, headers=_headers(d, "parquet")
+    )
 
 
 @router.get(
     "/telemetry.nc",
-    response_class=Response,
+    response_class=StreamingResponse,
     description=EXPORT_DOC,
     responses={200: {"content": {export.NETCDF: {}}}},
 )
-def telemetry_netcdf(export_: Export) -> Response:
-    """The same as ``telemetry.csv`` as a NetCDF file following the CF conventions (CF-1.8, a trajectory),
-    for xarray, the IOOS tools or Panoply."""
-    d, samples = export_
-    return Response(export.netcdf(d, samples), media_type=export.NETCDF, headers=_headers(d, "nc"))
+def telemetry_netcdf(out: Export) -> StreamingResponse:
+    """The same as ``telemetry.csv`` as a NetCDF file following the CF conventions (CF-1.8, a trajectory)
+    with the ACDD-1.3 discovery attributes (the deployment's settings, the time covered, and with the
+    fleet's origin known, each row's latitude and longitude and the area covered), for xarray, the IOOS
+    tools or Panoply."""
+    d = out.dataset
+    return StreamingResponse(
+        export.netcdf(d, out.samples, out.fixes), media_type=export.NETCDF, headers=_headers(d, "nc")
+    )

@@ -6,8 +6,9 @@ in its header row and the error bounds in a response header."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from datetime import UTC, datetime
+from typing import Any
 
 from server.telemetry.models import SampleTrust
 from tacit.codec import StreamSpec
@@ -15,6 +16,7 @@ from tacit.streams import UNITS
 
 Attributes = dict[str, str | float | int]
 
+STANDARD_NAME_VOCABULARY = "CF Standard Name Table v93"
 TIME_UNITS = "seconds since 1970-01-01T00:00:00Z"  # UNIX seconds, UTC: CF's spelling of the epoch
 #: The vehicle's unit spellings (``tacit.streams.UNITS``) that UDUNITS, and so CF, cannot read: MAVLink's
 #: "mG" (milli-g; in SI, G is the gauss), and "°C" in ASCII, as NetCDF3 text has no encoding. Checked
@@ -58,12 +60,40 @@ VERIFICATION = "; ".join(f"{trust.value}: {meaning}" for trust, meaning in TRUST
 
 
 @dataclass(frozen=True)
+class About:
+    """What the deployment's settings say of the data (``Settings``: its name, summary, creator, ...; an
+    empty one is not said), and the fleet's origin (latitude, longitude), None when not known."""
+
+    deployment: str = "tacit"
+    summary: str = ""
+    creator_name: str = ""
+    creator_email: str = ""
+    creator_url: str = ""
+    institution: str = ""
+    publisher_name: str = ""
+    publisher_email: str = ""
+    publisher_url: str = ""
+    naming_authority: str = ""
+    license: str = ""
+    acknowledgment: str = ""
+    origin: tuple[float, float] | None = None
+
+    @classmethod
+    def of(cls, settings: Any) -> About:
+        """From the server's ``Settings`` (the fields of the same names; an unnamed deployment is
+        "tacit")."""
+        said = {f.name: getattr(settings, f.name) for f in fields(cls)}
+        return cls(**{**said, "deployment": said["deployment"] or cls.deployment})
+
+
+@dataclass(frozen=True)
 class Dataset:
-    """What an export holds: one vehicle's stream."""
+    """What an export holds: one vehicle's stream, and what the deployment says of it."""
 
     vehicle_id: int
     vehicle: str
     spec: StreamSpec
+    about: About = About()
 
 
 def units(channel: str) -> str:
@@ -81,16 +111,29 @@ def columns(spec: StreamSpec) -> dict[str, Attributes]:
             "units": TIME_UNITS,
             "axis": "T",
             "calendar": "standard",
+            "coverage_content_type": "coordinate",
         },  # fmt: skip
         "tick": {
-            "long_name": "the codec's tick number (time dates a sample within the stream's time_precision)"
+            "long_name": "the codec's tick number (time dates a sample within the stream's time_precision)",
+            "units": "1",
+            "coverage_content_type": "auxiliaryInformation",
         },
         "in_tick": {
             "long_name": "the sample's place among the samples dated at its time",
+            "units": "1",
+            "coverage_content_type": "auxiliaryInformation",
             "comment": IN_TICK,
         },
-        "certain": {"long_name": "whether the value is within error_bound", "comment": CERTAIN},
-        "verification": {"long_name": "how far the sample may be believed", "comment": VERIFICATION},
+        "certain": {
+            "long_name": "whether the value is within error_bound",
+            "coverage_content_type": "qualityInformation",
+            "comment": CERTAIN,
+        },
+        "verification": {
+            "long_name": "how far the sample may be believed",
+            "coverage_content_type": "qualityInformation",
+            "comment": VERIFICATION,
+        },
         **{channel: _channel(channel, eps) for channel, eps in zip(spec.channels, spec.eps, strict=True)},
     }
 
@@ -101,17 +144,44 @@ def _channel(channel: str, eps: float) -> Attributes:
         **standard,
         "long_name": LONG_NAMES[channel],
         "units": units(channel),
+        **({"positive": "down"} if channel == "depth" else {}),
+        "coverage_content_type": "physicalMeasurement",
         "error_bound": eps,
         "comment": "within error_bound (same units) of what the sensor read where certain",
     }
 
 
+#: The vehicle's position at each sample (the NetCDF export, when the fleet's origin is known), and its
+#: depth where the stream has no depth channel: interpolated between its verified check-points.
+TRACK_COMMENT = "interpolated in time between the vehicle's verified check-points (dead reckoning); NaN before the first and after the last"
+TRACK: dict[str, Attributes] = {
+    "lat": {"standard_name": "latitude", "long_name": "the vehicle's latitude", "units": "degrees_north", "axis": "Y"},
+    "lon": {"standard_name": "longitude", "long_name": "the vehicle's longitude", "units": "degrees_east", "axis": "X"},
+    "depth": {"standard_name": "depth", "long_name": "the vehicle's depth", "units": "m", "positive": "down", "axis": "Z"},
+}  # fmt: skip
+
+
 def attributes(d: Dataset) -> Attributes:
-    """The file's attributes (ACDD/CF names where they have one)."""
+    """The file's attributes (ACDD/CF names where they have one), what the deployment's settings say
+    included; the coverage, which only the rows give, is ``export.Coverage``'s."""
+    a = d.about
+    said = {  # the deployment's own words, those it said
+        f.name: getattr(a, f.name)
+        for f in fields(About)
+        if f.name not in ("deployment", "summary", "origin") and getattr(a, f.name)
+    }
+    now = datetime.now(UTC).isoformat(timespec="seconds")
     return {
-        "title": f"{d.spec.name} telemetry of vehicle {d.vehicle}",
+        "title": f"{d.spec.name} telemetry of vehicle {d.vehicle} ({a.deployment})",
+        "summary": a.summary or _summary(d),
+        "keywords": ", ".join(["underwater vehicle", "acoustic telemetry", *_keywords(d.spec)]),
         "source": "Tacit shore control center: samples reconstructed from acoustic-modem packets, each "
         "within its channel's error_bound of what the vehicle's sensor read",
+        "comment": CERTAIN + "; verification: " + VERIFICATION,
+        "processing_level": "reconstructed from compressed packets: within error_bound of the sensor where "
+        "certain; positions interpolated between the vehicle's verified check-points",
+        "project": a.deployment,
+        "platform": "underwater vehicle",
         "vehicle_name": d.vehicle,
         "vehicle_id": d.vehicle_id,
         "stream": d.spec.name,
@@ -119,8 +189,25 @@ def attributes(d: Dataset) -> Attributes:
         "stream_period_units": "s",
         "time_precision": d.spec.time_precision,  # half a period, or the stream's time tolerance
         "time_precision_units": "s",
-        "history": f"{datetime.now(UTC).isoformat(timespec='seconds')} exported by Tacit",
+        "standard_name_vocabulary": STANDARD_NAME_VOCABULARY,
+        "date_created": now,
+        "history": f"{now} exported by Tacit",
+        **said,
     }
+
+
+def _summary(d: Dataset) -> str:
+    channels = ", ".join(f"{c} ({units(c)})" for c in d.spec.channels)
+    return (
+        f"The {d.spec.name} stream of underwater vehicle {d.vehicle} in deployment {d.about.deployment}: "
+        f"{channels}, one sample every {d.spec.period:g} s, as the shore reconstructed it from the compressed "
+        "packets the vehicle sent over its acoustic modem, each value within its channel's error_bound of "
+        "what the sensor read where certain, with how far each sample may be believed (verification)."
+    )
+
+
+def _keywords(spec: StreamSpec) -> list[str]:
+    return [STANDARD_NAMES[c] for c in spec.channels if c in STANDARD_NAMES]
 
 
 def error_bounds(spec: StreamSpec) -> str:
@@ -131,4 +218,6 @@ def error_bounds(spec: StreamSpec) -> str:
 def csv_header(spec: StreamSpec) -> list[str]:
     """The CSV header row: each column's name with its units in parentheses, ``depth (m)`` (ERDDAP's
     ``.csvp``): one plain row that every CSV reader takes as it is, and the units stay with the file."""
-    return [f"{name} ({a['units']})" if "units" in a else name for name, a in columns(spec).items()]
+    return [
+        f"{name} ({a['units']})" if a.get("units", "1") != "1" else name for name, a in columns(spec).items()
+    ]

@@ -4,6 +4,7 @@ trust, and the reconstructed samples (``PacketTrust``, defined once)."""
 from __future__ import annotations
 
 import enum
+from typing import NamedTuple
 
 from sqlalchemy import JSON, BigInteger, Column, Index, LargeBinary
 from sqlmodel import AutoString, Field, SQLModel
@@ -95,3 +96,13 @@ class Telemetry(SQLModel, table=True):
     verified: bool = Field(default=False, sa_column_kwargs={"server_default": "0"})  # its packet's MAC held
 
     __table_args__ = (Index("ix_telemetry_vehicle_stream_time", "vehicle_id", "stream", "time"),)
+
+
+class SampleRow(NamedTuple):
+    """What an export reads of a ``Telemetry`` row (a tuple: a month of samples is millions of them)."""
+
+    time: float
+    tick: int
+    values: list[float | None]
+    certain: bool
+    verified: bool

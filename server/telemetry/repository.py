@@ -10,10 +10,11 @@ from sqlalchemy import select as sa_select
 from sqlmodel import Session, SQLModel, col, select
 from sqlmodel.sql.expression import SelectOfScalar
 
-from server.telemetry.models import Frame, Packet, PacketTrust, Telemetry
+from server.telemetry.models import Frame, Packet, PacketTrust, SampleRow, Telemetry
 from tacit.packets import PACKET_SIZE
 
 EXPORT_ROWS = 5000  # rows per database fetch of an export
+FIX_MARGIN = 600.0  # s: check-points this far outside an export's window still place its first and last rows
 
 
 def add_frame(s: Session, row: dict[str, Any]) -> int:
@@ -272,22 +273,29 @@ def sample_page(
     return _page(s, _samples(vehicle_id, stream, since, until), limit, offset)
 
 
+_EXPORTED: tuple[Any, ...] = (
+    Telemetry.time, Telemetry.tick, Telemetry.values, Telemetry.certain, Telemetry.verified, Packet.auth,
+)  # fmt: skip
+
+
 def all_samples(
     s: Session, vehicle_id: int, stream: str, since: float | None, until: float | None
-) -> Iterator[tuple[Telemetry, PacketTrust | None]]:
+) -> Iterator[tuple[SampleRow, PacketTrust | None]]:
     """Every sample in the window with its packet's trust (None: no packet on record), oldest first (the
     samples of one tick in the order they were stored: measured), fetched ``EXPORT_ROWS`` at a time."""
     query = (
-        select(Telemetry, Packet.auth)
+        sa_select(*_EXPORTED)
         .outerjoin(Packet, col(Telemetry.packet_id) == Packet.id)
         .where(
-            Telemetry.stream == stream,
+            col(Telemetry.stream) == stream,
             *_window(Telemetry.vehicle_id, Telemetry.time, vehicle_id, since, until),
         )
         .order_by(col(Telemetry.time), col(Telemetry.id))
     )
-    for sample, auth in s.exec(query.execution_options(yield_per=EXPORT_ROWS)):
-        yield sample, None if auth is None else PacketTrust(auth)
+    for time, tick, values, certain, verified, auth in s.execute(
+        query.execution_options(yield_per=EXPORT_ROWS)
+    ):
+        yield SampleRow(time, tick, values, certain, verified), None if auth is None else PacketTrust(auth)
 
 
 def sample_span(s: Session, vehicle_id: int, stream: str) -> tuple[float, float] | None:
@@ -328,3 +336,22 @@ def certain_ticks_by_stream(s: Session) -> dict[str, int]:
         .group_by(Telemetry.stream)
     )
     return {stream: int(n) for stream, n in s.exec(query).all()}
+
+
+def fixes(
+    s: Session, vehicle_id: int, since: float | None, until: float | None
+) -> Iterator[tuple[float, float, float, float]]:
+    """The vehicle's verified check-points heard within the window (UNIX s, ``FIX_MARGIN`` s wider either
+    side) as (vehicle time, north, east, depth), in the order heard, fetched ``EXPORT_ROWS`` at a time."""
+    query = select(Packet.body).where(
+        Packet.vehicle_id == vehicle_id, Packet.type == "checkpoint", Packet.auth == PacketTrust.VERIFIED
+    )
+    if since is not None:
+        query = query.where(col(Packet.at) >= since - FIX_MARGIN)
+    if until is not None:
+        query = query.where(col(Packet.at) <= until + FIX_MARGIN)
+    for body in s.exec(
+        query.order_by(col(Packet.at), col(Packet.id)).execution_options(yield_per=EXPORT_ROWS)
+    ):
+        if all(k in body for k in ("time", "north", "east", "depth")):
+            yield float(body["time"]), float(body["north"]), float(body["east"]), float(body["depth"])

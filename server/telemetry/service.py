@@ -15,13 +15,23 @@ from server.core.db import Tx, reading
 from server.core.errors import Refused
 from server.telemetry import clock
 from server.telemetry import repository as repo
-from server.telemetry.metadata import Dataset
-from server.telemetry.models import Packet, SampleTrust, Telemetry
+from server.telemetry.metadata import About, Dataset
+from server.telemetry.models import Packet, SampleRow, SampleTrust, Telemetry
 from server.vehicles import service as vehicles
 from tacit.codec import StreamSpec
 from tacit.packets import Stream
 
-Sample = tuple[Telemetry, SampleTrust]
+Sample = tuple[SampleRow, SampleTrust]
+Fix = tuple[float, float, float, float]  # a verified check-point: vehicle time, north, east, depth
+
+
+@dataclass(frozen=True)
+class Exported:
+    """An export's dataset, its samples and the vehicle's check-points, each read as it is consumed."""
+
+    dataset: Dataset
+    samples: Iterator[Sample]
+    fixes: Iterator[Fix]
 
 
 def clock_offset(s: Tx, vehicle_id: int, *latest: tuple[float, float]) -> float | None:
@@ -45,8 +55,9 @@ class Window:
 
 
 class TelemetryReader:
-    def __init__(self, db: Engine, streams: dict[Stream, StreamSpec]) -> None:
+    def __init__(self, db: Engine, streams: dict[Stream, StreamSpec], about: About) -> None:
         self.db = db
+        self.about = about  # what the deployment's settings say of the exported data
         self.streams = {spec.name: spec for spec in streams.values()}
 
     def spec(self, stream: str) -> StreamSpec:
@@ -79,12 +90,10 @@ class TelemetryReader:
                 vehicles.get(s, vehicle_id)
             return repo.sample_page(s, vehicle_id, stream, window.since, window.until, limit, offset)
 
-    def export(
-        self, vehicle_id: int, stream: str, window: Window, include_forged: bool = False
-    ) -> tuple[Dataset, Iterator[Sample]]:
+    def export(self, vehicle_id: int, stream: str, window: Window, include_forged: bool = False) -> Exported:
         """What the export holds and its samples in the window with their trust, oldest first, fetched in
-        pages as they are read; forged ones only if asked. The vehicle, the stream and the window are
-        checked before anything is sent."""
+        pages as they are read; forged ones only if asked; the vehicle's verified check-points around it.
+        The vehicle, the stream and the window are checked before anything is sent."""
         spec = self.spec(stream)
         window.check()
         with reading(self.db) as s:
@@ -108,7 +117,11 @@ class TelemetryReader:
                     if include_forged or trust is not SampleTrust.FORGED:
                         yield sample, trust
 
-        return Dataset(vehicle_id, vehicle.name, spec), rows()
+        def fixes() -> Iterator[Fix]:
+            with reading(self.db) as s:
+                yield from repo.fixes(s, vehicle_id, window.since, window.until)
+
+        return Exported(Dataset(vehicle_id, vehicle.name, spec, self.about), rows(), fixes())
 
 
 def _heard(packet: Packet, snr: float | None, copies: list[RelayedFrame]) -> dict[str, Any]:

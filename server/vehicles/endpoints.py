@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Depends
 
-from server.api.deps import Id, LinkDep, VehiclesDep, require_read, require_write
+from server.api.deps import Id, LinkDep, SafetyDep, VehiclesDep, require_read, require_write
 from server.vehicles import keys
 from server.vehicles.models import Vehicle
 from server.vehicles.schemas import HomeIn, KeyIn, LimitsIn, ShareIn, VehicleCreated, VehicleIn, VehicleOut
@@ -53,9 +53,12 @@ def set_share(vehicle_id: Id, body: ShareIn, vehicles: VehiclesDep, link: LinkDe
 
 
 @router.put("/{vehicle_id}/home", response_model=VehicleOut, dependencies=[Depends(require_write)])
-def set_home(vehicle_id: Id, body: HomeIn, vehicles: VehiclesDep) -> VehicleOut:
+def set_home(vehicle_id: Id, body: HomeIn, vehicles: VehiclesDep, safety: SafetyDep) -> VehicleOut:
     """Where the vehicle starts, m north and east of the fleet's one origin (its agent's ``[nav] home``):
-    its mission's waypoints and its return home are relative to it on the screens."""
+    its mission's waypoints and its return home are relative to it on the screens. Refused (422) if a
+    return there (queued, under way, at its mission's end or its lost-link action) would pass closer
+    than the separation to another vehicle's plan."""
+    safety.check_home(vehicle_id, body.home)
     return _out(vehicles.set_home(vehicle_id, body.home))
 
 

@@ -4,10 +4,11 @@ channel (the polled MAC's weight, ``server.link.schedule``)."""
 from __future__ import annotations
 
 from sqlalchemy import false
-from sqlmodel import Field, SQLModel
+from sqlmodel import AutoString, Field, SQLModel
 
 from server.core.db import now
 from tacit.limits import Limits
+from tacit.params import LostAction
 
 
 class Vehicle(SQLModel, table=True):
@@ -33,6 +34,10 @@ class Vehicle(SQLModel, table=True):
     # waypoints and its return home are relative to it, its check-points in the fleet's frame
     home_north: float = Field(default=0.0, sa_column_kwargs={"server_default": "0"})
     home_east: float = Field(default=0.0, sa_column_kwargs={"server_default": "0"})
+    # what it does when the link is lost: its agent's lost_action, then each SET_PARAM it executed
+    lost_action: LostAction = Field(
+        default=LostAction.HOLD, sa_type=AutoString(16), sa_column_kwargs={"server_default": "hold"}
+    )
     created_at: float = Field(default_factory=now)
 
     @property

@@ -8,6 +8,7 @@ from sqlalchemy import update
 from sqlmodel import Session, col, select
 
 from server.vehicles.models import Vehicle
+from tacit.params import LostAction
 
 
 def get(s: Session, vehicle_id: int) -> Vehicle | None:
@@ -83,3 +84,8 @@ def confirm_key(s: Session, vehicle_id: int) -> None:
 def hold_next_key(s: Session, vehicle_id: int, held: bool) -> None:
     """What the vehicle's last check-point signed with its confirmed key said of the staged one."""
     s.execute(update(Vehicle).where(col(Vehicle.id) == vehicle_id).values(next_key_held=held))
+
+
+def set_lost_action(s: Session, vehicle_id: int, action: LostAction) -> None:
+    """The vehicle executed a SET_PARAM of its lost-link action."""
+    s.execute(update(Vehicle).where(col(Vehicle.id) == vehicle_id).values(lost_action=action))

@@ -10,6 +10,7 @@ from server.core.schemas import STRICT
 from tacit.limits import Limits
 from tacit.packets import CheckpointPacket
 from tacit.packets import ControlPacket as WIRE
+from tacit.params import LostAction, Param
 
 MAX_KEY_HEX = 128  # 64 bytes: twice what HMAC-SHA256 needs
 DEFAULT = Limits()
@@ -54,6 +55,11 @@ class VehicleIn(LimitsIn):
         description="m north, east of the fleet's origin where it starts (its agent's [nav] home): its "
         "mission's waypoints and its return home are relative to it",
     )
+    lost_action: LostAction = Field(
+        LostAction.HOLD,
+        description="what it does when the link is lost (its agent's lost_action; a set_param of parameter "
+        f"{int(Param.LOST_ACTION)} changes both): the separation check counts it",
+    )
 
 
 class KeyIn(BaseModel):
@@ -91,6 +97,7 @@ class VehicleOut(LimitsIn):
     name: str
     address: int
     home: tuple[float, float] = Field(description="m north, east of the fleet's origin where it starts")
+    lost_action: LostAction = Field(description="what it does when the link is lost")
     key_version: int
     share: float = Field(description="its weight in the channel's schedule")
     key_rotation: KeyRotation | None = None

@@ -65,6 +65,7 @@ class Vehicles:
                 key_hex=_unshared(s, _key(body.key)).hex(),
                 home_north=body.home[0],
                 home_east=body.home[1],
+                lost_action=body.lost_action,
                 **body.model_dump(include=set(LimitsIn.model_fields)),
             )
             return repo.save(s, vehicle)

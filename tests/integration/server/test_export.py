@@ -5,7 +5,10 @@ fill values (NetCDF); each row says how far it may be believed, and each file wh
 from __future__ import annotations
 
 import csv
+import json
 import math
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +22,7 @@ from server.app import create_app
 from server.core.db import writing
 from server.telemetry import repository
 from server.telemetry.models import PacketTrust, Telemetry
+from tacit.navigation import EARTH_RADIUS
 from tacit.streams import ENV_PERIOD, IMU_PERIOD
 from tests.support.api import OP, offline_settings
 
@@ -262,7 +266,7 @@ def test_parquet_says_what_its_values_mean(client: TestClient, tmp_path: Path) -
 def test_netcdf_follows_the_cf_conventions(client: TestClient, tmp_path: Path) -> None:
     path = download(client, tmp_path / "env.nc", "/api/v1/telemetry.nc", vehicle_id=1, stream="env")
     with netcdf_file(path, mmap=False) as f:
-        assert f.Conventions == b"CF-1.8" and f.featureType == b"trajectory"
+        assert f.Conventions == b"CF-1.8, ACDD-1.3" and f.featureType == b"trajectory"
         assert (
             f.vehicle_name == b"rov1"
             and f.vehicle_id == 1
@@ -291,7 +295,8 @@ def test_netcdf_follows_the_cf_conventions(client: TestClient, tmp_path: Path) -
         assert (
             temperature.error_bound == 0.05 and temperature.error_bound.dtype == np.float64
         )  # not 0.0500000007
-        assert temperature.coordinates == b"time" and f.stream_period.dtype == np.float64
+        assert temperature.coordinates == b"time tick in_tick depth" and f.stream_period.dtype == np.float64
+        assert depth.positive == b"down" and "lat" not in f.variables  # no origin: no latitude
         assert temperature.ancillary_variables == b"certain verification"
         assert np.isnan(depth._FillValue) and depth._FillValue.dtype == np.float64 and depth.typecode() == "d"
         assert np.isnan(depth[3]) and temperature[3] == 20.5  # absent: NaN
@@ -376,3 +381,72 @@ def test_ticks_as_a_vehicle_counts_them_come_back_exact(
     )
     ticks, _ = read_verification(path)
     assert first > 2**32 and [int(t) for t in ticks] == [first, first + 1, first + 2]
+
+
+ABOUT = {
+    "deployment": "river-2026",
+    "summary": "Temperature, depth and oxygen of a river survey by a BlueROV2.",
+    "creator_name": "A. Diver",
+    "creator_email": "diver@example.org",
+    "creator_url": "https://example.org/diver",
+    "institution": "Example Oceanographic",
+    "publisher_name": "Example Data Center",
+    "publisher_email": "data@example.org",
+    "publisher_url": "https://example.org/data",
+    "naming_authority": "org.example",
+    "license": "CC-BY-4.0",
+    "acknowledgment": "Example grant 42",
+}
+
+
+def test_netcdf_passes_the_ioos_compliance_checker(tmp_path: Path) -> None:
+    """An export of a deployment that said who and what it is, with the fleet's origin and the vehicle's
+    verified check-points, through the IOOS compliance checker (offline, its packaged standard-name
+    table): CF-1.8 and ACDD-1.3 at full marks; each row's latitude and longitude is where the vehicle was
+    between its check-points, and the file says the area and the time it covers."""
+    settings = offline_settings(tmp_path, ping_interval=3600, origin=(41.5, -70.6), **ABOUT)
+    with TestClient(create_app(settings)) as c:
+        c.post("/api/v1/vehicles", json={"name": "rov1", "address": 2}, headers=OP)
+        with writing(c.app.state.shore.db) as s:  # type: ignore[attr-defined]
+            frame = repository.add_frame(s, {"direction": "in", "src": 2, "dest": 1, "data": b""})
+            for seq, (at, north, east, depth) in enumerate(
+                ((T0 - 5, 0.0, 0.0, 0.0), (T0 + 95, 100.0, 50.0, 4.0))
+            ):
+                body = {"time": at, "north": north, "east": east, "depth": depth}
+                row = {"frame_id": frame, "vehicle_id": 1, "type": "checkpoint", "seq": seq, "body": body}
+                repository.add_packet(s, {**row, "at": at, "auth": PacketTrust.VERIFIED})
+            s.execute(
+                insert(Telemetry),
+                [env(i, [20.0 + 0.01 * i, 1.5 + 0.01 * i, 8.0], packet=None) for i in range(100)],
+            )
+            s.commit()
+        path = download(c, tmp_path / "env.nc", "/api/v1/telemetry.nc", vehicle_id=1, stream="env")
+    report = tmp_path / "report.json"
+    checker = Path(sys.executable).with_name("compliance-checker")
+    done = subprocess.run(
+        [str(checker), "--test", "cf:1.8", "--test", "acdd:1.3", "-f", "json", "-o", str(report), str(path)],
+        capture_output=True,
+        text=True,
+    )
+    scores = json.loads(report.read_text())
+    assert done.returncode == 0, (done.stdout, done.stderr)
+    for test in ("cf:1.8", "acdd:1.3"):
+        failed = [
+            (c["name"], c["value"], c["msgs"])
+            for c in scores[test]["all_priorities"]
+            if c["value"][0] < c["value"][1]
+        ]
+        assert failed == [], (test, failed)
+    with netcdf_file(path, mmap=False) as f:
+        assert f.creator_name == b"A. Diver" and f.license == b"CC-BY-4.0" and f.project == b"river-2026"
+        assert f.time_coverage_start == b"2023-11-14T22:13:20.000Z" and f.time_coverage_duration == b"PT99S"
+        lat, lon = f.variables["lat"][:], f.variables["lon"][:]
+        assert lat[5] == pytest.approx(
+            41.5 + math.degrees(10.0 / EARTH_RADIUS), abs=1e-9
+        )  # 10 m north at T0 + 5
+        assert f.geospatial_lat_min == np.nanmin(lat) and f.geospatial_lon_max == np.nanmax(lon)
+        assert np.isnan(lat[-1])  # after the last check-point: not known
+        assert (
+            f.geospatial_vertical_min == 1.5
+            and f.variables["temperature"].coordinates == b"time tick in_tick lat lon depth"
+        )

@@ -22,6 +22,7 @@ from server.app import create_app
 from server.commands.models import CommandRecord as Command
 from server.commands.schemas import CommandIn
 from server.core.events import CommandChanged, PacketsSettled, TelemetryDecoded
+from server.core.security import Actor, Role
 from server.map.panel import LEGEND, OperatorPanel
 from server.map.scene import OperatorMap
 from server.operators.schemas import OperatorIn
@@ -186,7 +187,9 @@ def test_the_panel_sends_as_the_named_operator_until_revoked(shore_map: tuple) -
     """An operator created through the API signs in on the map with the same rule as the API: its
     commands carry its name; revoked, the panel cannot send, and signing in again says why."""
     shore, owner = shore_map
-    operator, token = shore.operators.create(OperatorIn(name="alice", role="write"), "config-operator-1")
+    operator, token = shore.operators.create(
+        OperatorIn(name="alice", role="write"), Actor("config-operator-1", Role.WRITE)
+    )
     panel = panel_for(owner)
     assert panel.sign_in(token) == "write"
     panel.send(CommandIn(command="hold"))

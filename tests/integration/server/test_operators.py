@@ -3,7 +3,8 @@ revoked at once, and are never stored in clear; the settings' tokens still work,
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -146,3 +147,56 @@ def test_expired_or_revoked_tokens_count_as_wrong_ones_for_the_throttle() -> Non
             throttle.actor("old-token", "a")
     with pytest.raises(TooMany):
         throttle.actor("old-token", "a")
+
+
+def test_an_operator_cannot_create_a_token_that_outlives_its_own(client: TestClient) -> None:
+    short = create(client, "frank", expires_in_s=60)
+    headers = bearer(short["token"])
+    for longer in (3600, None):
+        refused = client.post(
+            "/api/v1/operators",
+            json={"name": "mallory", "role": "write", "expires_in_s": longer},
+            headers=headers,
+        )
+        assert refused.status_code == 422 and refused.json()["field"] == "expires_in_s", refused.text
+        assert "may not outlive it" in refused.json()["detail"]
+    within = client.post(
+        "/api/v1/operators", json={"name": "grace", "role": "read", "expires_in_s": 30}, headers=headers
+    )
+    assert within.status_code == 201 and within.json()["expires_at"] <= short["expires_at"]
+    assert [o["name"] for o in client.get("/api/v1/operators", headers=ROOT).json()] == ["frank", "grace"]
+
+
+def events_until_closed(client: TestClient, headers: dict[str, str], then: Callable[[], None]) -> list[str]:
+    """The lines of a live event stream opened with ``headers``, ``then`` run once it is connected, read
+    until the server closes it."""
+    lines: list[str] = []
+    with client.stream("GET", "/api/v1/events", headers=headers) as stream:
+        for line in stream.iter_lines():
+            lines.append(line)
+            if line == ": connected":
+                then()
+    return lines
+
+
+def test_a_revoked_tokens_event_stream_ends_at_its_next_event(client: TestClient) -> None:
+    heidi = create(client, "heidi", "read")
+
+    def revoke_then_command() -> None:
+        assert client.delete(f"/api/v1/operators/{heidi['id']}", headers=ROOT).status_code == 200
+        assert (
+            client.post("/api/v1/vehicles/1/commands", json={"command": "hold"}, headers=ROOT).status_code
+            == 202
+        )
+
+    lines = events_until_closed(client, bearer(heidi["token"]), revoke_then_command)
+    assert lines[-3] == "event: end" and "this token was revoked at" in lines[-2], lines
+    assert not any(line.startswith("event: command") for line in lines)  # the event after revocation withheld
+    assert client.get("/api/v1/events", headers=bearer(heidi["token"])).status_code == 401
+
+
+def test_an_expiring_tokens_event_stream_ends_when_it_expires(client: TestClient) -> None:
+    ivan = create(client, "ivan", "read", expires_in_s=1.0)
+    lines = events_until_closed(client, bearer(ivan["token"]), lambda: None)  # no event at all
+    assert lines[-3] == "event: end" and "this token expired at" in lines[-2], lines
+    assert time.time() >= ivan["expires_at"]

@@ -223,6 +223,34 @@ def test_backup_and_restore_sqlite(
     assert "exists" in capsys.readouterr().err  # never over a database
 
 
+def test_a_corrupt_truncated_or_unchecksummed_backup_restores_nothing(
+    sqlite_url: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A flipped byte inside a value (the vehicle's name: SQLite's integrity check passes it), a cut-off
+    file and a bare SQLite file are each refused in one line; no file or folder is left behind."""
+    campaign(sqlite_url)
+    good = tmp_path / "center.backup"
+    assert main(["database", "backup", str(good), "--database-url", sqlite_url]) == 0
+    data = good.read_bytes()
+    flipped = data.replace(b"rov1", b"rov7", 1)
+    assert flipped != data
+    cases = {
+        "flipped": (flipped, "corrupt (its SHA-256 is"),
+        "truncated": (data[: len(data) // 2], "truncated or padded"),
+        "bare": (Path(sqlite_url.removeprefix("sqlite:///")).read_bytes(), "not a Tacit backup"),
+    }
+    for name, (content, says) in cases.items():
+        bad = tmp_path / f"{name}.backup"
+        bad.write_bytes(content)
+        target = tmp_path / "restored" / name / "center.db"
+        assert main(["database", "restore", str(bad), "--database-url", f"sqlite:///{target}"]) == 2
+        err = capsys.readouterr().err
+        assert says in err and err.count("\n") == 1, err
+        assert not (tmp_path / "restored").exists()
+    assert main(["database", "restore", str(good), "--database-url", f"sqlite:///{tmp_path}/ok.db"]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir() if p.suffix in (".part", ".payload")) == []
+
+
 def test_database_has_help(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as stop:
         main(["database", "--help"])

@@ -7,7 +7,9 @@ at start, and a time-sensitive anomaly restructuring the team (confirmed by an o
 from __future__ import annotations
 
 import itertools
+import json
 import math
+import re
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -16,7 +18,8 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from launch.stack import wait_for
+from launch.demo import SQUARE
+from launch.stack import SPACING_M, wait_for
 from server.app import create_app
 from server.core.config import Settings
 from server.core.events import Event, SeparationWarning
@@ -67,13 +70,21 @@ def report(
     command: int = 0,
     status: CommandStatus = CommandStatus.NONE,
     age: float = 0.0,
+    state: MissionState | None = None,
+    mission: int = 0,
+    waypoint: int = 0,
+    key: str | None = None,
+    address: int | None = None,
 ) -> None:
-    """A check-point from the vehicle (holding, or reporting on its command ``command``), heard ``age``
-    seconds ago."""
+    """A check-point from the vehicle (holding, or reporting on its command ``command``; else ``state``,
+    with its ``mission`` and the ``waypoint`` it goes to), heard ``age`` seconds ago; ``key`` and
+    ``address``: a vehicle the test registered itself."""
     packet = CheckpointPacket(
         seq=next(_stamps) % 256,
         time=next(_stamps),
-        state=MissionState.COMMANDED if command else MissionState.HOLDING,
+        state=state or (MissionState.COMMANDED if command else MissionState.HOLDING),
+        mission_id=mission,
+        waypoint=waypoint,
         last_command=command,
         command_status=status,
         north=north,
@@ -81,8 +92,9 @@ def report(
         depth=depth,
         heading=0.0,
     )
-    frame = auth.sign_checkpoint(packet, bytes.fromhex(KEYS[name]), 1, ADDRESS[name], [])
-    shore(client).ingest.handle(IncomingFrame(ADDRESS[name], 1, frame, at=time.time() - age))
+    src = address or ADDRESS[name]
+    frame = auth.sign_checkpoint(packet, bytes.fromhex(key or KEYS[name]), 1, src, [])
+    shore(client).ingest.handle(IncomingFrame(src, 1, frame, at=time.time() - age))
 
 
 def plume(client: TestClient, name: str, stream: Stream = Stream.ENVIRONMENTAL) -> None:
@@ -124,6 +136,7 @@ def test_bad_team_missions_are_refused_with_the_reason(client: TestClient) -> No
         (team_body("rov1", area={**AREA, "north": 0.0}), "the area is empty"),
         (team_body("rov1", area={"polygon": [[0, 0], [10, 10], [10, 0], [0, 10]]}), "edges cross"),
         (team_body("rov1", "rov2", "rov3", spacing=10.0), "holds 2 lanes, fewer than the 3 vehicles"),
+        (team_body("rov1", "rov2", spacing=3.0), "lanes 3 m apart would bring neighbouring vehicles closer"),
         (team_body("rov1", depth=30.0), "the target depth 30.00 m is outside 0 .. 10.0 m"),
         (team_body("rov1", area={**AREA, "north": 600.0}), "leg 1 does not fit its limits: distance 600.0 m"),
     ]
@@ -152,7 +165,15 @@ def test_a_team_mission_runs_its_lanes_leg_by_leg(client: TestClient) -> None:
     started = post(client, f"/teams/{created['id']}/start")
     assert started.status_code == 202, started.text
     rov1, rov2 = started.json()["members"]
-    assert rov1["state"] == rov2["state"] == "running"
+    assert rov1["state"] == rov2["state"] == "running" and rov1["stopping"] and rov2["stopping"]
+    stop = command(client, rov1["command_id"])
+    assert stop["command"] == "abort_mission"  # the team takes the vehicle over: it holds where it is
+    report(client, "rov1", -5.0, 2.5, depth=0.0, command=stop["seq"], status=CommandStatus.EXECUTED)
+    rov1 = wait_for(
+        lambda: (m := member(client, created["id"], "rov1"))["stopping"] is False and m,
+        timeout=10,
+        what="leg 1",
+    )
     first = command(client, rov1["command_id"])
     assert (first["command"], first["distance"], first["angle"], first["depth"], first["absolute_angle"]) == (
         "move",
@@ -193,7 +214,7 @@ def test_a_team_mission_runs_its_lanes_leg_by_leg(client: TestClient) -> None:
     wait_for(
         lambda: member(client, created["id"], "rov2")["state"] == "stopped", timeout=10, what="rov2 stopped"
     )
-    assert member(client, created["id"], "rov2")["reason"].startswith("leg 1 refused")
+    assert member(client, created["id"], "rov2")["reason"].startswith("its takeover refused")
     aborted = post(client, f"/teams/{created['id']}/abort").json()
     assert (
         aborted["status"] == "aborted"
@@ -264,14 +285,27 @@ def test_lost_link_actions_are_checked_when_a_team_starts(client: TestClient) ->
     assert team["members"][0]["home"] == [10.0, 40.0]
     refused = post(client, f"/teams/{team['id']}/start")
     assert refused.status_code == 422
-    assert refused.json()["detail"] == (
-        "if the link is lost, rov1 (return) and rov2 (surface) may come 0.0 m apart, closer than the 5 m "
-        "separation"
+    reason = (
+        "if the link is lost, rov1 (hold or return) and rov2 (hold or surface) may come 0.0 m apart, closer "
+        "than the 5 m separation"  # each holds until it has the team's action, then does that
     )
-    assert client.get(f"/api/v1/teams/{team['id']}", headers=OP).json()["status"] == "created"
+    assert refused.json()["detail"] == reason
+    shown = client.get(f"/api/v1/teams/{team['id']}", headers=OP).json()
+    assert (shown["status"], shown["detail"]) == ("refused", reason)
     assert client.get("/api/v1/vehicles/1/commands", headers=OP).json() == []  # nothing was queued
     holding = post(client, "/teams", team_body("rov1", "rov2")).json()  # both hold: their lanes stay apart
     assert post(client, f"/teams/{holding['id']}/start").status_code == 202
+    again = post(client, "/teams", team_body("rov1", "rov2")).json()
+    busy = post(client, f"/teams/{again['id']}/start")
+    assert busy.status_code == 409 and busy.json()["detail"] == (
+        f"rov1, rov2 run team mission {holding['id']} (survey): abort it first"
+    )
+    assert client.get(f"/api/v1/teams/{again['id']}", headers=OP).json()["status"] == "refused"
+    running = client.delete(f"/api/v1/teams/{holding['id']}", headers=OP)
+    assert running.status_code == 409 and "abort it first" in running.json()["detail"]
+    for refused_team in (team, again):  # a refused team is deleted, not left for ever
+        assert client.delete(f"/api/v1/teams/{refused_team['id']}", headers=OP).status_code == 204
+        assert client.get(f"/api/v1/teams/{refused_team['id']}", headers=OP).status_code == 404
 
 
 def started_team(client: TestClient) -> int:
@@ -329,3 +363,35 @@ def test_with_restructure_auto_the_proposal_is_applied_at_once(tmp_path: Path) -
         assert member(client, team, "rov1")["waypoints"][-1] == done[0]["work"][0]["target"]
     finally:
         clients.close()
+
+
+def manual_example() -> dict:
+    """The team mission docs/missions.md gives for the demo fleet, as written there."""
+    text = (Path(__file__).parents[3] / "docs" / "missions.md").read_text()
+    found = re.search(r"POST /api/v1/teams\n((?:    .*\n)+)", text)
+    assert found is not None, "docs/missions.md shows no POST /api/v1/teams"
+    return dict(json.loads(found.group(1)))
+
+
+@pytest.mark.parametrize("corner", [(0.0, 0.0), (20.0, 20.0)], ids=["home", "north-east"])
+def test_the_manuals_example_starts_on_the_demo_fleet(
+    client: TestClient, corner: tuple[float, float]
+) -> None:
+    """The demo's vehicles fly their squares (``launch.demo.SQUARE``) around homes ``SPACING_M`` apart:
+    wherever they are on them (each at the same corner of its own square; their plans hold the whole
+    square ahead), the manual's example is created and started."""
+    for k, name in enumerate(KEYS):
+        home = [0.0, SPACING_M * k]
+        vehicle_id = k + 1
+        assert (
+            client.put(f"/api/v1/vehicles/{vehicle_id}/home", json={"home": home}, headers=OP).status_code
+            == 200
+        )
+        assert post(client, f"/vehicles/{vehicle_id}/missions", SQUARE).status_code == 201
+        north, east = home[0] + corner[0], home[1] + corner[1]
+        report(client, name, north, east, state=MissionState.PREPROGRAMMED, mission=1, waypoint=2)
+    team = post(client, "/teams", manual_example())
+    assert team.status_code == 201, team.text
+    started = post(client, f"/teams/{team.json()['id']}/start")
+    assert started.status_code == 202, started.text
+    assert [m["state"] for m in started.json()["members"]] == ["running"] * 3

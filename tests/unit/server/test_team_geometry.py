@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import math
+import random
 
 import pytest
 
-from server.missions.plans import Lane, LegCost, PlanError, lanes, restructure, split, sweep
-from server.safety.geometry import area, convex_hull, crossings, hull_distance, is_simple, segment_distance
-from server.safety.service import LostLinkPlan, lost_link_conflict
+from server.missions.plans import LegCost, PlanError, lanes, restructure, split, sweep
+from server.safety.geometry import area, convex_hull, crossings, hull_gap, is_simple, segment_distance
 
 SQUARE = [(0.0, 0.0), (20.0, 0.0), (20.0, 20.0), (0.0, 20.0)]
 
@@ -24,13 +24,27 @@ def test_segment_distance_in_three_dimensions() -> None:
     assert segment_distance((0, 0, 0), (10, 0, 0), (20, 0, 0), (30, 0, 0)) == pytest.approx(10.0)  # in line
 
 
-def test_hulls_and_their_distance() -> None:
+def test_hulls_and_the_gap_between_hulls_in_three_dimensions() -> None:
     hull = convex_hull([(0, 0), (10, 0), (10, 10), (0, 10), (5, 5)])
     assert sorted(hull) == [(0, 0), (0, 10), (10, 0), (10, 10)]
     assert convex_hull([(1, 1), (1, 1)]) == [(1, 1)]
-    assert hull_distance(hull, convex_hull([(13, 0), (13, 10)])) == pytest.approx(3.0)
-    assert hull_distance(hull, [(5, 5)]) == 0.0  # inside
-    assert hull_distance(convex_hull([(-5, 4), (15, 4), (15, 6), (-5, 6)]), hull) == 0.0  # crossing
+    square = [(0.0, 0.0, 0.0), (10.0, 0.0, 0.0), (10.0, 10.0, 0.0), (0.0, 10.0, 0.0)]
+    assert hull_gap(square, [(5.0, 5.0, 0.0)]) == 0.0  # inside
+    assert hull_gap(square, [(5.0, 5.0, 4.0)]) == pytest.approx(4.0)  # above
+    assert hull_gap(square, [(13.0, 0.0, 0.0), (13.0, 10.0, 0.0)]) == pytest.approx(3.0)
+    assert hull_gap(square, [(-5.0, 4.0, 0.0), (15.0, 6.0, 0.0)]) == 0.0  # crossing
+    tetrahedron = [(0.0, 0.0, 0.0), (10.0, 0.0, 0.0), (0.0, 10.0, 0.0), (0.0, 0.0, 10.0)]
+    assert hull_gap(tetrahedron, [(1.0, 1.0, 1.0)]) == 0.0
+    assert hull_gap(tetrahedron, [(10.0, 10.0, 10.0)]) == pytest.approx(
+        math.dist((10, 10, 10), (10 / 3,) * 3)
+    )
+
+
+def test_the_gap_between_two_segments_is_their_distance() -> None:
+    rng = random.Random(7)
+    for _ in range(500):
+        p0, p1, q0, q1 = (tuple(rng.uniform(-10, 10) for _ in range(3)) for _ in range(4))
+        assert hull_gap([p0, p1], [q0, q1]) == pytest.approx(segment_distance(p0, p1, q0, q1), abs=1e-6)
 
 
 def test_polygons() -> None:
@@ -89,17 +103,3 @@ def test_the_restructuring_rule_sends_the_nearest_helpers_to_their_side_of_the_a
     assert all(math.dist(t[:2], anomaly[:2]) == pytest.approx(15.0) for t in turned.values())
     assert restructure(anomaly, {}, 15.0, 2, 5.0) == {}
     assert restructure(anomaly, helpers, 15.0, 0, 5.0) == {}
-
-
-def test_lost_link_actions_must_keep_the_vehicles_apart() -> None:
-    west = [(0.0, 2.5, 2.0), (20.0, 2.5, 2.0)]
-    east = [(0.0, 12.5, 2.0), (20.0, 12.5, 2.0)]
-    holding = [LostLinkPlan("a", west, "hold", (0.0, 30.0)), LostLinkPlan("b", east, "hold", (0.0, 0.0))]
-    assert lost_link_conflict(holding, 5.0) is None
-    assert "a (hold) and b (hold) may come 10.0 m apart" in str(lost_link_conflict(holding, 12.0))
-    home_across = [
-        LostLinkPlan("a", west, "return", (0.0, 30.0)),
-        LostLinkPlan("b", east, "surface", (0.0, 0.0)),
-    ]
-    assert "a (return) and b (surface) may come 0.0 m apart" in str(lost_link_conflict(home_across, 5.0))
-    assert Lane(1.0, 0.0, 2.0).north == 2.0

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -10,6 +11,7 @@ import pytest
 from tacit.limits import Limits
 from tacit.navigation import Pose, Target
 from tacit.packets import Command, CommandStatus, ControlFlag, ControlPacket, MissionState, Reason
+from tacit.params import LostAction, Param
 from vehicle_agent.compressor import PlumeDetector
 from vehicle_agent.mavlink_io import VehicleTelemetry
 from vehicle_agent.mission import MissionFSM, MissionPlan, MissionProgress
@@ -168,6 +170,26 @@ def test_mission_time_link_loss_and_finish() -> None:
     assert m.state is MissionState.RETURNING
     m.step(710, Pose(0.2, 0.1, 0.0, 0), Target(0.0, 0.0, 0.0), 710)
     assert m.state is MissionState.FINISHED
+
+
+def test_the_lost_link_action_is_its_configurations_until_a_set_param_changes_it() -> None:
+    m = fsm(link_lost_timeout=30.0, lost_action="hold")
+    action = int(Param.LOST_ACTION)
+    for seq, value in enumerate((7.0, 1.5, -1.0), start=1):  # not an action: refused, nothing changes
+        status, reason = m.on_control(
+            control(Command.SET_PARAM, seq, param_id=action, param_value=value), HOME, 0
+        )
+        assert (status, reason) == (CommandStatus.REFUSED, Reason.UNKNOWN_PARAM)
+    assert m.lost_action is LostAction.HOLD
+    set_return = control(Command.SET_PARAM, 4, param_id=action, param_value=float(LostAction.RETURN.code))
+    assert m.on_control(set_return, HOME, 0)[0] is CommandStatus.EXECUTED
+    restored = fsm(status=MissionProgress.from_dict(json.loads(json.dumps(m.status.to_dict()))))
+    assert restored.lost_action is LostAction.RETURN  # kept across a restart
+    m.on_control(control(Command.START_MISSION, 5, param_id=1), HOME, 0)
+    m.step(50, Pose(5, 3, 2, 0), None, 10)  # 40 s without hearing the shore
+    assert m.state is MissionState.LINK_LOST and m.status.target == (0.0, 0.0, 0.0)
+    with pytest.raises(ValueError, match="lost_action is hold, surface, return"):
+        fsm(lost_action="drift")
 
 
 def test_status_survives_a_round_trip_through_json() -> None:
