@@ -72,7 +72,15 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         from server.map.scene import OperatorMap  # viser is heavy: imported only when the map runs
 
         quiet_given_up_connections()
-        operator_map = OperatorMap(shore.screens, shore.commands, shore.bus, settings, shore.operators.actor)
+        operator_map = OperatorMap(
+            shore.screens,
+            shore.commands,
+            shore.bus,
+            settings,
+            shore.operators.actor,
+            shore.safety.paths,
+            shore.teams.every,
+        )
         operator_map.start()
         shore.screens.map_port = lambda: operator_map.port if operator_map else None
         app.state.map = operator_map

@@ -27,7 +27,7 @@ from server.core.config import Settings
 from server.core.errors import ApiError
 from server.core.events import CommandChanged
 from server.core.security import Actor, Role, Throttle
-from server.map.geometry import OBLIQUE_FOV, PLAN_FOV, move_to, ray_to_depth_plane, top_down
+from server.map.geometry import OBLIQUE_FOV, PLAN_FOV, Point, far_plane, move_to, ray_to_depth_plane, top_down
 from server.screens.form import SPEED_DEFAULT, check_form, command_form, field_specs
 from server.vehicles.models import Vehicle
 from tacit.navigation import Pose
@@ -39,8 +39,15 @@ class MapOwner(Protocol):
     settings: Settings
     desk: CommandDesk
     sign_ins: Throttle
-    suggestion: tuple[float, float] | None
-    estimate_cloud: tuple[np.ndarray, np.ndarray, np.ndarray] | None
+
+    @property
+    def suggestion(self) -> tuple[float, float] | None: ...
+
+    @property
+    def estimate_cloud(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None: ...
+
+    @property
+    def view(self) -> tuple[Point, Point, float] | None: ...
 
     def vehicle_names(self) -> list[str]: ...
 
@@ -66,13 +73,14 @@ FLEET = "all:"  # a confirmation's prefix for an action that goes to every vehic
 INPUTS = ("distance", "angle", "depth", "speed", "param_id", "param_value")
 
 LEGEND = """\
-**In the scene** (x east, y north, z up; metres from home; opens top-down, north up)
+**In the scene** (x east, y north, z up; metres from the fleet's origin; opens top-down, north up, on every vehicle and gateway: **Fit all** returns there)
 - **red arrow from home**: north (N); **dark arrow**: east (E); grid: 5 m cells, 25 m sections
 - **depth scale**: the black line south-west of home, with its labels stepped aside
 - **fleet origin (0, 0)**: the one origin every vehicle's position is measured from (latitude, longitude when known)
 - **vehicle**: box in its colour (grey while overdue); **yellow arrow outlined in black** = its heading; label = name, state, heading, age of the report
 - **line in the vehicle's colour**: the track it reported (check-points); the same colour as its row on the dashboard
-- **grey line**: the mission's planned waypoints
+- **grey line**: the mission's planned waypoints; **thicker line in the vehicle's colour**: the path the separation check plans for it (queued commands, team lanes to come)
+- **dark grey outline**: a team mission's survey area (its name and state at its north-west corner), each member's lanes as a thin line in its colour
 - **orange**: where the shore predicts it is now (sphere), the line from its last report to there, and a circle = how unsure (grows with silence)
 - **dots above the track**: packets by priority (blue routine, yellow, orange, red time-sensitive)
 - **coloured dots**: verified water temperatures (scale below); **grey squares**: not yet verified (left out of the estimate)
@@ -152,6 +160,10 @@ class OperatorPanel:
             self.sign_in_btn = gui.add_button("Sign in", hint="Check the token with the shore server")
             self.role_md = gui.add_markdown(NOT_SIGNED_IN)
         with gui.add_folder("View"):
+            fit_all = gui.add_button(
+                "Fit all",
+                hint="Look down on every vehicle and gateway at once, north up (the view the map opens with)",
+            )
             top = gui.add_button(
                 "Top-down view",
                 hint="Look straight down on the vehicle, north "
@@ -230,6 +242,7 @@ class OperatorPanel:
         with gui.add_folder("Commands"):
             self.commands_md = gui.add_markdown(self.map.command_list())
         self.sign_in_btn.on_click(lambda _e: self.sign_in(self.token_in.value))
+        fit_all.on_click(lambda _e: self.fit_all())
         top.on_click(lambda _e: self.top_down())
         side.on_click(lambda _e: self.oblique())
         self.estimate_cb.on_update(lambda _e: self.show_estimate())
@@ -436,6 +449,12 @@ class OperatorPanel:
         )
         self._status(f"Target set: {command.distance:.1f} m, angle {angle:.1f} deg. Press **Send**.")
 
+    def fit_all(self) -> None:
+        """Every vehicle and gateway in view (``OperatorMap.view``), the panel's side left free."""
+        view = self.map.view
+        if view is not None:
+            self._look(view[0], view[1], PLAN_FOV, view[2])
+
     def top_down(self) -> None:
         self._look(*top_down(*self.map.focus()), PLAN_FOV)
 
@@ -443,11 +462,13 @@ class OperatorPanel:
         north, east = self.map.focus()
         self._look((east - 25.0, north - 35.0, 30.0), (east, north, -2.0), OBLIQUE_FOV)
 
-    def _look(
-        self, position: tuple[float, float, float], look_at: tuple[float, float, float], fov: float
-    ) -> None:
+    def _look(self, position: Point, look_at: Point, fov: float, far: float | None = None) -> None:
+        """Move this browser's camera; the far plane stays beyond the fitted view's (zooming out from a
+        close view must reach the whole fleet)."""
+        view = self.map.view
         camera = self.client.camera
         with self.client.atomic():
+            camera.far = far or (view[2] if view is not None else far_plane(position[2]))
             camera.up_direction = (0.0, 0.0, 1.0)
             camera.fov = fov
             camera.position = position

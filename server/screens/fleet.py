@@ -18,8 +18,9 @@ from collections.abc import Sequence
 #: One colour per vehicle, in order of registration (Okabe-Ito's colour-blind-safe set without its
 #: yellow, which a white page and the map's light water do not show).
 PALETTE = ("#0072b2", "#d55e00", "#009e73", "#cc79a7", "#e69f00", "#56b4e9", "#7a4a00", "#000000")
-#: A gateway's marker and its row: dark while its heartbeats come, light grey once it is silent.
-GATEWAY = "#333333"
+#: A gateway's marker and its row: one dark colour per gateway (in order of name, none of the vehicles'
+#: colours) while its heartbeats come, light grey once it is silent.
+GATEWAYS = ("#333333", "#6a3d9a", "#8c510a", "#01665e", "#b2182b")
 GATEWAY_SILENT = "#b0b0b0"
 OVERDUE_SLOTS = 3  # slots a vehicle may miss (a frame lost, a slot taken by a command) before it is greyed
 
@@ -29,9 +30,9 @@ def colour(index: int) -> str:
     return PALETTE[index % len(PALETTE)]
 
 
-def gateway_colour(alive: bool) -> str:
-    """A gateway's colour on both screens: ``GATEWAY``, or ``GATEWAY_SILENT`` once it is silent."""
-    return GATEWAY if alive else GATEWAY_SILENT
+def gateway_colour(index: int, alive: bool) -> str:
+    """The ``index``-th gateway's colour (by name) on both screens, or ``GATEWAY_SILENT`` once it is silent."""
+    return GATEWAYS[index % len(GATEWAYS)] if alive else GATEWAY_SILENT
 
 
 def rgb(hex_colour: str) -> tuple[int, int, int]:

@@ -215,9 +215,10 @@ class Screens:
         /api/v1/gateways`` lists it: beating (``up``, since its first heartbeat after a silence) or
         ``silent`` (since its last), its place, modem, outbox, last outage, frames and vehicles."""
         now = time.time() if now is None else now
-        return [self._gateway(g, now) for g in self.routing.board(now)]
+        board = sorted(self.routing.board(now), key=lambda g: g.record.name)
+        return [self._gateway(g, i, now) for i, g in enumerate(board)]
 
-    def _gateway(self, g: GatewayStatus, now: float) -> dict[str, Any]:
+    def _gateway(self, g: GatewayStatus, index: int, now: float) -> dict[str, Any]:
         r = g.record
         since = (r.beating_since or r.first_seen) if g.alive else r.last_seen
         place = None if r.north is None or r.east is None else (r.north, r.east, r.depth or 0.0)
@@ -229,7 +230,7 @@ class Screens:
             "latlon": None if place is None else self.latlon(place[0], place[1]),
             "address": r.address, "modem": r.modem or None, "outbox": r.outbox,
             "last_outage": None if outage is None else dict(zip(("lasted_s", "ended", "backlog"), outage, strict=True)),
-            "frames": g.frames, "colour": fleet.gateway_colour(g.alive),
+            "frames": g.frames, "colour": fleet.gateway_colour(index, g.alive),
             "vehicles": [{"id": i, "name": name, "pinned": pinned} for i, name, pinned in g.vehicles],
         }  # fmt: skip
 
