@@ -105,7 +105,7 @@ async function load() {
     $("scale-badge").hidden = false;
   }
   if (config.map_port) {
-    const url = `${location.protocol}//${location.hostname}:${config.map_port}`;
+    const url = config.map_url || `${location.protocol}//${location.hostname}:${config.map_port}`;
     $("map").src = url;
     $("map-link").href = url;
   }

@@ -146,6 +146,10 @@ class StateLabel(BaseModel):
 
 class ScreenConfig(BaseModel):
     map_port: int | None
+    map_url: str | None = Field(
+        None,
+        description="the 3D map's address as browsers reach it (a proxy's); none: the page's host on map_port",
+    )
     streams: dict[str, StreamInfo]
     states: dict[str, StateLabel]
     form: CommandForm

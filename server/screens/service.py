@@ -264,7 +264,8 @@ class Screens:
         )
 
     def config(self) -> dict[str, Any]:
-        """What the browser needs (no secrets): the map's port, the streams' channels with units, what
+        """What the browser needs (no secrets): the map's port and public address (``map_url``: none when
+        the browser reaches it on the dashboard's host), the streams' channels with units, what
         the mission states mean, the commands' fields and the simulated time scale (1 when real)."""
         streams = {
             s.name: {
@@ -281,6 +282,7 @@ class Screens:
         }
         return {
             "map_port": self.map_port(),
+            "map_url": (self.settings.map_url or None) if self.map_port() is not None else None,
             "streams": streams,
             "states": labels,
             "form": command_form(),
