@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import html
 import logging
+import time
 from typing import Any, Protocol
 
 import numpy as np
@@ -106,17 +107,35 @@ def _fleet_row(v: dict[str, Any]) -> str:
     late = " <b>(overdue)</b>" if v["overdue"] else ""
     pinned = " (pinned)" if v["gateway_pinned"] else ""
     via = f"; via gateway {html.escape(v['gateway'])}{pinned}" if v["gateway"] else ""
-    head = f"{swatch} <b>{html.escape(v['name'])}</b>: {html.escape(v['state_label'] or 'no check-point yet')}{late}{via}"
+    head = f"{swatch} <b>{html.escape(v['name'])}</b>: {html.escape(_state(v))}{late}{via}"
     if cp is None or p is None:
         return f'<div style="font-size:0.8em;{style}">{head}</div>'
     snr = "-" if v["snr_in"] is None else f"{v['snr_in']:.0f}"
-    offset = "" if v["clock_offset_s"] is None else f" (its clock ≥ {v['clock_offset_s']:+.1f} s)"
+    offset = "" if v["clock_offset_s"] is None else f" ({clock_words(v['clock_offset_s'])})"
     return (
         f'<div style="font-size:0.8em;margin-bottom:4px;{style}">{head}<br>'
         f"report {v['age_s']:.0f} s ago{offset}: N {cp['north']:.1f}, E {cp['east']:.1f}, {cp['depth']:.1f} m deep; "
         f"battery {cp['battery']:.1f} V, SNR {snr} dB<br>"
         f"predicted N {p['north']:.1f}, E {p['east']:.1f} m <b>± {p['radius_m']:.1f} m</b></div>"
     )
+
+
+def _state(v: dict[str, Any]) -> str:
+    """Its state's label; before its first check-point, whether it is due yet."""
+    if v["state_label"]:
+        return str(v["state_label"])
+    if v["awaited"]:
+        return f"waiting for its first report (due by {time.strftime('%H:%M:%SZ', time.gmtime(v['first_report_due']))})"
+    return "no report yet"
+
+
+def clock_words(offset: float) -> str:
+    """The vehicle's clock against the shore's in words. ``offset`` is a lower bound of vehicle minus shore
+    (``server.telemetry.clock``: a check-point's stamp against when it was heard, its wait included): so
+    ``vehicle clock at most 41.6 s behind the shore's``, or ``at least 3.2 s ahead of``."""
+    if offset >= 0:
+        return f"vehicle clock at least {offset:.1f} s ahead of the shore's"
+    return f"vehicle clock at most {-offset:.1f} s behind the shore's"
 
 
 def colour_scale(lo: float | None, hi: float | None) -> str:

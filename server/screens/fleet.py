@@ -7,7 +7,9 @@ Overdue: a vehicle answers when it is polled, and it has something to say at lea
 clock, so a simulation's time scale needs nothing). Once that much time has passed it must wait for
 its next slot, and a lost frame costs it a slot more: so it is overdue after its report gap and
 ``OVERDUE_SLOTS`` of its slot intervals (the time between its slots in the polled MAC's plan, in
-proportion to its share) without a frame.
+proportion to its share) without a frame. Before two of its check-points were heard, its registered
+report interval stands for its report gap, and its silence counts from when the shore began to listen
+(or it was registered): until then it is *awaited* (its first report is not due yet), not overdue.
 """
 
 from __future__ import annotations
@@ -63,8 +65,13 @@ def slot_interval(share: float, slots: Sequence[tuple[float, float]]) -> float |
     return mean_slot * sum(s for s, _ in slots) / share
 
 
-def overdue_after(gap: float | None, interval: float | None) -> float | None:
-    """The silence (s) after which a vehicle is overdue; None while the shore cannot tell."""
-    if gap is None:
-        return None
+def overdue_after(gap: float, interval: float | None) -> float:
+    """The silence (s) after which a vehicle is overdue: its report gap and ``OVERDUE_SLOTS`` of its slot
+    ``interval`` (none: no slot planned for it yet)."""
     return gap + OVERDUE_SLOTS * (interval or 0.0)
+
+
+def silence(last_heard: float | None, listening: float, registered: float, now: float) -> float:
+    """How long the shore has heard nothing from a vehicle: since its last frame, or (none heard since the
+    shore began ``listening``) since then or since it was ``registered``, whichever came later."""
+    return now - (last_heard if last_heard is not None else max(listening, registered))

@@ -70,6 +70,7 @@ class Screens:
         self.link = link
         self.routing = routing
         self.map_port: Callable[[], int | None] = lambda: None  # set when the map runs
+        self.listening = time.time()  # when this shore began to listen: a silence counts from here at most
         self._counted: tuple[float, dict[int, int], dict[tuple[int, str], int]] = (-1e18, {}, {})
 
     # --- vehicles ---------------------------------------------------------------------------------
@@ -190,7 +191,7 @@ class Screens:
             "home": list(vehicle.home),
             **_gateway(channel.gateways.get(vehicle_id)),
             **self._reported(known, offset),
-            **_heard(vehicle, channel, heard, now),
+            **self._heard(vehicle, channel, heard, now),
             "next_slot": None if plan is None else plan["next_slot"],
             "share": vehicle.share,
             "airtime_s": _airtime(vehicle, plan, channel),
@@ -289,18 +290,23 @@ class Screens:
             "time_scale": self.settings.time_scale,
         }
 
-
-def _heard(vehicle: Vehicle, channel: Channel, heard: list[float], now: float) -> dict[str, Any]:
-    """The vehicle's link (last frame heard, SNR, range) and whether it is overdue for its place in the
-    schedule (``fleet.overdue_after``: ``heard`` are its last check-points' arrival times)."""
-    link = channel.link.get(vehicle.name, {})
-    limit = fleet.overdue_after(fleet.report_gap(heard), fleet.slot_interval(vehicle.share, channel.slots()))
-    last = link.get("last_heard")
-    return {
-        **{k: link.get(k) for k in ("last_heard", "snr_in", "snr_out", "range_m")},
-        "overdue": last is None or (limit is not None and now - last > limit),
-        "overdue_after_s": None if limit is None else round(limit, 1),
-    }
+    def _heard(self, vehicle: Vehicle, channel: Channel, heard: list[float], now: float) -> dict[str, Any]:
+        """The vehicle's link (last frame heard, SNR, range) and whether it is overdue for its place in the
+        schedule (``fleet``: ``heard`` are its last check-points' arrival times), or awaited: never
+        reported and its first report not due yet."""
+        link = channel.link.get(vehicle.name, {})
+        gap = fleet.report_gap(heard) or vehicle.report_interval / self.settings.time_scale
+        limit = fleet.overdue_after(gap, fleet.slot_interval(vehicle.share, channel.slots()))
+        last = link.get("last_heard")
+        quiet = fleet.silence(last, self.listening, vehicle.created_at, now)
+        awaited = last is None and not heard and quiet <= limit
+        return {
+            **{k: link.get(k) for k in ("last_heard", "snr_in", "snr_out", "range_m")},
+            "overdue": quiet > limit,
+            "overdue_after_s": round(limit, 1),
+            "awaited": awaited,
+            "first_report_due": round(now - quiet + limit, 1) if awaited else None,
+        }
 
 
 def _gateway(assignment: Assignment | None) -> dict[str, Any]:

@@ -8,7 +8,7 @@ from sqlmodel import AutoString, Field, SQLModel
 
 from server.core.db import now
 from tacit.limits import Limits
-from tacit.params import LostAction
+from tacit.params import CHECKPOINT_INTERVAL, LostAction
 
 
 class Vehicle(SQLModel, table=True):
@@ -37,6 +37,11 @@ class Vehicle(SQLModel, table=True):
     # what it does when the link is lost: its agent's lost_action, then each SET_PARAM it executed
     lost_action: LostAction = Field(
         default=LostAction.HOLD, sa_type=AutoString(16), sa_column_kwargs={"server_default": "hold"}
+    )
+    # s between its check-points (its agent's checkpoint_interval, on the vehicle's clock): until its first
+    # is due the screens say it is awaited, not overdue
+    report_interval: float = Field(
+        default=CHECKPOINT_INTERVAL, sa_column_kwargs={"server_default": str(CHECKPOINT_INTERVAL)}
     )
     created_at: float = Field(default_factory=now)
 

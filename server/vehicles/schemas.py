@@ -10,7 +10,7 @@ from server.core.schemas import STRICT
 from tacit.limits import Limits
 from tacit.packets import CheckpointPacket
 from tacit.packets import ControlPacket as WIRE
-from tacit.params import LostAction, Param
+from tacit.params import CHECKPOINT_INTERVAL, LostAction, Param
 
 MAX_KEY_HEX = 128  # 64 bytes: twice what HMAC-SHA256 needs
 DEFAULT = Limits()
@@ -60,6 +60,13 @@ class VehicleIn(LimitsIn):
         description="what it does when the link is lost (its agent's lost_action; a set_param of parameter "
         f"{int(Param.LOST_ACTION)} changes both): the separation check counts it",
     )
+    report_interval: float = Field(
+        CHECKPOINT_INTERVAL,
+        gt=0,
+        le=86400,
+        description="s between its check-points (its agent's checkpoint_interval): until its first is due, "
+        "the screens say it is awaited rather than overdue",
+    )
 
 
 class KeyIn(BaseModel):
@@ -98,6 +105,7 @@ class VehicleOut(LimitsIn):
     address: int
     home: tuple[float, float] = Field(description="m north, east of the fleet's origin where it starts")
     lost_action: LostAction = Field(description="what it does when the link is lost")
+    report_interval: float = Field(description="s between its check-points (its agent's checkpoint_interval)")
     key_version: int
     share: float = Field(description="its weight in the channel's schedule")
     key_rotation: KeyRotation | None = None

@@ -253,8 +253,10 @@ def test_the_fleet_buttons_send_one_command_per_vehicle_once_confirmed(shore_map
 
 
 def test_each_vehicle_in_its_colour_and_greyed_while_overdue(shore_map: tuple) -> None:
+    """The shore never hears either on its link (no modem here): rov1 (a check-point a minute) is awaited,
+    rov2 (one a microsecond) overdue by the time the map lists them."""
     shore, owner = shore_map
-    shore.vehicles.create(VehicleIn(name="rov2", address=3, home=(0.0, 30.0)))
+    shore.vehicles.create(VehicleIn(name="rov2", address=3, home=(0.0, 30.0), report_interval=1e-6))
     owner.attach(fake_server())
     panel = panel_for(owner)
     owner.panels[1] = panel
@@ -265,6 +267,10 @@ def test_each_vehicle_in_its_colour_and_greyed_while_overdue(shore_map: tuple) -
     nodes = owner.server.scene.nodes
     assert nodes["/tracks/rov1/actual"].args[1] == rgb(PALETTE[0])
     assert nodes["/tracks/rov2/actual"].args[1] == rgb(PALETTE[1])  # the dashboard's colours: one palette
-    owner.tick()  # the shore never heard either on its link (no modem here): both overdue
+    owner.tick()
     assert "rov1" in panel.fleet_html.content and "rov2" in panel.fleet_html.content
-    assert panel.fleet_html.content.count("(overdue)") == 2
+    assert (
+        panel.fleet_html.content.count("(overdue)") == 1
+        and "rov2</b>: no report yet <b>(overdue)" in panel.fleet_html.content
+    )
+    assert "rov1</b>: waiting for its first report (due by " in panel.fleet_html.content
