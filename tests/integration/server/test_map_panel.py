@@ -8,7 +8,6 @@ from __future__ import annotations
 import itertools
 import re
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -28,7 +27,7 @@ from server.operators.schemas import OperatorIn
 from server.screens.fleet import PALETTE, rgb
 from server.vehicles.schemas import VehicleIn
 from tests.support.api import OP, offline_settings
-from tests.support.viser import FakeGui, fake_server
+from tests.support.viser import fake_client, fake_server
 
 
 @pytest.fixture
@@ -57,7 +56,7 @@ def client_post(shore: Any, body: dict) -> None:
 
 
 def panel_for(owner: OperatorMap) -> OperatorPanel:
-    return OperatorPanel(owner, SimpleNamespace(client_id=1, gui=FakeGui(), scene=None))
+    return OperatorPanel(owner, fake_client())
 
 
 def commands(shore: Any) -> list[Command]:
