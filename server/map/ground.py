@@ -79,11 +79,11 @@ class Ground:
             head_radius=0.45 * k,
             head_length=1.2 * k,
         )
-        # the axes' names beyond their arrows' tips, clear of the metre marks beside the axes
+        # the axes' names beyond their arrows' tips, the east's a row below the metre marks beside its axis
         scene.add_label(
             "/axes/north", "N (north, +y)", position=(0.0, length + k, 0.3), anchor="bottom-center"
         )
-        scene.add_label("/axes/east", "E (east, +x)", position=(length + k, 0.0, 0.3), anchor="center-left")
+        scene.add_label("/axes/east", "E (east, +x)", position=(length + k, -3 * k, 0.3), anchor="top-left")
         for i, metres in enumerate((step, 2 * step, 4 * step)):
             scene.add_label(
                 f"/axes/grid/n{i}", f"{metres:g} m N", position=(-k, metres, 0.1), anchor="center-right"
