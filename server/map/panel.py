@@ -71,6 +71,7 @@ FLEET_LABELS = {"abort_mission": "Abort all", "return_home": "Return all home", 
 assert set(FLEET_LABELS) == set(FLEET_COMMANDS), "a button for every fleet command"
 FLEET = "all:"  # a confirmation's prefix for an action that goes to every vehicle
 INPUTS = ("distance", "angle", "depth", "speed", "param_id", "param_value")
+ZOOM_OUT = 0.8  # the farthest the camera may zoom out, as a share of its far plane (the scene stays drawn)
 
 LEGEND = """\
 **In the scene** (x east, y north, z up; metres from the fleet's origin; opens top-down, north up, on every vehicle and gateway: **Fit all** returns there)
@@ -496,11 +497,12 @@ class OperatorPanel:
 
     def _look(self, position: Point, look_at: Point, fov: float, far: float | None = None) -> None:
         """Move this browser's camera; the far plane stays beyond the fitted view's (zooming out from a
-        close view must reach the whole fleet)."""
+        close view must reach the whole fleet), and zooming out stops short of it (``ZOOM_OUT``)."""
         view = self.map.view_for(*(self.size or (None, None)))
         camera = self.client.camera
         with self.client.atomic():
             camera.far = far or (view[2] if view is not None else far_plane(position[2]))
+            camera.max_orbit_distance = ZOOM_OUT * camera.far
             camera.up_direction = (0.0, 0.0, 1.0)
             camera.fov = fov
             camera.position = position

@@ -334,7 +334,7 @@ class OperatorMap:
         if view is not None:
             self._look(self.server.initial_camera, *view)
         for panel in list(self.panels.values()):
-            if panel.unfitted:
+            if panel.unfitted and panel.size is not None:  # else when its camera first reports
                 panel.fit_all()
 
     @staticmethod

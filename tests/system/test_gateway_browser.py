@@ -175,9 +175,8 @@ def test_both_screens_show_three_vehicles_and_two_gateways(center: dict[str, Any
         dashboard.wait_for_function(
             "document.querySelectorAll('#gateways tbody tr').length === 2", timeout=LONG
         )
-        swatches = dashboard.eval_on_selector_all(
-            "#gateways tbody tr td:first-child .swatch",
-            "els => els.map(e => getComputedStyle(e).backgroundColor)",
+        swatches = dashboard.evaluate(  # in one call: the table is drawn again every few seconds
+            "[...document.querySelectorAll('#gateways tbody tr td:first-child .swatch')].map(e => getComputedStyle(e).backgroundColor)"
         )
         assert len(swatches) == 2 and len(set(swatches)) == 2  # each gateway its own colour
 
@@ -256,6 +255,22 @@ def test_the_gateways_and_each_vehicles_gateway_on_the_dashboard(center: dict[st
             "[...document.querySelectorAll('#packets td.heard')].some(td => td.querySelector('.copy.kept')?.textContent === 'gw1 14.0' && td.textContent.includes('gw2 5.0'))",
             timeout=LONG,
         )  # fmt: skip
+        # the chosen vehicle's link (rov1's, the first): how each gateway hears it, its own gateway first
+        page.wait_for_function(
+            "document.querySelector('#link-stats').textContent.includes('via gw1')", timeout=LONG
+        )
+        link = page.eval_on_selector_all("#link-stats th", "ths => ths.map(th => th.textContent)")
+        assert link[link.index("last heard") + 3 : link.index("last heard") + 5] == ["via gw1", "via gw2"], (
+            link
+        )
+        # a vehicle registered now and never heard: starting (its first report is not due), not overdue
+        body = {"name": "rov4", "address": 5, "home": [0.0, 90.0]}
+        assert center["http"].post("/api/v1/vehicles", json=body).status_code == 201
+        page.wait_for_function(
+            "document.querySelector(\"#fleet tr[data-name='rov4'] td.state\")?.textContent.includes('waiting for its first report')",
+            timeout=LONG,
+        )  # fmt: skip
+        assert "overdue" not in (page.get_attribute("#fleet tr[data-name='rov4']", "class") or "")
 
         # an outage: gw1's modem goes on hearing; back, it tells how long it lasted and what waited
         center["broker"].stop()
