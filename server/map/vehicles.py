@@ -23,7 +23,7 @@ OVERDUE_COLOUR = (170, 170, 170)  # a vehicle's body while it is overdue (the da
 PREDICTED_COLOUR = (250, 150, 30)
 LABEL_HEIGHT = 1.2  # m above the vehicle
 LABELS_PER_VIEW = 22.0  # a label's height, as a share of the view's (stacked labels are this far apart)
-MARKER_SHRINK = 4.0  # a vehicle's marker grows with the view, this many times less (so neighbours stay apart)
+MARKER_SHRINK = 2.5  # a vehicle's marker grows with the view, this many times less (so neighbours stay apart)
 Rgb = tuple[int, int, int]
 
 
@@ -61,7 +61,8 @@ class VehicleLayer:
         self.scale = max(1.0, seen / MIN_VIEW / MARKER_SHRINK)
         self.label_gap = seen / LABELS_PER_VIEW
         for node in list(self._nodes.values()):
-            node["frame"].scale = self.scale
+            for marker in node["markers"]:
+                marker.scale = self.scale
         self.declutter()
 
     def label(self, name: str, cp: dict[str, Any], age: float, overdue: bool = False) -> None:
@@ -130,24 +131,36 @@ class VehicleLayer:
 
     def _make(self, name: str) -> dict[str, Any]:
         scene = self.scene
-        frame = scene.add_frame(f"/vehicles/{name}", show_axes=False, scale=self.scale)
-        body = scene.add_box(f"/vehicles/{name}/body", color=self.colour(name), dimensions=(1.4, 0.9, 0.6))
+        frame = scene.add_frame(f"/vehicles/{name}", show_axes=False)
+        body = scene.add_box(
+            f"/vehicles/{name}/body", color=self.colour(name), dimensions=(1.4, 0.9, 0.6), scale=self.scale
+        )
         # the heading: a bright arrow on a larger black one, which outlines it seen from above
-        scene.add_arrows(
+        outline = scene.add_arrows(
             f"/vehicles/{name}/heading_outline",
             np.array([[[0.5, 0, 0], [5.6, 0, 0]]], dtype=np.float32),
             (0, 0, 0),
             shaft_radius=0.4,
             head_radius=1.15,
             head_length=2.1,
+            scale=self.scale,
         )
-        scene.add_arrows(
+        heading = scene.add_arrows(
             f"/vehicles/{name}/heading",
             np.array([[[0.7, 0, 0.35], [5.1, 0, 0.35]]], dtype=np.float32),
             (255, 225, 0),
             shaft_radius=0.25,
             head_radius=0.8,
             head_length=1.6,
+            scale=self.scale,
         )
-        label = scene.add_label(f"/labels/{name}", name, position=(0.0, 0.0, LABEL_HEIGHT))
-        return {"frame": frame, "label": label, "body": body, "leader": None}
+        label = scene.add_label(
+            f"/labels/{name}", name, position=(0.0, 0.0, LABEL_HEIGHT), anchor="bottom-left"
+        )
+        return {
+            "frame": frame,
+            "label": label,
+            "body": body,
+            "markers": [body, outline, heading],
+            "leader": None,
+        }
