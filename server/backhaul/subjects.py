@@ -6,7 +6,8 @@ Subjects (docs/backhaul.md has the table other tools subscribe by):
   ``<partition>`` is its source modem address modulo ``PARTITIONS`` (``partition``), so that the
   center's processes can share the vehicles, each partition decoded by one of them at a time
   (``server.backhaul.leases``);
-* ``tacit.v1.commands.<gateway>``: down, a signed command frame for the gateway to send (``CommandMessage``);
+* ``tacit.v1.commands.<gateway>``: down, a signed command frame for the gateway to send (``CommandMessage``),
+  or the withdrawal of one it holds (``WithdrawMessage``; ``down`` reads either);
 * ``tacit.v1.events.<gateway>``: up, what the gateway reports: attempt outcomes, modem states, its
   heartbeat (``EventMessage``);
 * ``tacit.v1.schedule.<gateway>``: down, the gateway's transmit slots in the TDMA frame the center
@@ -26,6 +27,7 @@ Standard library only: the gateway imports it.
 
 from __future__ import annotations
 
+import enum
 import json
 import math
 import re
@@ -135,6 +137,23 @@ def is_sync(command_id: str) -> bool:
     return command_id.startswith("sync-")
 
 
+class FrameKind(enum.StrEnum):
+    """What a command message's frame is, for the gateway's queue: a stop (abort, hold) goes before every
+    other command, a SYNC in the slot it is stamped for."""
+
+    SYNC = "sync"
+    STOP = "stop"
+    COMMAND = "command"
+
+
+class WithdrawReason(enum.StrEnum):
+    """Why the center takes back a frame a gateway holds."""
+
+    SUPERSEDED = "superseded"  # the center signed the command anew (or the vehicle would refuse the frame)
+    ACKNOWLEDGED = "acknowledged"  # the vehicle's modem acknowledged it through another gateway
+    CANCELLED = "cancelled"  # an operator cancelled the command
+
+
 def _load(data: bytes) -> dict[str, Any]:
     try:
         body = json.loads(data)
@@ -202,9 +221,12 @@ class CommandMessage:
     ack_timeout: float = 20.0
     expires_at: float = 0.0
     start_by: float = 0.0
+    kind: FrameKind = FrameKind.COMMAND  # a stop goes before every other command; a SYNC at its stamp
+    rank: int = 0  # among one vehicle's commands of a kind, the lower first (the center's queue order)
+    stamp: float = 0.0  # UNIX s the frame is signed for (a SYNC: its slot's opening; 0: none)
 
     def encode(self) -> bytes:
-        return _dump({**asdict(self), "data": self.data.hex()})
+        return _dump({**asdict(self), "data": self.data.hex(), "kind": self.kind.value})
 
     @classmethod
     def decode(cls, data: bytes) -> CommandMessage:
@@ -219,9 +241,57 @@ class CommandMessage:
                 ack_timeout=float(body.get("ack_timeout", 20.0)),
                 expires_at=float(body.get("expires_at", 0.0)),
                 start_by=float(body.get("start_by", 0.0)),
+                kind=FrameKind(
+                    body.get("kind", FrameKind.SYNC if is_sync(str(body["id"])) else FrameKind.COMMAND)
+                ),
+                rank=int(body.get("rank", 0)),
+                stamp=float(body.get("stamp", 0.0)),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise PayloadError(f"a command without {exc}") from exc
+
+
+@dataclass(frozen=True)
+class WithdrawMessage:
+    """The center takes back the frame of command message ``command`` that ``gateway`` holds: the gateway
+    sends it no more (reported ``withdrawn``, final). It rides the gateway's commands subject, so it comes
+    after the frame it withdraws; one for a frame the gateway never held or already finished is kept as a
+    refusal of that frame should it come later (a redelivery)."""
+
+    id: str  # "withdraw-<command message id>"
+    gateway: str
+    command: str  # the ``CommandMessage.id`` taken back
+    reason: WithdrawReason
+
+    def encode(self) -> bytes:
+        return _dump({"type": "withdraw", **asdict(self), "reason": self.reason.value})
+
+    @classmethod
+    def decode(cls, data: bytes) -> WithdrawMessage:
+        body = _load(data)
+        try:
+            if body.get("type") != "withdraw":
+                raise ValueError("type")
+            return cls(
+                id=str(body["id"]),
+                gateway=str(body["gateway"]),
+                command=str(body["command"]),
+                reason=WithdrawReason(body["reason"]),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise PayloadError(f"a withdrawal without {exc}") from exc
+
+
+def withdraw_id(command_id: str) -> str:
+    """The id of the withdrawal of command message ``command_id`` (one per frame: the broker keeps one)."""
+    return f"withdraw-{command_id}"
+
+
+def down(data: bytes) -> CommandMessage | WithdrawMessage:
+    """A message of a gateway's commands subject: a frame to send, or the withdrawal of one."""
+    return (
+        WithdrawMessage.decode(data) if _load(data).get("type") == "withdraw" else CommandMessage.decode(data)
+    )
 
 
 @dataclass(frozen=True)
