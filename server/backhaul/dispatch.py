@@ -29,7 +29,7 @@ the frame's stamp, so that dispatch is superseded and the command dispatched aga
 SYNCs stop coming (the backhaul cut, the center down), the vehicle's gateway holds a budget of SYNCs
 signed ahead (``server.backhaul.budget``), which the dispatcher keeps after the routes.
 
-The dispatcher also hands the gateways their TDMA slots (``server.backhaul.slots``) whenever the set of
+The dispatcher also hands the gateways their TDMA slots (``gateway.slots``) whenever the set of
 live gateways or of vehicles to poll changes. A center that starts finds the plans the stream kept from
 the one before it (``kept``): gateways may still follow them, heard from or not, so for its first
 ``gateway_timeout`` s every gateway they name keeps a slot in its plans (a dead one is dropped after),
@@ -48,7 +48,7 @@ from collections.abc import Awaitable, Callable
 
 from server.backhaul import subjects
 from server.backhaul.budget import Publish, SyncBudgets
-from server.backhaul.slots import ATTEMPT_AIRTIME, SYNC_WINDOW, Schedule, SlotPlan
+from gateway.slots import ATTEMPT_AIRTIME, SYNC_WINDOW, Schedule, SlotPlan
 from server.backhaul.subjects import CommandMessage, EventMessage, GatewayState, ScheduleMessage
 from server.commands.models import CommandRecord, CommandState
 from server.commands.service import CommandDesk

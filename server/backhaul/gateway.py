@@ -4,7 +4,7 @@ backhaul in order; commands the center signed come down, are kept in the outbox 
 outcomes go up as events. It holds no vehicle key (docs/protocol.md).
 
 The MAC: one exchange per slot of the TDMA frame the center hands the gateways sharing the band
-(``server.backhaul.slots``): a command's next attempt (SYNCs are commands here) or a poll of the next
+(``gateway.slots``): a command's next attempt (SYNCs are commands here) or a poll of the next
 vehicle of the center's poll list (its answer, heard by this gateway's modem, goes up as frames; the
 center scores the gateways by them), taking turns when both wait. The center's SYNCs come first, each in
 the slot it was stamped for: a SYNC's time sets the vehicle's clock, so it goes only within
@@ -47,7 +47,7 @@ from nats.js.errors import NotFoundError
 from server.backhaul import access, broker, subjects
 from server.backhaul.access import BrokerAuth
 from server.backhaul.outbox import PUBLISH_TIMEOUT, Outbox, Publisher
-from server.backhaul.slots import ATTEMPT_AIRTIME, SYNC_WINDOW, Schedule, SlotPlan
+from gateway.slots import ATTEMPT_AIRTIME, SYNC_WINDOW, Schedule, SlotPlan
 from server.backhaul.subjects import (
     UNNAMED,
     CommandMessage,

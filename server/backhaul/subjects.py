@@ -22,7 +22,7 @@ Every message carries an ``id`` unique across the system, which is also its ``Na
 (JetStream's de-duplication within the stream's ``duplicate_window``). Payloads are JSON objects with
 ``"v": 1``; a reader ignores fields it does not know and refuses another major version.
 
-Standard library only: the gateway imports it.
+Standard library and the gateway wing's queue (``FrameKind``): the gateway imports it.
 """
 
 from __future__ import annotations
@@ -33,6 +33,8 @@ import math
 import re
 from dataclasses import asdict, dataclass, field
 from typing import Any
+
+from gateway.queue import FrameKind
 
 VERSION = 1
 PREFIX = f"tacit.v{VERSION}"
@@ -135,15 +137,6 @@ def is_sync(command_id: str) -> bool:
     """Whether a command id is a SYNC's: its outcome is not a command's (the next check-point says
     whether it arrived)."""
     return command_id.startswith("sync-")
-
-
-class FrameKind(enum.StrEnum):
-    """What a command message's frame is, for the gateway's queue: a stop (abort, hold) goes before every
-    other command, a SYNC in the slot it is stamped for."""
-
-    SYNC = "sync"
-    STOP = "stop"
-    COMMAND = "command"
 
 
 class WithdrawReason(enum.StrEnum):
@@ -296,7 +289,7 @@ def down(data: bytes) -> CommandMessage | WithdrawMessage:
 
 @dataclass(frozen=True)
 class ScheduleMessage:
-    """The TDMA frame of the gateways sharing one band (``server.backhaul.slots.SlotPlan``): slot ``k``
+    """The TDMA frame of the gateways sharing one band (``gateway.slots.SlotPlan``): slot ``k``
     begins at ``epoch + k * slot`` (UNIX s) and belongs to ``order[k % len(order)]``; a gateway starts a
     transmission ``guard`` s after its slot begins at the earliest and has it answered ``guard`` s before
     the slot ends. ``poll``: the vehicles' modem addresses the gateway polls in its slots, in turn."""

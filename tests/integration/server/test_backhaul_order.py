@@ -28,7 +28,7 @@ from server.backhaul.audit import audit
 from server.backhaul.center import Center
 from server.backhaul.gateway import Gateway
 from server.backhaul.outbox import Outbox
-from server.backhaul.slots import SlotPlan
+from gateway.slots import SlotPlan
 from server.backhaul.subjects import EventMessage
 from server.core.db import make_engine, migrate, reading
 from server.telemetry import repository as telemetry
