@@ -46,9 +46,9 @@ import math
 import time
 from collections.abc import Awaitable, Callable
 
+from gateway.slots import ATTEMPT_AIRTIME, SYNC_WINDOW, Schedule, SlotPlan
 from server.backhaul import subjects
 from server.backhaul.budget import Publish, SyncBudgets
-from gateway.slots import ATTEMPT_AIRTIME, SYNC_WINDOW, Schedule, SlotPlan
 from server.backhaul.subjects import CommandMessage, EventMessage, GatewayState, ScheduleMessage
 from server.commands.models import CommandRecord, CommandState
 from server.commands.service import CommandDesk

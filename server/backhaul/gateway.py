@@ -44,10 +44,10 @@ from nats.errors import Error as NatsError
 from nats.js import JetStreamContext
 from nats.js.errors import NotFoundError
 
+from gateway.slots import ATTEMPT_AIRTIME, SYNC_WINDOW, Schedule, SlotPlan
 from server.backhaul import access, broker, subjects
 from server.backhaul.access import BrokerAuth
 from server.backhaul.outbox import PUBLISH_TIMEOUT, Outbox, Publisher
-from gateway.slots import ATTEMPT_AIRTIME, SYNC_WINDOW, Schedule, SlotPlan
 from server.backhaul.subjects import (
     UNNAMED,
     CommandMessage,

@@ -22,13 +22,13 @@ import pytest
 from sqlalchemy import create_engine, text
 from sqlmodel import Session
 
+from gateway.slots import SlotPlan
 from server.backhaul import broker as broker_client
 from server.backhaul import subjects
 from server.backhaul.audit import audit
 from server.backhaul.center import Center
 from server.backhaul.gateway import Gateway
 from server.backhaul.outbox import Outbox
-from gateway.slots import SlotPlan
 from server.backhaul.subjects import EventMessage
 from server.core.db import make_engine, migrate, reading
 from server.telemetry import repository as telemetry
