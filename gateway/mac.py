@@ -133,7 +133,12 @@ class Mac:
             if turn is None:
                 await self._idle(min(room, IDLE_WAIT / self.timing.time_scale))
                 continue
-            await self.turn(turn)
+            try:
+                await self.turn(turn)
+            except Exception:  # not the modem's refusal (that is an outcome): the MAC goes on all the same
+                log.exception("%s: %s to %d failed", self.name, turn.exchange, turn.address)
+                self.queue.done(turn, Outcome.FAILED, self.clock())
+                await self._idle(IDLE_WAIT / self.timing.time_scale)
 
     async def turn(self, turn: Turn) -> None:
         """One exchange, if it still ends inside the slot now (the discipline check, the last thing before

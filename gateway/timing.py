@@ -16,9 +16,9 @@ from dataclasses import dataclass
 from tacit import rates
 
 MAX_PING_RANGE_M = 4000.0
-MARGIN = 1.3  # on every modelled duration: the modem's own latencies, the serial line
+MARGIN_S = 0.5  # on every wait for an answer: the modems' own latencies, the serial lines
 HOST_ANSWER_S = 1.0  # the vehicle's modem asking its host for the data it sends
-SETTLE_S = 0.5  # what the shore's modem needs between two exchanges (its log lines, the next cycle-init)
+SETTLE_S = 0.2  # what the shore's modem needs between two exchanges (its log lines, the next cycle-init)
 
 
 @dataclass(frozen=True)
@@ -33,7 +33,7 @@ class Timing:
     def ack_wait(self, range_m: float | None) -> float:
         """How long a command's frame waits for the vehicle's ACK once it has left."""
         floor = 2 * self.travel_s(range_m) + rates.TURNAROUND_S + rates.airtime_s(rates.ACK_BITS, 0)
-        return floor * MARGIN / self.time_scale
+        return (floor + MARGIN_S) / self.time_scale
 
     def command(self, range_m: float | None) -> float:
         """A command (or SYNC) attempt: cycle-init and one rate-0 frame out, the ACK back."""
@@ -48,7 +48,7 @@ class Timing:
         window = (
             rates.airtime_s(rates.CYCLE_INIT_BITS, 0) + 2 * self.travel_s(range_m) + HOST_ANSWER_S + answer
         )
-        return window * MARGIN / self.time_scale
+        return (window + MARGIN_S) / self.time_scale
 
     def ack_tail(self) -> float:
         """After a poll's answer is in: the shore modem's ACK of its frames, and the next cycle's settling."""

@@ -46,6 +46,7 @@ import math
 import time
 from collections.abc import Awaitable, Callable
 
+from gateway.queue import FrameKind
 from gateway.slots import ATTEMPT_AIRTIME, SYNC_WINDOW, Schedule, SlotPlan
 from server.backhaul import subjects
 from server.backhaul.budget import Publish, SyncBudgets
@@ -168,7 +169,7 @@ class Dispatcher:
             message = CommandMessage(
                 subjects.sync_id(state.address, sync.seq), gateway, state.address, sync.frame, attempts=1,
                 ack_timeout=self.ack_timeout(), expires_at=at + SYNC_WINDOW,
-                start_by=time.time() + self.settings.dispatch_receipt,
+                start_by=time.time() + self.settings.dispatch_receipt, kind=FrameKind.SYNC, stamp=at,
             )  # fmt: skip
             await self.publish(subjects.commands(gateway), message.encode(), message.id)
             self.heartbeat.sent(state, sync, acked=False)

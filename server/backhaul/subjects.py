@@ -427,7 +427,8 @@ class Outage:
 class GatewayState:
     """A heartbeat's detail, what a gateway says of itself: its outbox's incarnation, its backhaul (``up``:
     it is sent only while connected), the messages not yet published (``outbox``), its modem's address and
-    state, its place (None: not told) and its last outage (None: none since it started)."""
+    state, its place (None: not told), its last outage (None: none since it started) and its MAC's status
+    (None: no modem)."""
 
     incarnation: str
     outbox: int
@@ -436,6 +437,7 @@ class GatewayState:
     place: Place | None = None
     outage: Outage | None = None
     backhaul: str = "up"
+    link: dict[str, Any] | None = None  # its MAC's status (``gateway.mac.MacStatus.detail``)
 
     def detail(self) -> dict[str, Any]:
         return asdict(self)
@@ -456,6 +458,7 @@ class GatewayState:
                     _finite(outage["lasted"]), _finite(outage["ended"]), int(outage["backlog"])
                 ),
                 backhaul=str(detail.get("backhaul", "up")),
+                link=dict(detail["link"]) if isinstance(detail.get("link"), dict) else None,
             )  # fmt: skip
         except (KeyError, TypeError, ValueError) as exc:
             raise PayloadError(f"a heartbeat without {exc}") from exc

@@ -23,6 +23,7 @@ from sqlalchemy import create_engine, text
 from sqlmodel import Session
 
 from gateway.slots import SlotPlan
+from gateway.timing import Timing
 from server.backhaul import broker as broker_client
 from server.backhaul import subjects
 from server.backhaul.audit import audit
@@ -329,7 +330,9 @@ def test_a_restarted_center_hands_out_slots_no_gateway_collides_with(
     def gateway(name: str) -> Gateway:
         pty = next(m["pty"] for m in world.describe()["modems"] if m["name"] == name)
         driver = mm.ModemDriver(mm.DriverSettings(url=pty, address=addresses[name], keepalive=10.0))
-        g = Gateway(outboxes[name], broker.url, driver, heartbeat=0.2)
+        g = Gateway(
+            outboxes[name], broker.url, driver, heartbeat=0.2, timing=Timing(time_scale=config.time_scale)
+        )
         loop.call(g.start)
         until_sync(lambda: driver.state is mm.LinkState.READY, "the modem")
         return g
