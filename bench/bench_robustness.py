@@ -12,7 +12,7 @@ Every row has a test in the suite at a small budget (named in the last column); 
   backups   a backup with a byte flipped or cut anywhere (restored, or files left behind)
             (each row counts only the cases that reached the check: otherwise NOT MEASURED)
   api       schemathesis over the server's OpenAPI (every operation, --api-examples each): 5xx = failure
-  rest      non-finite numbers, oversized keys and names, partial updates (tests/integration/server/test_bad_input.py)
+  rest      non-finite numbers, oversized keys and names, partial updates (tests/integration/server/api/test_bad_input.py)
   faults    the running system (sim, serve, agent as processes): 50 % frame loss, the server SIGKILLed
             mid-mission, the agent SIGKILLed mid-mission: stored packets lost, commands executed twice,
             priority packets decoded after the restart
@@ -522,7 +522,7 @@ def backup_attacks(database: Path, cases: int) -> None:
 
 
 def api(examples: int) -> None:
-    passed, failed = pytest_counts("test_schemathesis.py", {"TACIT_API_EXAMPLES": str(examples)})
+    passed, failed = pytest_counts("api/test_schemathesis.py", {"TACIT_API_EXAMPLES": str(examples)})
     row(
         "api",
         "schemathesis, every operation",
@@ -530,7 +530,7 @@ def api(examples: int) -> None:
         f"{failed} failed",
         "test_schemathesis",
     )
-    passed, failed = pytest_counts("test_bad_input.py")
+    passed, failed = pytest_counts("api/test_bad_input.py")
     row(
         "api",
         "NaN/Infinity/1e999 in every float, 100 kB keys, partial PUT",
