@@ -321,7 +321,7 @@ def shore_attacks(cases: int) -> None:
                 )
         else:
             accepted = ingest.stats["verified"] - before
-        row("attacks", name, f"{cases:,}", f"{accepted} accepted", "test_trust: forged_*")
+        row("attacks", name, f"{cases:,}", f"{accepted} accepted", "test_verify: forged_*")
     late_checkpoints(ingest, cases, lambda i: checkpoint(i, key, t0 - 1 - i))
     db.dispose()
 
@@ -342,7 +342,7 @@ def late_checkpoints(ingest: Any, cases: int, make: Callable[[int], bytes]) -> N
         "check-point late (never heard, older than the last)",
         f"{cases:,}",
         f"{moved} set the state back ({ingest.stats['late'] - late} verified late)",
-        "test_trust: forged_checkpoints_change_nothing; test_backhaul_order",
+        "test_verify: forged_checkpoints_change_nothing; test_outages_and_restarts",
     )
 
 
@@ -465,7 +465,7 @@ def token_attacks(c: Any, op: dict[str, str], cases: int) -> None:
         if reached == streams
         else f"NOT MEASURED ({reached} of {streams})"
     )
-    row("tokens", "a revoked token's open event stream", f"{streams:,}", outcome, "test_operators")
+    row("tokens", "a revoked token's open event stream", f"{streams:,}", outcome, "test_tokens")
     minted = reached = 0
     for i in range(cases):
         short = c.post(
@@ -477,7 +477,7 @@ def token_attacks(c: Any, op: dict[str, str], cases: int) -> None:
         reached += answer in (201, 422)
         minted += answer == 201
     outcome = f"{minted} minted" if reached == cases else f"NOT MEASURED ({reached} of {cases})"
-    row("tokens", "an expiring operator mints a longer-lived token", f"{cases:,}", outcome, "test_operators")
+    row("tokens", "an expiring operator mints a longer-lived token", f"{cases:,}", outcome, "test_tokens")
 
 
 def backup_attacks(database: Path, cases: int) -> None:
@@ -517,7 +517,7 @@ def backup_attacks(database: Path, cases: int) -> None:
         "a backup flipped or truncated anywhere",
         f"{cases:,}",
         outcome,
-        "test_ops: corrupt_truncated",
+        "test_operations: corrupt_truncated",
     )
 
 
