@@ -6,7 +6,7 @@ from sqlalchemy import insert, update
 from sqlmodel import Session, col, select
 
 from server.commands.lifecycle import NOT_STARTED, PENDING
-from server.commands.models import CommandRecord, CommandState, CommandStep
+from server.commands.models import CommandRecord, CommandState, CommandStep, Origin, StepSource
 from server.core.db import now, saved_id
 
 
@@ -14,7 +14,12 @@ def add(s: Session, command: CommandRecord) -> CommandRecord:
     """Insert a queued command with its first history step."""
     s.add(command)
     s.flush()
-    s.add(CommandStep(command_id=saved_id(command), status=CommandState.QUEUED, detail=""))
+    s.add(
+        CommandStep(
+            command_id=saved_id(command), status=CommandState.QUEUED, detail="",
+            source=StepSource.OPERATOR, via=command.issued_by,
+        )
+    )  # fmt: skip
     return command
 
 
@@ -35,9 +40,11 @@ def move(
     detail: str,
     report: dict | None,
     values: dict[str, object],
+    origin: Origin,
     at: float | None = None,
 ) -> None:
-    """Set the command's status (and ``values``) and add the history step, dated ``at`` (default now)."""
+    """Set the command's status (and ``values``) and add the history step, dated ``at`` (default now),
+    saying who said it (``origin``)."""
     at = now() if at is None else at
     s.execute(
         update(CommandRecord)
@@ -46,8 +53,14 @@ def move(
     )
     s.execute(
         insert(CommandStep).values(
-            command_id=command_id, status=status.value, detail=detail, at=at, report=report
-        )
+            command_id=command_id,
+            status=status.value,
+            detail=detail,
+            at=at,
+            report=report,
+            source=origin.source.value,
+            via=origin.via,
+        )  # fmt: skip
     )
 
 

@@ -21,7 +21,7 @@ from sqlalchemy import Engine
 
 from server.commands import repository as repo
 from server.commands.lifecycle import FROM_CHECKPOINT, allowed, report_of
-from server.commands.models import CommandRecord, CommandState, CommandStep
+from server.commands.models import CommandRecord, CommandState, CommandStep, Origin, StepSource
 from server.commands.schemas import CommandIn
 from server.core.db import Tx, reading, saved_id, writing
 from server.core.errors import NotFound, Refused, TooMany
@@ -53,7 +53,10 @@ IN_FLIGHT = (
     CommandState.EXECUTING,
 )  # a check-point will end it
 RETRY_AFTER_S = 10  # a full queue's answer: about two command attempts at the default range
-ABORTED = "by an abort before it was sent"  # what happens to the commands an abort overtakes
+ABORTED = "by an abort before it was sent"
+MODEM = Origin(
+    StepSource.MODEM
+)  # the single shore's link records what its own modem said  # what happens to the commands an abort overtakes
 
 
 class CommandRefused(Refused):
@@ -135,17 +138,19 @@ def advance(
     reason: str | None = None,
     report: dict | None = None,
     at: float | None = None,
+    *,
+    origin: Origin,
     **extra: object,
 ) -> bool:
     """Move ``command`` to ``status`` if the lifecycle allows it, with a history row dated ``at`` (default
-    now); False if not. ``reason`` replaces the stored reason (the vehicle's, or why it failed); ``report``
+    now) saying who said it (``origin``); False if not. ``reason`` replaces the stored reason (the vehicle's, or why it failed); ``report``
     is what the vehicle's check-point said with it (``lifecycle.report_of``). The caller commits."""
     if not allowed(command.status, status):
         return False
     values = dict(extra)
     if reason is not None:
         values["reason"] = reason
-    repo.move(s, command.id, status, detail, report, values, at)
+    repo.move(s, command.id, status, detail, report, values, origin, at)
     return True
 
 
@@ -155,7 +160,12 @@ def supersede_older(s: Tx, command: CommandRecord) -> list[CommandRecord]:
     if not Command[command.command.upper()].sets_course:
         return []
     detail = f"by command {command.seq} ({command.command})"
-    return [c for c in repo.executing_before(s, command) if advance(s, c, CommandState.SUPERSEDED, detail)]
+    said = Origin(StepSource.VEHICLE)
+    return [
+        c
+        for c in repo.executing_before(s, command)
+        if advance(s, c, CommandState.SUPERSEDED, detail, origin=said)
+    ]
 
 
 def _caught_up(s: Tx, vehicle: Vehicle, reported: int) -> int:
@@ -207,6 +217,7 @@ def apply_checkpoint(s: Tx, vehicle: Vehicle, cp: CheckpointPacket, body: dict) 
     ]
     events: list[CommandChanged] = []
     newest: CommandRecord | None = None
+    said = Origin(StepSource.VEHICLE)  # the check-point's MAC verified (``server.link.verify``)
     for seq, reported, where in [*reversed(settled), (last, cp.command_status, report)]:
         status = FROM_CHECKPOINT.get(reported) if reported else None
         command = repo.by_seq(s, saved_id(vehicle), seq) if status is not None and seq > 0 else None
@@ -214,7 +225,7 @@ def apply_checkpoint(s: Tx, vehicle: Vehicle, cp: CheckpointPacket, body: dict) 
         if (
             command is None
             or status is None
-            or not advance(s, command, status, reason, reason=reason, report=where)
+            or not advance(s, command, status, reason, reason=reason, report=where, origin=said)
         ):
             continue
         events.append(
@@ -301,7 +312,9 @@ class CommandDesk:
                     saved_id(c), c.seq, CommandState.SUPERSEDED, vehicle=vehicle.name, detail=ABORTED
                 )
                 for c in repo.queued(s, saved_id(vehicle))
-                if advance(s, c, CommandState.SUPERSEDED, ABORTED)
+                if advance(
+                    s, c, CommandState.SUPERSEDED, ABORTED, origin=Origin(StepSource.OPERATOR, issued_by)
+                )
             ]
         waiting = repo.pending_count(s, saved_id(vehicle))
         if waiting >= self.max_queued:
@@ -386,12 +399,28 @@ class CommandDesk:
         at: float | None = None,
         **extra: int | bytes,
     ) -> bool:
-        """What the modem said of a command, if the lifecycle allows it (a check-point may already have
-        said executing / executed / refused, which a late ACK must not undo); published if it moved.
-        ``at``: when it happened (default now); ``extra``: column values (attempts, frame)."""
+        """What the single shore's own modem said of a command (``said``)."""
+        return self.said(MODEM, command, status, detail, reason, at, **extra)
+
+    def said(
+        self,
+        origin: Origin,
+        command: CommandRecord,
+        status: CommandState,
+        detail: str = "",
+        reason: str | None = None,
+        at: float | None = None,
+        **extra: int | bytes,
+    ) -> bool:
+        """What the link said of a command (``origin``: the shore's modem, a gateway, the shore itself),
+        if the lifecycle allows it (a check-point may already have said executing / executed / refused,
+        which a late ACK must not undo); published if it moved. ``at``: when it happened (default now);
+        ``extra``: column values (attempts, frame)."""
         with writing(self.db) as s:
             current = repo.get(s, command.id)
-            if current is None or not advance(s, current, status, detail, reason, None, at, **extra):
+            if current is None or not advance(
+                s, current, status, detail, reason, None, at, origin=origin, **extra
+            ):
                 return False
             s.commit()
         self.bus.publish(CommandChanged(saved_id(command), command.seq, status, detail=detail))

@@ -231,6 +231,7 @@ class Screens:
             "last_outage": None if outage is None else dict(zip(("lasted_s", "ended", "backlog"), outage, strict=True)),
             "frames": g.frames, "colour": fleet.gateway_colour(g.alive),
             "vehicles": [{"id": i, "name": name, "pinned": pinned} for i, name, pinned in g.vehicles],
+            "faulty": g.faulty, "faulty_at": r.faulty_at, "foreign_reports": r.foreign_reports,
         }  # fmt: skip
 
     def latlon(self, north: float, east: float) -> list[float] | None:
