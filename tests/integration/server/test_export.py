@@ -383,6 +383,41 @@ def test_ticks_as_a_vehicle_counts_them_come_back_exact(
     assert first > 2**32 and [int(t) for t in ticks] == [first, first + 1, first + 2]
 
 
+@pytest.mark.parametrize("suffix", ["csv", "parquet", "nc"])
+def test_a_sample_sent_in_parts_is_one_row(client: TestClient, tmp_path: Path, suffix: str) -> None:
+    """A stream's first sample leaves in parts (its first values coded finer): the rest comes in the next
+    packet, stored as a part of the row before. The export joins them: one row per sample time, as
+    certain and as trusted as its least, and a second sample of the same tick stays its own row."""
+    vehicle = client.post("/api/v1/vehicles", json={"name": "rov3", "address": 4}, headers=OP).json()
+    with writing(client.app.state.shore.db) as s:  # type: ignore[attr-defined]
+        ids = add_packets(s, vehicle["id"])
+        first = env(1, [20.0, None, None], vehicle_id=vehicle["id"], ids=ids)
+        rest = env(1, [None, 1.5, 8.0], vehicle_id=vehicle["id"], packet="pending", ids=ids) | {"part": True}
+        again = env(1, [20.1, 1.6, 8.1], vehicle_id=vehicle["id"], ids=ids)
+        after = env(2, [None, 1.7, 8.2], vehicle_id=vehicle["id"], ids=ids)  # not a part: a row with a blank
+        s.execute(insert(Telemetry), [first, rest, again, after])
+        s.commit()
+    path = download(
+        client,
+        tmp_path / f"rov3.{suffix}",
+        f"/api/v1/telemetry.{suffix}",
+        vehicle_id=vehicle["id"],
+        stream="env",
+    )
+    ticks, verification = read_verification(path)
+    if suffix == "csv":
+        with path.open(newline="") as f:
+            depths = [r[HEADER[6]] for r in csv.DictReader(f)]
+    elif suffix == "parquet":
+        depths = pq.read_table(path).to_pydict()["depth"]
+    else:
+        with netcdf_file(path, mmap=False) as f:
+            depths = list(f.variables["depth"][:])
+    assert [int(t) for t in ticks] == [1, 1, 2]
+    assert verification == ["pending", "verified", "verified"]
+    assert [float(d) for d in depths] == [1.5, 1.6, 1.7]
+
+
 ABOUT = {
     "deployment": "river-2026",
     "summary": "Temperature, depth and oxygen of a river survey by a BlueROV2.",
