@@ -305,6 +305,9 @@ class Dispatcher:
 
     async def _publish(self, row: Dispatch, command: CommandRecord, vehicle: Vehicle) -> None:
         frame = await asyncio.to_thread(self.desk.frame, command)  # signed now: a fresh stamp
+        if frame is None:  # cancelled by an operator since it was chosen: never published
+            await asyncio.to_thread(self.routing.set_dispatch, row.id, DispatchState.WITHDRAWN)
+            return
         message = CommandMessage(
             row.id,
             row.gateway,

@@ -22,6 +22,7 @@ class CommandState(enum.StrEnum):
     REFUSED = "refused"
     SUPERSEDED = "superseded"
     FAILED = "failed"
+    CANCELLED = "cancelled"  # by an operator while queued, never signed for transmission: never sent
 
 
 class StepSource(enum.StrEnum):

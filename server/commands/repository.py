@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from sqlalchemy import insert, update
+from sqlalchemy import func, insert, update
 from sqlmodel import Session, col, select
 
 from server.commands.lifecycle import NOT_STARTED, PENDING
@@ -62,6 +62,40 @@ def move(
             via=origin.via,
         )  # fmt: skip
     )
+
+
+def claim(s: Session, command_id: int | None, frame: bytes) -> bool:
+    """The command's frame, signed for a transmission, kept with it unless it was cancelled: whether it
+    may go. One conditional statement, so a cancel and a transmission cannot both win."""
+    query = (
+        update(CommandRecord)
+        .where(col(CommandRecord.id) == command_id, col(CommandRecord.status) != CommandState.CANCELLED.value)
+        .values(frame=frame)
+    )
+    return bool(s.execute(query).rowcount)  # type: ignore[attr-defined]
+
+
+def cancel(s: Session, command_id: int | None, by: str) -> bool:
+    """Cancel the command if it is queued and was never signed for a transmission (no frame kept):
+    whether it was. One conditional statement (see ``claim``); the caller commits."""
+    query = (
+        update(CommandRecord)
+        .where(
+            col(CommandRecord.id) == command_id,
+            col(CommandRecord.status) == CommandState.QUEUED.value,
+            func.length(col(CommandRecord.frame)) == 0,
+        )
+        .values(status=CommandState.CANCELLED.value, updated_at=now())
+    )
+    if not s.execute(query).rowcount:  # type: ignore[attr-defined]
+        return False
+    s.execute(
+        insert(CommandStep).values(
+            command_id=command_id, status=CommandState.CANCELLED.value, detail=f"by {by}", at=now(),
+            source=StepSource.OPERATOR.value, via=by,
+        )
+    )  # fmt: skip
+    return True
 
 
 def queued(s: Session, vehicle_id: int) -> list[CommandRecord]:

@@ -24,7 +24,7 @@ from server.commands.lifecycle import FROM_CHECKPOINT, allowed, report_of
 from server.commands.models import CommandRecord, CommandState, CommandStep, Origin, StepSource
 from server.commands.schemas import CommandIn
 from server.core.db import Tx, reading, saved_id, writing
-from server.core.errors import NotFound, Refused, TooMany
+from server.core.errors import Conflict, NotFound, Refused, TooMany
 from server.core.events import Bus, CommandChanged
 from server.telemetry import clock
 from server.telemetry import service as telemetry
@@ -166,6 +166,18 @@ def supersede_older(s: Tx, command: CommandRecord) -> list[CommandRecord]:
         for c in repo.executing_before(s, command)
         if advance(s, c, CommandState.SUPERSEDED, detail, origin=said)
     ]
+
+
+def _uncancellable(command: CommandRecord) -> str:
+    """Why ``command`` can no longer be cancelled, in one sentence."""
+    if command.status == CommandState.QUEUED:
+        return (
+            f"command {command.id} (seq {command.seq}) was already signed for transmission (on the air, or "
+            "handed to a gateway): too late to cancel, it goes on as sent"
+        )
+    if command.status in (CommandState.SENT, CommandState.ACKNOWLEDGED, CommandState.EXECUTING):
+        return f"command {command.id} (seq {command.seq}) is {command.status} already: it goes on as sent"
+    return f"command {command.id} (seq {command.seq}) is {command.status}: nothing left to cancel"
 
 
 def _caught_up(s: Tx, vehicle: Vehicle, reported: int) -> int:
@@ -319,10 +331,13 @@ class CommandDesk:
         waiting = repo.pending_count(s, saved_id(vehicle))
         if waiting >= self.max_queued:
             raise TooMany(
-                f"vehicle {vehicle.name} has {waiting} commands waiting for the link (the most it "
-                "may have); wait for them to be sent, or to fail if it cannot be reached, then "
-                "send again",
+                f"vehicle {vehicle.name} has {waiting} commands waiting for the link, its queue's cap "
+                f"({self.max_queued}, max_queued_commands: a longer queue would hold the link for minutes and "
+                "each command would run long after it was asked for); wait for them to be sent, cancel "
+                "queued ones (POST /api/v1/commands/{id}/cancel), or let them fail if it cannot be "
+                "reached, then send again",
                 RETRY_AFTER_S,
+                "vehicle_id",
             )
         command = queue(s, vehicle, body, issued_by, self.pose(vehicle.address))
         log.info("vehicle %s: command %s seq %d queued", vehicle.name, command.command, command.seq)
@@ -376,10 +391,32 @@ class CommandDesk:
                 s, vehicle_id
             ) is not None, latest is not None and latest.status in IN_FLIGHT
 
-    def frame(self, command: CommandRecord) -> bytes:
-        """The command signed now for its vehicle (``sign``)."""
-        with reading(self.db) as s:
-            return sign(command, vehicles.get(s, command.vehicle_id))
+    def frame(self, command: CommandRecord) -> bytes | None:
+        """The command signed now for its vehicle (``sign``) and kept with it, for a transmission; None if
+        an operator cancelled it meanwhile (it must not go). From here a cancel is refused."""
+        with writing(self.db) as s:
+            frame = sign(command, vehicles.get(s, command.vehicle_id))
+            if not repo.claim(s, command.id, frame):
+                return None
+            s.commit()
+        return frame
+
+    def cancel(self, command_id: int, by: str) -> CommandRecord:
+        """An operator (``by``) takes back a queued command: it ends ``cancelled`` and is never sent.
+        ``Conflict`` (409) when it lost the race with a transmission: it was signed for one already (on the
+        air, or handed to a gateway), or is past queued; it goes on as sent."""
+        with writing(self.db) as s:
+            command = repo.get(s, command_id)
+            if command is None:
+                raise NotFound(f"no command {command_id}", "command_id")
+            if not repo.cancel(s, command_id, by):
+                raise Conflict(_uncancellable(command), "command_id")
+            s.commit()
+            command = repo.get(s, command_id)
+        assert command is not None
+        log.info("command %d (seq %d) cancelled by %s", command_id, command.seq, by)
+        self.bus.publish(CommandChanged(command_id, command.seq, CommandState.CANCELLED, detail=f"by {by}"))
+        return command
 
     def unanswered(self, command_id: int | None) -> int:
         """Attempts since the command was last acknowledged: a command sent again because no check-point

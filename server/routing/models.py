@@ -17,7 +17,8 @@ class DispatchState(enum.StrEnum):
     no outcome in time: the gateway is taken for down), ``superseded`` (signed before a SYNC that answered
     the vehicle's challenge: the vehicle would refuse its frame, so it went again, signed anew; not the
     gateway's failure, and what the gateway reports of it is ignored), ``refuted`` (acked by its gateway,
-    but a later check-point of the vehicle shows the command never arrived: the gateway lied or erred)."""
+    but a later check-point of the vehicle shows the command never arrived: the gateway lied or erred),
+    ``withdrawn`` (its command was cancelled before it was signed: never published)."""
 
     PUBLISHED = "published"
     STORED = "stored"
@@ -28,6 +29,7 @@ class DispatchState(enum.StrEnum):
     UNANSWERED = "unanswered"
     SUPERSEDED = "superseded"
     REFUTED = "refuted"
+    WITHDRAWN = "withdrawn"
 
     @property
     def final(self) -> bool:
@@ -38,6 +40,7 @@ class DispatchState(enum.StrEnum):
             DispatchState.UNANSWERED,
             DispatchState.SUPERSEDED,
             DispatchState.REFUTED,
+            DispatchState.WITHDRAWN,
         )
 
 
