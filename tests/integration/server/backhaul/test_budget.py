@@ -33,9 +33,9 @@ from server.vehicles.models import Vehicle as VehicleRow
 from tacit import auth
 from tacit import modem as mm
 from tacit.packets import Command, ControlFlag, ControlPacket, decode_control
-from tests.integration.server.test_backhaul import ingest_on
-from tests.integration.server.test_backhaul import until as until_async
-from tests.integration.server.test_broker_access import client as broker_client
+from tests.integration.server.backhaul.test_access import client as broker_client
+from tests.integration.server.backhaul.test_frames_and_commands import ingest_on
+from tests.integration.server.backhaul.test_frames_and_commands import until as until_async
 from tests.support.nats import NATS_SERVER, NatsServer, Secured
 from vehicle_agent.agent import Agent, AgentConfig
 

@@ -367,7 +367,7 @@ def test_with_restructure_auto_the_proposal_is_applied_at_once(tmp_path: Path) -
 
 def manual_example() -> dict:
     """The team mission docs/missions.md gives for the demo fleet, as written there."""
-    text = (Path(__file__).parents[3] / "docs" / "missions.md").read_text()
+    text = (Path(__file__).parents[4] / "docs" / "missions.md").read_text()
     found = re.search(r"POST /api/v1/teams\n((?:    .*\n)+)", text)
     assert found is not None, "docs/missions.md shows no POST /api/v1/teams"
     return dict(json.loads(found.group(1)))

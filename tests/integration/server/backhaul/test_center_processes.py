@@ -30,7 +30,7 @@ from server.backhaul.subjects import UNNAMED
 from server.core.db import migrate
 from tacit import auth
 from tacit.packets import CheckpointPacket, MissionState
-from tests.integration.server.test_backhaul import ingest_on
+from tests.integration.server.backhaul.test_frames_and_commands import ingest_on
 from tests.support.nats import NATS_SERVER, Secured, free_port
 
 pytestmark = pytest.mark.skipif(not Path(NATS_SERVER).exists(), reason="nats-server is not installed")

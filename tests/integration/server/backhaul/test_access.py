@@ -34,7 +34,7 @@ from server.backhaul.subjects import (
     ScheduleMessage,
 )
 from server.core.db import migrate
-from tests.integration.server.test_backhaul import hear, ingest_on, stored, until
+from tests.integration.server.backhaul.test_frames_and_commands import hear, ingest_on, stored, until
 from tests.support.nats import NATS_SERVER, NatsServer, Secured, certificates
 
 pytestmark = pytest.mark.skipif(not Path(NATS_SERVER).exists(), reason="nats-server is not installed")

@@ -33,7 +33,7 @@ from server.core.events import Bus
 from tacit.streams import default_streams
 from tests.support.nats import NATS_SERVER, NatsServer
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[4]  # the repository: its own `server` is the one imported
 pytestmark = pytest.mark.skipif(not Path(NATS_SERVER).exists(), reason="nats-server is not installed")
 
 

@@ -28,7 +28,7 @@ from tacit.streams import default_streams
 from tests.support.shore import store_with
 from vehicle_agent.agent import Agent, AgentConfig
 
-DIVE = Path(__file__).resolve().parents[2] / "data" / "ardusub" / "small.tlog"
+DIVE = Path(__file__).resolve().parents[3] / "data" / "ardusub" / "small.tlog"
 KEY = bytes(range(32))
 ADDRESS = 2
 SAMPLES = {"RAW_IMU": "imu", "SCALED_PRESSURE2": "env"}

@@ -15,7 +15,7 @@ from fastapi.testclient import TestClient
 
 from tacit.packets import CommandStatus, MissionState
 from tacit.params import LostAction, Param
-from tests.integration.server.test_team_missions import OP, make_client, post, report
+from tests.integration.server.missions.test_teams import OP, make_client, post, report
 
 EAST = {"command": "move", "distance": 20.0, "angle": 90.0, "absolute_angle": True}
 NORTH = {"command": "move", "distance": 20.0, "angle": 0.0, "absolute_angle": True}

@@ -19,7 +19,7 @@ from tacit import auth
 from tacit.codec import PacketEncoder
 from tacit.packets import CheckpointPacket, MissionState, cover_bitmap, with_seq
 from tacit.streams import default_streams
-from tests.integration.server.test_backhaul import ingest_on
+from tests.integration.server.backhaul.test_frames_and_commands import ingest_on
 
 ADDRESS = 2
 

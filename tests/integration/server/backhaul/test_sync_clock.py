@@ -16,7 +16,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from tacit.packets import ControlPacket
-from tests.integration.server.test_sync_budget import (
+from tests.integration.server.backhaul.test_budget import (
     ADDRESS,
     answered,
     scheduled,

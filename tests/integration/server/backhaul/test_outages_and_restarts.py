@@ -37,7 +37,7 @@ from server.vehicles.models import Vehicle
 from tacit import auth
 from tacit.packets import CheckpointPacket, MissionState, Stream, cover_bitmap, with_seq
 from tacit.streams import default_streams
-from tests.integration.server.test_backhaul import ingest_on, until
+from tests.integration.server.backhaul.test_frames_and_commands import ingest_on, until
 from tests.support.nats import NATS_SERVER, NatsServer
 from vehicle_agent.compressor import Compressor
 
@@ -314,7 +314,7 @@ def test_a_restarted_center_hands_out_slots_no_gateway_collides_with(
     from server.backhaul.relay import RelayIngest
     from simulators.run import ModemSpec, SimConfig, SimWorld
     from tacit import modem as mm
-    from tests.integration.server.test_routing import OP, settings
+    from tests.integration.server.routing.test_choice import OP, settings
 
     config = SimConfig(
         time_scale=4.0,

@@ -38,7 +38,7 @@ from server.vehicles.service import Vehicles
 from tacit import auth
 from tacit.cli import main
 from tacit.packets import CheckpointPacket, MissionState
-from tests.integration.server.test_backhaul import hear, ingest_on, stored, until
+from tests.integration.server.backhaul.test_frames_and_commands import hear, ingest_on, stored, until
 from tests.support.api import OP, offline_settings
 from tests.support.nats import NATS_SERVER, NatsServer, free_port
 

@@ -26,8 +26,8 @@ from server.map.scene import OperatorMap
 from server.screens.fleet import GATEWAY, PALETTE, rgb
 from tacit import auth
 from tacit.packets import CheckpointPacket, MissionState
-from tests.integration.server.test_map_panel import fake_server, panel_for
-from tests.integration.server.test_routing import OP, Layout, running_center, until
+from tests.integration.server.map.test_panel import fake_server, panel_for
+from tests.integration.server.routing.test_choice import OP, Layout, running_center, until
 from tests.support.api import offline_settings
 from tests.support.nats import NATS_SERVER, NatsServer
 

@@ -15,7 +15,7 @@ from launch.vehicle_host import VehicleSide
 from server.app import create_app
 from tacit.packets import CheckpointPacket, MissionState
 from tests.conftest import tacit_process
-from tests.integration.server.test_api import OBS, OP, app_settings, sim_config
+from tests.integration.server.test_app import OBS, OP, app_settings, sim_config
 
 HOLD_S = 8.0  # longer than the busy timeout of any one write
 
