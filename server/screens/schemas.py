@@ -87,6 +87,10 @@ class FleetVehicle(BaseModel):
     share: float
     airtime_s: dict[str, float] = Field(description="its seconds on the air by use, and their total")
     airtime_share: float = Field(description="its part of the fleet's airtime")
+    queued: int = Field(
+        description="its commands waiting for the link (queued, or sent and not acknowledged)"
+    )
+    queue_cap: int = Field(description="the most that may wait (max_queued_commands): more are refused, 429")
 
 
 class Fleet(BaseModel):

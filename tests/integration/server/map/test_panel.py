@@ -335,3 +335,22 @@ def test_each_vehicle_in_its_colour_and_greyed_while_overdue(shore_map: tuple) -
     owner._tick()  # the shore never heard either on its link (no modem here): both overdue
     assert "rov1" in panel.fleet_html.content and "rov2" in panel.fleet_html.content
     assert panel.fleet_html.content.count("(overdue)") == 2
+
+
+def test_an_operator_cancels_a_queued_command_from_the_panel(shore_map: tuple) -> None:
+    """The panel's Cancel takes back the command it sent last (the number is filled in), as the API's
+    cancel does; the status says how many of the vehicle's commands wait against the cap."""
+    shore, owner = shore_map
+    panel = panel_for(owner)
+    panel.withdraw_btn.press()  # not signed in: nothing cancelled
+    assert "sign in with an operator's token" in panel.status_md.content
+    panel.sign_in("operator-token")
+    panel.send(CommandIn(command="hold"))
+    assert "(1 / 20 of rov1's commands waiting for the link)" in panel.status_md.content
+    [sent] = commands(shore)
+    assert panel.cancel_in.value == sent.id
+    panel.withdraw_btn.press()
+    assert "**cancelled**, never sent" in panel.status_md.content
+    assert [c.status for c in commands(shore)] == ["cancelled"]
+    panel.withdraw_btn.press()
+    assert "nothing left to cancel" in panel.status_md.content
