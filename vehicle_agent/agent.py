@@ -40,6 +40,7 @@ from tacit.navigation import Pose, Target
 from tacit.packets import (
     CHECKPOINT_MAC_SIZE,
     COVER_BITS,
+    NEWEST,
     OXYGEN_NONE,
     SYNC_RESTART_CHAINS,
     CheckpointPacket,
@@ -90,6 +91,7 @@ class AgentConfig:
     explore_distance: float = 10.0
     max_latency: float = 10.0
     max_silence: float = 60.0
+    protocol: int = NEWEST  # the protocol version it speaks: the shore's registration of it must agree
     limits: Limits = field(default_factory=Limits)
     nav: NavConfig = field(default_factory=NavConfig)
     missions: list[dict] = field(default_factory=lambda: [{"builtin": "square", "number": 1}])
@@ -167,7 +169,9 @@ class Agent:
             config.checkpoint_interval,
         )
         self.streams = default_streams()
-        self.compressor = Compressor(self.streams, config.max_latency, config.max_silence)
+        self.compressor = Compressor(
+            self.streams, config.max_latency, config.max_silence, protocol=config.protocol
+        )
         self.plume = PlumeDetector(self.fsm.status.params.get("plume_threshold", config.plume_threshold))
         window = auth.ReplayWindow.from_dict(self.state.replay)
         sync = auth.SyncWindow(config.max_clock_correction, self.state.sync_counter)
@@ -379,13 +383,16 @@ class Agent:
             | (2 if tel.armed else 0)
             | (4 if s.state is MissionState.LINK_LOST else 0)
         )
+        version = self.config.protocol
+        oxygen = CheckpointPacket.field("oxygen", version)  # its top value says "none"
         measured = CheckpointPacket.clamped(
+            version,
             north=pose.north,
             east=pose.east,
             depth=pose.depth,
             battery=tel.battery,
             temperature=tel.temperature or 0.0,
-            oxygen=min(tel.oxygen, OXYGEN_NONE - 0.01) if tel.oxygen is not None else OXYGEN_NONE,
+            oxygen=min(tel.oxygen, oxygen.hi - oxygen.resolution) if tel.oxygen is not None else oxygen.hi,
         )
         return CheckpointPacket(
             seq=self.state.packet_seq % 256,
@@ -404,7 +411,8 @@ class Agent:
             depth=measured["depth"],
             battery=measured["battery"],
             temperature=measured["temperature"],
-            oxygen=measured["oxygen"],
+            oxygen=measured["oxygen"] if tel.oxygen is not None else OXYGEN_NONE,
+            version=version,
         )
 
     def _reachable(self, seq: int) -> list[Uncovered]:

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tacit.codec import EncodedPacket, PacketEncoder, StreamSpec
-from tacit.packets import Stream
+from tacit.packets import NEWEST, Stream
 
 
 @dataclass
@@ -88,9 +88,13 @@ class Compressor:
         max_latency: float = 10.0,
         max_silence: float = 60.0,
         urgent_threshold: float | None = 20.0,
+        protocol: int = NEWEST,
     ) -> None:
+        """``protocol``: the version the vehicle speaks (``tacit.packets.VERSIONS``)."""
         self.order = list(streams)
-        self.encoder = PacketEncoder(list(streams.values()), max_latency, urgent_threshold, max_silence)
+        self.encoder = PacketEncoder(
+            list(streams.values()), max_latency, urgent_threshold, max_silence, protocol
+        )
         self.samples = 0
 
     def add(self, stream: Stream, time: float, values: list[float | None], urgent: bool = False) -> None:

@@ -135,9 +135,8 @@ class Ingest:
     def _resume(self, s: Tx, v: Vehicle) -> VehicleState:
         """A vehicle's state as the last run left it, and its last verified check-point (the pose the limits
         check against, and what the screens show with its age) instead of none until its next one."""
-        state = VehicleState(
-            v.id or 0, v.name, v.address, PacketDecoder(list(self.streams.values())), share=v.share
-        )
+        decoder = PacketDecoder(list(self.streams.values()), v.protocol)
+        state = VehicleState(v.id or 0, v.name, v.address, decoder, share=v.share, protocol=v.protocol)
         saved = link_repo.saved_state(s, state.id)
         if saved is not None:
             state.restore(saved)
@@ -330,6 +329,11 @@ class Ingest:
             packet = packets.decode(chunk)
             if isinstance(packet, packets.ControlPacket):
                 raise PacketError("a control packet from a vehicle")
+            if isinstance(packet, PriorityPacket) and packet.version != v.protocol:
+                raise packets.OtherVersion(
+                    f"protocol version {packet.version}: {v.name} is registered as speaking version "
+                    f"{v.protocol} (its agent's protocol and its registration must agree)"
+                )
         except packets.OldVersion as exc:
             return self._old_version(batch, v, chunk, at, exc)
         except PacketError as exc:
@@ -387,8 +391,9 @@ class Ingest:
     def _old_version(
         self, batch: Batch, v: VehicleState, chunk: bytes, at: float, exc: packets.OldVersion
     ) -> list[Event]:
-        """A packet of the previous protocol version: refused and counted; logged (and a ``bad_packet``
-        event stored) once per vehicle, since an old agent sends nothing else until it is updated."""
+        """A packet of the previous protocol version, or samples in another version than the vehicle's
+        registered one: refused and counted; logged (and a ``bad_packet`` event stored) once per vehicle,
+        since such an agent sends nothing else until it or the registration is changed."""
         self.stats["rejected"] += 1
         self.stats["old_protocol"] += 1
         v.old_protocol += 1

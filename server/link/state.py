@@ -18,6 +18,7 @@ from server.core.db import now
 from tacit.codec import CodecError, PacketDecoder
 from tacit.link import SeenWindow
 from tacit.navigation import Pose
+from tacit.packets import VERSION
 
 log = logging.getLogger("tacit.server.ingest")
 
@@ -134,11 +135,12 @@ class VehicleState:
     bytes_saved: int = 0
     forged: int = 0
     verified: int = 0
-    old_protocol: int = 0  # packets refused for speaking the previous protocol version (logged once)
+    old_protocol: int = 0  # packets refused for another protocol version than its own (logged once)
     decoder_saved: str | None = None  # ``decoder``'s states as saved (base64); None: changed since
     share: float = 1.0  # its weight in the MAC's schedule (``server.link.schedule``), as registered
     urgent: bool = False  # it reported time-sensitive data since it was last polled
     restart_raised: float = -1e18  # when an unknown base last asked for a chain restart (shore clock)
+    protocol: int = VERSION  # the protocol version it is registered as speaking (``tacit.packets``)
 
     def saved(self) -> dict[str, Any]:
         """What ``linkstate`` holds: the record and the decoder's last states."""

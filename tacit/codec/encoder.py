@@ -395,6 +395,7 @@ class PacketEncoder:
             Priority.TIME_SENSITIVE if urgent else Priority.ROUTINE,
             self.specs[main].stream,
             payload,
+            version=self.coding.version,
         )
         encoded = EncodedPacket(
             packet,
