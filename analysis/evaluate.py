@@ -120,7 +120,7 @@ def run_codec(
         encoder.resolve(delivered)
         if not delivered:
             return
-        span = decoder.decode(encoded.packet.payload, now)
+        span = decoder.decode(encoded.packet.payload, now, encoded.packet.seq)
         latencies.extend(now - t for t in encoded.surprise_times)
         confirmations.extend(now - t for t in encoded.sample_times)
         for serial, r in zip(encoded.serials[0], encoded.rows[0], strict=True):

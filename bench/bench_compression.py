@@ -273,12 +273,13 @@ def decode_rate(series: Series, spec, max_latency: float, protocol: int) -> floa
     for t, x in zip(series.times, series.values, strict=True):
         encoder.push(t, x)
         while encoder.ready(t):
-            payloads.append((encoder.take().packet.payload, t))
+            packet = encoder.take().packet
+            payloads.append((packet.payload, t, packet.seq))
             encoder.resolve(True)
     decoder = StreamDecoder(spec, protocol)
     start = time.perf_counter()
-    for payload, at in payloads:
-        decoder.decode(payload, at)
+    for payload, at, seq in payloads:
+        decoder.decode(payload, at, seq)
     return len(payloads) / max(1e-9, time.perf_counter() - start)
 
 

@@ -195,6 +195,7 @@ class Agent:
         self._repeat_answered = -1e9
         self._challenged = -1e9  # vehicle time of the last check-point sent unsynced
         self._report: CheckpointPacket | None = None  # the check-point of the last status change, until sent
+        self._flying: dict[int, bytes] = {}  # priority packets in flight, by seq (to withdraw them)
         self.samples: deque[tuple[str, float, tuple]] = deque(maxlen=10_000)
         self._clocks = {"RAW_IMU": SampleClock(), "SCALED_PRESSURE2": SampleClock()}  # MAVLink thread's
         self.mav.listeners.append(self._on_mavlink)
@@ -338,17 +339,30 @@ class Agent:
 
     # --- outputs --------------------------------------------------------------------------------
 
+    def _room(self) -> int:
+        """How many priority packets may be numbered now: a check-point numbered after them must still
+        reach (``COVER_BITS`` back) every delivered one it has not covered and every one in flight."""
+        outstanding = [u.seq for u in self.state.uncovered] + self.compressor.in_flight()
+        used = max(((self.state.packet_seq - q) % 256 for q in outstanding), default=0)
+        return max(0, COVER_BITS - 2 - used)
+
     def _send_packets(self) -> None:
-        for stream, encoded in self.compressor.ready(self.now()):
+        self.compressor.follow(self.link.capacity)
+        for stream, encoded in self.compressor.ready(self.now(), self.state.packet_seq, self._room()):
             urgent = encoded.packet.priority is Priority.TIME_SENSITIVE
-            packet = with_seq(encoded.packet, self.state.packet_seq)
+            packet = encoded.packet  # numbered with the vehicle's counter: version 4 names states by it
             self.state.packet_seq += 1
             frame = auth.tag_priority(packet, self.keys[self.state.key_epoch], self.config.address)
             covered = self._on_delivered(frame)
+            self._flying[packet.seq] = frame
 
-            def resolved(ok: bool, s: Stream = stream, covered: Callable[[bool], None] = covered) -> None:
-                self.compressor.resolve(s, ok)
+            def resolved(ok: bool, seq: int = packet.seq, covered: Callable[[bool], None] = covered) -> None:
+                self._flying.pop(seq, None)
+                again = self.compressor.resolve(seq, ok)
                 covered(ok)
+                if again:  # coded again after a loss in the window: the old packets go no more
+                    self.link.withdraw([self._flying.pop(q) for q in again if q in self._flying])
+                    log.info("packets seq %s withdrawn: coded again after packet %d was lost", again, seq)
 
             self.link.send(frame, urgent, resolved)
             self.state.priority_count += 1
@@ -507,7 +521,7 @@ class Agent:
             and tel.time - self._challenged >= self.fsm.status.params["checkpoint_interval"]
         ):
             self.fsm.checkpoint_due = True  # even while waiting: a new challenge until one is answered
-        if self.fsm.checkpoint_due and self.link.backlog < 4:
+        if self.fsm.checkpoint_due and self.link.backlog < 4 + self.compressor.window:
             self._send_checkpoint()
         if self._dirty or self.fsm.status.to_dict() != before or tel.time - self._persisted_at >= 1.0:
             self._persist()  # dead-reckoned position is state too: at least once a second of vehicle time

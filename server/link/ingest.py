@@ -500,7 +500,8 @@ class Ingest:
         decoded = decode(batch, v, pp, row["at"], packet_id, restart_every, late)
         row["body"].update(decoded.body)  # what decoding found (or why it could not)
         row["origin"] = decoded.origin
-        if late and v.link.waiting:
+        window = v.decoder.coding.window and "error" not in decoded.body  # it may be what others wait for
+        if (late or window) and v.link.waiting:
             return packet_id, decoded.events + self._unblocked(s, batch, v)
         return packet_id, decoded.events
 
@@ -523,8 +524,9 @@ class Ingest:
             return all(v.link.recent.get(q) for q in packet.covered_seqs())
         if not isinstance(packet, PriorityPacket):
             return False
-        base = chain_ids(packet.payload)[0]
-        return base in v.decoder.snapshots and v.link.made.get(base, -math.inf) <= at
+        base = chain_ids(packet.payload, packet.seq)[0]
+        named_once = v.decoder.coding.window  # version 4: a state held under its name is its packet's
+        return base in v.decoder.snapshots and (named_once or v.link.made.get(base, -math.inf) <= at)
 
     def _again(
         self, s: Tx, batch: Batch, v: VehicleState, packet_id: int, data: bytes, at: float

@@ -26,8 +26,6 @@ RECENT_SEQS = 64  # priority packet hashes kept per vehicle for the check-points
 SAVED_SEEN = 64  # duplicate-window entries saved across a restart (retransmissions come within polls)
 ACCEPTED_MACS = 256  # MACs of the last verified check-points: one seen again is a replay, whatever its time
 WAITING = 32  # packets kept waiting per vehicle for late ones (their base state, the packets they cover)
-SAVED_CHAINS = 4  # decoder states saved per vehicle: the vehicle continues from its last delivered packet,
-# almost always the newest; one based on a state not kept raises UnknownBase and the vehicle restarts
 
 
 @dataclass
@@ -145,7 +143,9 @@ class VehicleState:
     def saved(self) -> dict[str, Any]:
         """What ``linkstate`` holds: the record and the decoder's last states."""
         if self.decoder_saved is None:
-            self.decoder_saved = base64.b64encode(self.decoder.to_bytes(SAVED_CHAINS)).decode()
+            # the states the vehicle may continue from (``PacketDecoder.keep``); one based on a state not
+            # kept raises UnknownBase and the vehicle restarts its chains
+            self.decoder_saved = base64.b64encode(self.decoder.to_bytes(self.decoder.keep)).decode()
         return {**self.link.to_json(SAVED_SEEN), "decoder": self.decoder_saved}
 
     def undo_point(self) -> Undo:
