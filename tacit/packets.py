@@ -594,6 +594,15 @@ class CheckpointPacket(_Packet):
         return [(self.seq - 1 - i) % 256 for i in reversed(range(COVER_BITS)) if self.covered >> i & 1]
 
 
+def quiet_of(time: int, until: float | None) -> int:
+    """A version-4 check-point's ``quiet`` byte: the check-point made at ``time`` says its streams were
+    predictable up to ``until`` (``tacit.codec.PacketEncoder.predictable_until``), rounded down to whole
+    seconds so it never says more; ``QUIET_UNKNOWN`` for None or further back than 254 s."""
+    if until is None or time - until > QUIET_UNKNOWN - 1:
+        return QUIET_UNKNOWN
+    return max(0, math.ceil(time - until))
+
+
 def cover_bitmap(checkpoint_seq: int, seqs: list[int]) -> int:
     """The ``covered`` bitmap of a check-point with seq ``checkpoint_seq`` for priority packet ``seqs``
     (those further back than ``COVER_BITS`` are left out)."""
@@ -743,6 +752,8 @@ def as_dict(packet: Packet) -> dict[str, object]:
         elif isinstance(value, bytes):
             value = value.hex()
         out[f.name] = value
+    if isinstance(packet, CheckpointPacket) and packet.version >= 4:  # the silence it says, as a time
+        out["predictable_until"] = None if packet.quiet == QUIET_UNKNOWN else packet.time - packet.quiet
     return out
 
 

@@ -42,6 +42,7 @@ from tacit.packets import (
     COVER_BITS,
     NEWEST,
     OXYGEN_NONE,
+    QUIET_UNKNOWN,
     SYNC_RESTART_CHAINS,
     CheckpointPacket,
     Command,
@@ -53,6 +54,7 @@ from tacit.packets import (
     Stream,
     cover_bitmap,
     pack_settled,
+    quiet_of,
     with_seq,
 )
 from tacit.private import private_dir
@@ -348,6 +350,7 @@ class Agent:
 
     def _send_packets(self) -> None:
         self.compressor.follow(self.link.capacity)
+        self.compressor.silence_said(self.fsm.status.params["checkpoint_interval"])
         for stream, encoded in self.compressor.ready(self.now(), self.state.packet_seq, self._room()):
             urgent = encoded.packet.priority is Priority.TIME_SENSITIVE
             packet = encoded.packet  # numbered with the vehicle's counter: version 4 names states by it
@@ -408,9 +411,14 @@ class Agent:
             temperature=tel.temperature or 0.0,
             oxygen=min(tel.oxygen, oxygen.hi - oxygen.resolution) if tel.oxygen is not None else oxygen.hi,
         )
+        now = int(self.now())
+        quiet = (
+            quiet_of(now, self.compressor.predictable_until(self.now())) if version >= 4 else QUIET_UNKNOWN
+        )
         return CheckpointPacket(
             seq=self.state.packet_seq % 256,
-            time=int(self.now()),
+            time=now,
+            quiet=quiet,
             state=s.state,
             mission_id=s.mission or 0,
             waypoint=min(s.waypoint, 255),

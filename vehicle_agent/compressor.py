@@ -93,6 +93,7 @@ class Compressor:
     ) -> None:
         """``protocol``: the version the vehicle speaks (``tacit.packets.VERSIONS``)."""
         self.order = list(streams)
+        self.max_silence = max_silence
         self.encoder = PacketEncoder(
             list(streams.values()), max_latency, urgent_threshold, max_silence, protocol
         )
@@ -127,6 +128,17 @@ class Compressor:
         keeps one), so a poll at a fast rate brings as much as its rate carries."""
         if self.encoder.coding.window:
             self.encoder.set_window(packets)
+
+    def silence_said(self, checkpoint_interval: float) -> None:
+        """Version 4: check-points say the silence (``predictable_until``), so when they come at least as
+        often as ``max_silence`` no packet leaves only to confirm a quiet stream."""
+        said = self.encoder.coding.window and checkpoint_interval <= self.max_silence
+        self.encoder.policy.max_silence = (
+            None if said else max(self.max_silence, self.encoder.policy.max_latency)
+        )
+
+    def predictable_until(self, now: float) -> float | None:
+        return self.encoder.predictable_until(now)
 
     def in_flight(self) -> list[int]:
         """The seqs of the packets in flight."""

@@ -168,3 +168,24 @@ def test_the_window_is_version_4_s_and_at_most_its_limit() -> None:
         StreamDecoder(SPEC, 4).decode(bytes(29), T0)
     with pytest.raises(CodecError, match="format version 3"):  # a version 3 payload to a version 4 shore
         StreamDecoder(SPEC, 4).decode(bytes([0xC0]) + bytes(28), T0, 0)
+
+
+def test_predictable_until_is_the_oldest_surprise_the_shore_does_not_hold() -> None:
+    """What a version-4 check-point says of the silence: nothing before the first delivery; then the
+    oldest sample the shore could not predict and does not hold (waiting or in flight), else now."""
+    s = StreamSpec("t", Stream.ENVIRONMENTAL, ("t",), (0.05,), 1.0)
+    enc = StreamEncoder(s, max_latency=10.0, max_silence=None, protocol=4)
+    enc.push(T0, [10.0])
+    assert enc.predictable_until(T0 + 1) is None  # the shore predicts nothing yet
+    enc.take()
+    assert enc.predictable_until(T0 + 1) is None  # in flight: not delivered yet
+    enc.resolve(True)
+    for k in range(1, 30):  # quiet: predictable samples wait, no packet is due
+        enc.push(T0 + k, [10.0])
+    assert enc.pending and enc.deadline() is None and enc.predictable_until(T0 + 30) == T0 + 30
+    enc.push(T0 + 30, [12.0])  # a surprise
+    assert enc.predictable_until(T0 + 31) == T0 + 30
+    enc.take()
+    assert enc.predictable_until(T0 + 31) == T0 + 30  # in flight: not held yet
+    enc.resolve(True)
+    assert enc.predictable_until(T0 + 31) == T0 + 31

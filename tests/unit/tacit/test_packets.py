@@ -325,3 +325,13 @@ def test_an_agent_of_either_version_takes_a_version_3_control_packet() -> None:
     assert frame[0] >> 6 == 3 and packets.decode_control(frame).version == 3
     four = ControlPacket(Command.HOLD, seq=1, time=1, version=4).signed_part()
     assert four[0] >> 6 == 1 and four[1:] == frame[1:24]
+
+
+def test_quiet_never_says_more_than_it_knows() -> None:
+    assert packets.quiet_of(100, 99.5) == 1 and packets.quiet_of(100, 100.0) == 0  # rounded towards the past
+    assert packets.quiet_of(100, 100.4) == 0  # a mark after the whole second: the second
+    assert packets.quiet_of(1000, 746.0) == 254
+    assert packets.quiet_of(1000, 745.5) == packets.QUIET_UNKNOWN  # too far back to say
+    assert packets.quiet_of(1000, None) == packets.QUIET_UNKNOWN
+    cp = CheckpointPacket(seq=1, time=1000, state=MissionState.HOLDING, quiet=40, version=4)
+    assert packets.as_dict(cp)["predictable_until"] == 960
