@@ -117,8 +117,8 @@ quiet           25    u8    0 .. 254 (255 = not known)  1             s before `
 
 ``quiet`` is the silence the check-point says: every stream of the vehicle was predictable within its
 eps up to ``time - quiet``, which is never later than the oldest sample the vehicle has not delivered
-(``tacit.codec.PacketEncoder.quiet_since``); 255: a stream has not delivered anything yet, or the mark is
-more than 254 s back. The MAC covers it as it covers every field.
+(``tacit.codec.PacketEncoder.predictable_until``); 255: the mark is more than 254 s back. The MAC covers
+it as it covers every field.
 
 Priority packet (vehicle -> shore), the paper's "two bytes of priority/type, thirty bytes of
 samples" less one: byte 0 header (priority level 0-3, stream 0-3), byte 1 seq (u8, shared counter with

@@ -137,7 +137,7 @@ class Compressor:
             None if said else max(self.max_silence, self.encoder.policy.max_latency)
         )
 
-    def predictable_until(self, now: float) -> float | None:
+    def predictable_until(self, now: float) -> float:
         return self.encoder.predictable_until(now)
 
     def in_flight(self) -> list[int]:

@@ -379,13 +379,11 @@ class PacketEncoder:
     def _in_draft(self) -> list[_Sample]:
         return [x for s, sec in enumerate(self._sections) for x in self._queues[s][: sec.count]]
 
-    def predictable_until(self, now: float) -> float | None:
+    def predictable_until(self, now: float) -> float:
         """Up to when every stream was predictable within its eps, as a version-4 check-point tells the
         shore: the time of the oldest sample the shore could not predict and does not hold yet (waiting,
-        or in a packet in flight), else ``now``; None while no stream has delivered anything (the shore
-        predicts nothing yet). What is older is delivered, or predictable and waiting for a packet."""
-        if all(p.cursor is None for p in self.delivered.streams):
-            return None
+        or in a packet in flight), else ``now``. What is older is delivered, or predictable (from the
+        state the shore holds, the initial one included) and waiting for a packet."""
         waiting = [x for queue in self._queues for x in queue]
         waiting += [x for f in self.in_flight for taken in f.taken for x in taken]
         return min((x.time for x in waiting if any(x.q)), default=now)

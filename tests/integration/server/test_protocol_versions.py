@@ -16,7 +16,7 @@ from server.core.config import Settings
 from server.link.state import IncomingFrame
 from tacit import auth
 from tacit.codec import PacketEncoder
-from tacit.packets import NEWEST, QUIET_UNKNOWN, CheckpointPacket, MissionState, with_seq
+from tacit.packets import NEWEST, CheckpointPacket, MissionState, with_seq
 from tacit.streams import default_streams
 from vehicle_agent.agent import Agent, AgentConfig
 
@@ -84,7 +84,7 @@ def test_a_version_4_agent_says_the_silence_in_its_checkpoints_and_sends_no_pack
         key=KEYS[2].hex(), state_file=str(tmp_path / "agent-state.json"), modem_url="/dev/null"
     )
     agent = Agent(config, config.plans(tmp_path))
-    assert agent.checkpoint().version == NEWEST and agent.checkpoint().quiet == QUIET_UNKNOWN  # nothing yet
+    assert agent.checkpoint().version == NEWEST and agent.checkpoint().quiet == 0  # nothing waits
     agent.compressor.silence_said(config.checkpoint_interval)  # 60 s, as often as max_silence
     assert agent.compressor.encoder.policy.max_silence is None
     agent.compressor.silence_said(config.max_silence + 1)  # check-points set further apart: packets again

@@ -171,14 +171,14 @@ def test_the_window_is_version_4_s_and_at_most_its_limit() -> None:
 
 
 def test_predictable_until_is_the_oldest_surprise_the_shore_does_not_hold() -> None:
-    """What a version-4 check-point says of the silence: nothing before the first delivery; then the
-    oldest sample the shore could not predict and does not hold (waiting or in flight), else now."""
+    """What a version-4 check-point says of the silence: the oldest sample the shore could not predict
+    and does not hold (waiting or in flight), else now."""
     s = StreamSpec("t", Stream.ENVIRONMENTAL, ("t",), (0.05,), 1.0)
     enc = StreamEncoder(s, max_latency=10.0, max_silence=None, protocol=4)
     enc.push(T0, [10.0])
-    assert enc.predictable_until(T0 + 1) is None  # the shore predicts nothing yet
+    assert enc.predictable_until(T0 + 1) == T0  # a first value far from the initial state's
     enc.take()
-    assert enc.predictable_until(T0 + 1) is None  # in flight: not delivered yet
+    assert enc.predictable_until(T0 + 1) == T0  # in flight: not delivered yet
     enc.resolve(True)
     for k in range(1, 30):  # quiet: predictable samples wait, no packet is due
         enc.push(T0 + k, [10.0])
