@@ -119,8 +119,8 @@ class VehicleLinkStatus(BaseModel):
     bytes_saved: int
     checkpoint: dict[str, Any] | None
     old_protocol: int = Field(
-        description="packets refused for speaking the previous protocol version (its agent needs "
-        "updating; logged once)"
+        description="packets refused for speaking another protocol version than the vehicle's (version 2, "
+        "or samples in a version it is not registered as speaking; logged once)"
     )
 
 
