@@ -13,8 +13,8 @@ import pytest
 from fastapi.testclient import TestClient
 
 from server.app import create_app
-from tests.integration.server.test_gateway_claims import MuteModem, running
-from tests.integration.server.test_routing import until
+from tests.integration.server.routing.test_choice import until
+from tests.integration.server.routing.test_claims import MuteModem, running
 from tests.support.api import OP, offline_settings
 from tests.support.nats import Secured
 
