@@ -329,6 +329,12 @@ function renderGateways() {
 
 let fleetTimer = null;
 /** Many check-points can arrive at once: one fetch of the fleet for them. */
+/** The selected vehicle's queue against its cap (GET /fleet: queued, queue_cap). */
+function renderQueue() {
+  const v = state.fleet.find((f) => f.id === state.vehicleId);
+  $("queue-cap").textContent = v ? `${v.name}: ${v.queued} / ${v.queue_cap} commands waiting for the link${v.queued >= v.queue_cap ? " (full: more are refused until some are sent, fail or are cancelled)" : ""}` : "";
+}
+
 function soonRefreshFleet() {
   if (fleetTimer === null) fleetTimer = setTimeout(() => { fleetTimer = null; refreshFleet(); }, 500);
 }
@@ -380,6 +386,7 @@ function fleetRow(v, since) {
 function renderFleet() {
   const since = Date.now() / 1000 - state.fleetAt;
   $("fleet").tBodies[0].innerHTML = state.fleet.map((v) => fleetRow(v, since)).join("");
+  renderQueue();
 }
 
 /** Abort all, return all home, hold all: asked, then confirmed; one command per vehicle, each followed. */
@@ -583,8 +590,12 @@ function showResult(c) {
  * shore heard it; server.telemetry.clock), so it never shows before the command was sent. */
 function stepTime(h) { return h.report?.shore_time ?? h.at; }
 
+/** Who said a step (server.commands.models.StepSource): only the vehicle's verified check-points say it ran. */
+const SOURCES = { operator: "an operator", shore: "the shore", modem: "the shore's modem", gateway: "gateway", vehicle: "the vehicle's verified check-point" };
+
 function stepTitle(h) {
-  const said = h.detail ? `${h.detail}; ` : "";
+  const from = h.source ? `from ${SOURCES[h.source] ?? h.source}${h.via ? ` ${h.via}` : ""}; ` : "";
+  const said = from + (h.detail ? `${h.detail}; ` : "");
   return h.report ? `${said}reported by the vehicle: ${h.report.state} at ${utc(h.report.time)} UTC on its clock, on the shore's clock by ${utc(stepTime(h))}; the shore heard it at ${utc(h.at)}`
     : said + "shore clock";
 }
@@ -618,7 +629,8 @@ function renderCommands() {
   const rows = [...state.commands.values()].sort((a, b) => b.id - a.id).slice(0, 10).map((c) => {
     const history = (c.history || []).map((h) => `<span class="step status-${h.status}" data-status="${h.status}" data-at="${stepTime(h)}" title="${esc(stepTitle(h))}">${h.status} ${utc(stepTime(h))}${h.report ? ' <span class="on-board">on board</span>' : ""}</span>`).join(" → ");
     const name = nameOf(c.vehicle_id);
-    return `<tr data-id="${c.id}"><td>${c.id}</td><td>${swatch(name)}${esc(name)}</td><td>${esc(describe(c))}<br><span class="sub">seq ${c.seq}${c.issued_by ? ` · by ${esc(c.issued_by)}` : ""}</span></td><td class="status-${c.status}">${c.status}</td>
+    const cancel = c.status === "queued" ? `<button type="button" class="write cancel-command" data-cancel="${c.id}" title="Take it back: it ends cancelled and is never sent (too late once it is signed for transmission)"${state.role === "write" ? "" : " disabled"}>cancel</button>` : "";
+    return `<tr data-id="${c.id}"><td>${c.id}</td><td>${swatch(name)}${esc(name)}</td><td>${esc(describe(c))}<br><span class="sub">seq ${c.seq}${c.issued_by ? ` · by ${esc(c.issued_by)}` : ""}</span></td><td class="status-${c.status}">${c.status}${cancel ? `<br>${cancel}` : ""}</td>
       <td class="history">${history}</td><td>${c.attempts}</td><td>${esc(c.reason || "")}</td></tr>`;
   });
   $("commands").tBodies[0].innerHTML = rows.join("");
@@ -714,6 +726,24 @@ for (const button of document.querySelectorAll("#fleet-actions [data-command]"))
 $("fleet-confirm").addEventListener("click", sendFleet);
 $("fleet-cancel").addEventListener("click", cancelFleet);
 $("stream-channel").addEventListener("change", async (e) => { state.channel = e.target.value; await loadSeries(); renderPlot(); });
+$("commands").addEventListener("click", async (e) => {
+  const button = e.target.closest("button[data-cancel]");
+  if (!button) return;
+  const id = Number(button.dataset.cancel);
+  button.disabled = true;
+  try {
+    const c = await api(`/commands/${id}/cancel`, { method: "POST" });
+    state.commands.set(id, c);
+    $("command-result").className = "status-cancelled";
+    $("command-result").textContent = `#${id} ${describe(c)} to ${nameOf(c.vehicle_id)}: cancelled, never sent`;
+  } catch (error) {
+    $("command-result").className = "status-refused";
+    $("command-result").textContent = `Not cancelled: ${error.message}`;
+    try { await loadCommand(id); } catch (ignored) { /* the row keeps what it showed */ }
+  }
+  renderCommands();
+  soonRefreshFleet();
+});
 $("command-form").addEventListener("submit", async (e) => {
   e.preventDefault();
   if (state.vehicleId === null) { $("command-result").textContent = "no vehicle registered"; return; }

@@ -264,6 +264,14 @@ class OperatorPanel:
             )
         with gui.add_folder("Commands"):
             self.commands_md = gui.add_markdown(self.map.command_list())
+            self.cancel_in = gui.add_number(
+                "Command #", 0, min=0, step=1, hint="The command to take back (the last one sent from here)"
+            )
+            self.withdraw_btn = gui.add_button(
+                "Cancel queued command",
+                hint="Take it back while it waits: it ends cancelled and is never sent (too late once it is "
+                "signed for transmission: it goes on as sent)",
+            )
         self.sign_in_btn.on_click(lambda _e: self.sign_in(self.token_in.value))
         fit_all.on_click(lambda _e: self.fit_all())
         top.on_click(lambda _e: self.top_down())
@@ -274,6 +282,7 @@ class OperatorPanel:
         self.speed_cb.on_update(lambda _e: self._apply_form())
         self.vehicle_dd.on_update(lambda _e: self._apply_form())
         self.send_btn.on_click(lambda _e: self.send_form())
+        self.withdraw_btn.on_click(lambda _e: self.cancel_command(int(self.cancel_in.value or 0)))
         self.start_btn.on_click(lambda _e: self.ask("start_mission"))
         self.abort_btn.on_click(lambda _e: self.ask("abort_mission"))
         self.home_btn.on_click(lambda _e: self.ask("return_home"))
@@ -398,8 +407,23 @@ class OperatorPanel:
             queued = self.map.desk.submit(vehicle.id, command, actor.name)
         except ApiError as exc:
             return self._status(f"**Refused**: {exc.field}: {exc.detail}")
-        self.last_sent = queued.id
-        return self._status(f"Command #{queued.id} **{queued.command}** seq {queued.seq}: **queued**")
+        self.last_sent = self.cancel_in.value = queued.id
+        waiting = self.map.desk.pending(vehicle.id)
+        return self._status(
+            f"Command #{queued.id} **{queued.command}** seq {queued.seq}: **queued** "
+            f"({waiting} / {self.map.desk.max_queued} of {vehicle.name}'s commands waiting for the link)"
+        )
+
+    def cancel_command(self, command_id: int) -> str:
+        """Take back a queued command (``CommandDesk.cancel``): cancelled, or why it is too late."""
+        actor = self.may_act()
+        if actor is None:
+            return self._status("**Not cancelled**: sign in with an operator's token.")
+        try:
+            command = self.map.desk.cancel(command_id, actor.name)
+        except ApiError as exc:
+            return self._status(f"**Not cancelled**: {exc.detail}")
+        return self._status(f"Command #{command.id} seq {command.seq}: **cancelled**, never sent")
 
     def send_fleet(self, command: str) -> str:
         """One command per vehicle (``CommandDesk.submit_fleet``), each followed in the command list."""

@@ -94,6 +94,10 @@ class FleetVehicle(BaseModel):
     share: float
     airtime_s: dict[str, float] = Field(description="its seconds on the air by use, and their total")
     airtime_share: float = Field(description="its part of the fleet's airtime")
+    queued: int = Field(
+        description="its commands waiting for the link (queued, or sent and not acknowledged)"
+    )
+    queue_cap: int = Field(description="the most that may wait (max_queued_commands): more are refused, 429")
 
 
 class Fleet(BaseModel):
@@ -122,8 +126,8 @@ class VehicleLinkStatus(BaseModel):
     bytes_saved: int
     checkpoint: dict[str, Any] | None
     old_protocol: int = Field(
-        description="packets refused for speaking the previous protocol version (its agent needs "
-        "updating; logged once)"
+        description="packets refused for speaking another protocol version than the vehicle's (version 2, "
+        "or samples in a version it is not registered as speaking; logged once)"
     )
 
 

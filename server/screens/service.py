@@ -182,6 +182,7 @@ class Screens:
         with reading(self.db) as s:
             heard = [r.at for r in telemetry.checkpoints(s, vehicle_id, clock.WINDOW)]
             offset = telemetry_service.clock_offset(s, vehicle_id)
+            waiting = command_repo.pending_count(s, vehicle_id)
         plan = channel.planned.get(vehicle_id)
         return {
             "id": vehicle_id,
@@ -195,6 +196,8 @@ class Screens:
             "next_slot": None if plan is None else plan["next_slot"],
             "share": vehicle.share,
             "airtime_s": _airtime(vehicle, plan, channel),
+            "queued": waiting,
+            "queue_cap": self.settings.max_queued_commands,
         }
 
     def _reported(self, known: dict[str, Any], offset: float | None) -> dict[str, Any]:
@@ -233,6 +236,7 @@ class Screens:
             "last_outage": None if outage is None else dict(zip(("lasted_s", "ended", "backlog"), outage, strict=True)),
             "frames": g.frames, "colour": fleet.gateway_colour(index, g.alive),
             "vehicles": [{"id": i, "name": name, "pinned": pinned} for i, name, pinned in g.vehicles],
+            "faulty": g.faulty, "faulty_at": r.faulty_at, "foreign_reports": r.foreign_reports,
         }  # fmt: skip
 
     def latlon(self, north: float, east: float) -> list[float] | None:

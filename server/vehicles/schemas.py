@@ -8,7 +8,7 @@ from pydantic import BaseModel, Field
 
 from server.core.schemas import STRICT
 from tacit.limits import Limits
-from tacit.packets import CheckpointPacket
+from tacit.packets import NEWEST, VERSIONS, CheckpointPacket
 from tacit.packets import ControlPacket as WIRE
 from tacit.params import CHECKPOINT_INTERVAL, LostAction, Param
 
@@ -60,6 +60,13 @@ class VehicleIn(LimitsIn):
         description="what it does when the link is lost (its agent's lost_action; a set_param of parameter "
         f"{int(Param.LOST_ACTION)} changes both): the separation check counts it",
     )
+    protocol: int = Field(
+        NEWEST,
+        ge=min(VERSIONS),
+        le=max(VERSIONS),
+        description=f"the protocol version its agent speaks (its agent's protocol; {NEWEST} by default): "
+        "the shore decodes its packets in it, so a fleet moves to a new version one vehicle at a time",
+    )
     report_interval: float = Field(
         CHECKPOINT_INTERVAL,
         gt=0,
@@ -108,6 +115,7 @@ class VehicleOut(LimitsIn):
     report_interval: float = Field(description="s between its check-points (its agent's checkpoint_interval)")
     key_version: int
     share: float = Field(description="its weight in the channel's schedule")
+    protocol: int = Field(description="the protocol version its agent speaks")
     key_rotation: KeyRotation | None = None
 
 
