@@ -95,6 +95,14 @@ function showRole() {
 
 // --- loading ----------------------------------------------------------------------------------------
 
+/** Call ``then`` once, the first time ``element`` comes on screen. */
+function whenSeen(element, then) {
+  const watcher = new IntersectionObserver((entries) => {
+    if (entries.some((e) => e.isIntersecting)) { watcher.disconnect(); then(); }
+  });
+  watcher.observe(element);
+}
+
 async function load() {
   const config = await api("/config");
   state.config = config;
@@ -106,7 +114,7 @@ async function load() {
   }
   if (config.map_port) {
     const url = config.map_url || `${location.protocol}//${location.hostname}:${config.map_port}`;
-    $("map").src = url;
+    whenSeen($("map"), () => { $("map").src = url; });  // the map draws continuously: only once looked at
     $("map-link").href = url;
   }
   const select = $("stream-channel");

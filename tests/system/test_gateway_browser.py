@@ -182,8 +182,8 @@ def test_both_screens_show_three_vehicles_and_two_gateways(center: dict[str, Any
 
         # the map in the dashboard's frame: fitted to the fleet and both gateways, clear of its panel
         frame = dashboard.frame_locator("#map")
+        dashboard.locator("#map").scroll_into_view_if_needed()  # the frame loads once it is on screen
         frame.locator(".mantine-Paper-root").first.wait_for(timeout=LONG)  # the map's panel
-        dashboard.locator("#map").scroll_into_view_if_needed()
         canvas, panel = (
             frame.locator("canvas").first.bounding_box(),
             frame.locator(".mantine-Paper-root").first,
@@ -193,13 +193,16 @@ def test_both_screens_show_three_vehicles_and_two_gateways(center: dict[str, Any
             time.sleep(1.0)
             left = panel.bounding_box()
             assert canvas is not None and left is not None
-            shot = np.asarray(Image.open(io.BytesIO(dashboard.screenshot(clip=canvas))).convert("RGB"))
+            shot = dashboard.screenshot(clip=canvas, timeout=LONG)  # software WebGL: slow on a busy machine
+            shot = np.asarray(Image.open(io.BytesIO(shot)).convert("RGB"))
             found = gateway_boxes(shot.astype(int)[:, : int(left["x"] - canvas["x"])])  # left of the panel
         for close in frame.locator(".mantine-Notification-closeButton").all():
             close.click()  # software rendering's notice
         frame.locator(".mantine-Notification-root").first.wait_for(state="detached", timeout=LONG)
-        dashboard.screenshot(path=str(ARTIFACTS / "fleet-gateways-map.png"), clip=canvas)
-        dashboard.screenshot(path=str(ARTIFACTS / "fleet-gateways-dashboard.png"), full_page=True)
+        dashboard.screenshot(path=str(ARTIFACTS / "fleet-gateways-map.png"), clip=canvas, timeout=LONG)
+        dashboard.screenshot(
+            path=str(ARTIFACTS / "fleet-gateways-dashboard.png"), full_page=True, timeout=LONG
+        )
         assert len(found) == 2, f"both gateways on the map's first view, clear of its panel: {found}"
         browser.close()
     assert errors == []
