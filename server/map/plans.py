@@ -33,6 +33,7 @@ class PlanLayer:
         self.scene = scene_api
         self.colour = colour
         self._drawn: dict[str, Any] = {}  # node name: handle, to remove what is no longer planned
+        self.reach: list[tuple[float, float]] = []  # (north, east) of what is drawn: the view covers it
 
     def route(self, name: str, waypoints: list[tuple[float, float, float]]) -> None:
         """The vehicle's started mission's waypoints (north, east, depth)."""
@@ -44,6 +45,8 @@ class PlanLayer:
     def draw(self, planned: list[Planned], teams: list[TeamMission]) -> None:
         """The separation check's paths and the teams' lanes; what is no longer planned goes."""
         drawn: dict[str, Any] = {}
+        self.reach = [(c[0], c[1]) for p in planned for c in p.centre]
+        self.reach += [(n, e) for t in teams if t.status in SHOWN for n, e in t.area]
         for p in planned:
             points = [scene(c) for c in p.centre]
             if len(points) >= 2:

@@ -285,12 +285,12 @@ class OperatorMap:
             if v["reported"] and v["predicted"]:
                 self.vehicles.label(v["name"], v["reported"], v["age_s"], v["overdue"])
                 self.vehicles.predicted(v["name"], v["reported"], v["predicted"])
-        self._fit(vehicles, gateways)
-        self._panels([v["name"] for v in vehicles], fleet_html(known), self._link_lines(vehicles, gateways))
         now = time.time()
         if now - self._plans_at > PLANS_EVERY:
             self._plans_at = now
             self.routes.draw(self.paths(), self.teams())
+        self._fit(vehicles, gateways)
+        self._panels([v["name"] for v in vehicles], fleet_html(known), self._link_lines(vehicles, gateways))
         if now - self._gp_at > FIT_EVERY:
             self._gp_at = now
             self._estimate()
@@ -316,11 +316,13 @@ class OperatorMap:
             panel.fleet_html.content = listing
 
     def _fit(self, vehicles: list[dict[str, Any]], gateways: list[dict[str, Any]]) -> None:
-        """Fit the view to every vehicle (where it reported, else its home) and gateway; the map opens
-        there and "Fit all" goes there. Refitted when the fleet's extent changes."""
+        """Fit the view to every vehicle (where it reported, else its home) and gateway, and where the
+        vehicles are meant to go (``PlanLayer.reach``); the map opens there and "Fit all" goes there.
+        Refitted when their extent changes."""
         points = [(v["reported"]["north"], v["reported"]["east"]) if v["reported"] else tuple(v["home"])
                   for v in vehicles]  # fmt: skip
         points += [(g["place"]["north"], g["place"]["east"]) for g in gateways if g["place"]]
+        points += self.routes.reach
         box = _box(points)
         if not points or box == self._fitted_to:
             return

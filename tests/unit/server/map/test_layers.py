@@ -57,7 +57,9 @@ def test_plans_draw_the_checked_paths_and_the_lanes_of_teams_that_may_run() -> N
     assert scene.nodes["/teams/7/lanes/rov2"].args[1] == (4, 5, 6)
     assert "team survey: created" in scene.nodes["/teams/7/label"].args[0]
     assert not [n for n in scene.nodes if n.startswith("/teams/8")]
+    assert layer.reach == [(0.0, 0.0), (10.0, 5.0), *[(n, e) for n, e in area]]  # what the view covers
     layer.draw([], [])
+    assert layer.reach == []
     assert not [n for n in scene.nodes if n.startswith(("/planned", "/teams"))]
 
 
