@@ -178,30 +178,9 @@ class Routing:
           command goes through the next gateway."""
         now = time.time() if now is None else now
         span = self.settings.gateway_faulty_slots * self.settings.tdma_slot * max(1, len(self.alive(now)))
-        refuted: list[Dispatch] = []
-        faults: list[tuple[str, str]] = []
         with writing(self.db) as s:
-            for row, command in repo.acked_since(s, now - COMMAND_MAX_AGE):
-                last = _last_command(repo.checkpoints(s, command.vehicle_id, row.updated_at - COMMAND_MAX_AGE),
-                                     row.updated_at + ARRIVAL_SLACK)  # fmt: skip
-                if last is None or _arrived(last, command.seq):
-                    continue
-                repo.set_dispatch(s, row, DispatchState.REFUTED)
-                refuted.append(row)
-                faults.append((row.gateway, f"reported command {command.seq} acknowledged; the vehicle's "
-                               f"check-points since name command {last} as their last: it never arrived"))  # fmt: skip
-            for row, command in repo.held_since(s, now - span):
-                address = vehicle_repo.get(s, command.vehicle_id)
-                if (
-                    address is None
-                    or repo.reported_since(s, row.gateway, now - span)
-                    or repo.heard_through(s, address.address, row.gateway, now - span)
-                ):
-                    continue
-                repo.set_dispatch(s, row, DispatchState.UNANSWERED)
-                faults.append((row.gateway, f"held command {command.seq} for {span:.0f} s (its "
-                               f"{self.settings.gateway_faulty_slots} slots) without a word of it, nor a "
-                               f"verified frame of the vehicle"))  # fmt: skip
+            refuted, faults = self._refuted(s, now)
+            faults += self._held(s, now, span)
             for gateway, why in faults:
                 repo.set_faulty(s, gateway, why, now)
             s.commit()
@@ -209,6 +188,42 @@ class Routing:
             log.error("gateway %s is faulty, routed around: %s", gateway, why)
             self._changed(gateway, "faulty")
         return refuted
+
+    @staticmethod
+    def _refuted(s: Tx, now: float) -> tuple[list[Dispatch], list[tuple[str, str]]]:
+        """The ACKs of the commands still only acknowledged that a later verified check-point (heard after
+        the report, stamped ``ARRIVAL_SLACK`` s after it) refutes: those dispatches, and their gateways'
+        faults."""
+        refuted, faults = [], []
+        for row, command in repo.acked_since(s, now - COMMAND_MAX_AGE):
+            last = _last_command(
+                repo.checkpoints(s, command.vehicle_id, row.updated_at), row.updated_at + ARRIVAL_SLACK
+            )
+            if last is None or _arrived(last, command.seq):
+                continue
+            repo.set_dispatch(s, row, DispatchState.REFUTED)
+            refuted.append(row)
+            faults.append((row.gateway, f"reported command {command.seq} acknowledged; the vehicle's "
+                           f"check-points since name command {last} as their last: it never arrived"))  # fmt: skip
+        return refuted, faults
+
+    def _held(self, s: Tx, now: float, span: float) -> list[tuple[str, str]]:
+        """The gateways that held a command for ``span`` s without a report of any command or a verified
+        frame of its vehicle: their dispatches unanswered, and their faults."""
+        faults = []
+        for row, command in repo.held_since(s, now - span):
+            vehicle = vehicle_repo.get(s, command.vehicle_id)
+            if (
+                vehicle is None
+                or repo.reported_since(s, row.gateway, now - span)
+                or repo.heard_through(s, vehicle.address, row.gateway, now - span)
+            ):
+                continue
+            repo.set_dispatch(s, row, DispatchState.UNANSWERED)
+            faults.append((row.gateway, f"held command {command.seq} for {span:.0f} s (its "
+                           f"{self.settings.gateway_faulty_slots} slots) without a word of it, nor a verified "
+                           "frame of the vehicle"))  # fmt: skip
+        return faults
 
     # --- assignment ------------------------------------------------------------------------------
 

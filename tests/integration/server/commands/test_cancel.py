@@ -5,6 +5,7 @@ modem of its own (nothing is sent while the test looks), and through gateways on
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -13,10 +14,14 @@ import pytest
 from fastapi.testclient import TestClient
 
 from server.app import create_app
-from tests.integration.server.test_gateway_claims import MuteModem, running
-from tests.integration.server.test_routing import until
+from server.commands.schemas import CommandIn
+from tacit import auth
+from tacit.packets import Command
+from tests.integration.server.routing.test_choice import until
+from tests.integration.server.routing.test_gateway_claims import MuteModem, running
 from tests.support.api import OP, offline_settings
 from tests.support.nats import Secured
+from tests.support.shore import AckingModem, scripted_shore
 
 READ = {"Authorization": "Bearer observer-token"}
 
@@ -54,6 +59,29 @@ def test_a_queued_command_is_cancelled_by_whom_and_when_and_never_signed(client:
     assert desk.next_to_send(1, 0.0) is None
     again = client.post(f"/api/v1/commands/{command['id']}/cancel", headers=OP)
     assert again.status_code == 409 and "cancelled: nothing left to cancel" in again.json()["detail"]
+
+
+def test_on_the_single_shore_a_cancelled_command_never_goes_on_the_air(tmp_path: Path) -> None:
+    """Three commands queued for rov1, the second cancelled: the link's slots send the first and the
+    third (each ACKed) and never the second."""
+    key = "11" * 32
+    shore = scripted_shore(tmp_path, [key])
+    desk, modem = shore.commands, AckingModem()
+    queued = [desk.submit(1, CommandIn(command="hold"), "tester") for _ in range(3)]
+    assert desk.cancel(queued[1].id, "alice").status == "cancelled"
+    shore.link.driver = modem  # type: ignore[assignment]
+
+    async def slots() -> None:
+        for _ in range(20):  # a SYNC, then a command per slot: a handful is enough
+            if desk.get(queued[2].id)[0].status != "queued":
+                return
+            plan = await shore.link._plan()
+            await shore.link._slot(plan[0][0])
+
+    asyncio.run(slots())
+    sent = [auth.verify(frame, bytes.fromhex(key), 2) for frame in modem.sent]
+    assert [p.seq for p in sent if p.command is not Command.SYNC] == [queued[0].seq, queued[2].seq]
+    assert [desk.get(c.id)[0].status for c in queued] == ["acknowledged", "cancelled", "acknowledged"]
 
 
 def test_a_cancel_that_loses_the_race_with_a_transmission_says_so(client: TestClient) -> None:

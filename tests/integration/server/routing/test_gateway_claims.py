@@ -33,7 +33,7 @@ from tacit import auth
 from tacit import modem as mm
 from tacit.packets import CheckpointPacket, MissionState
 from tacit.streams import default_streams
-from tests.integration.server.test_routing import ADDRESS, OP, StandInModem, Vehicle, settings, until
+from tests.integration.server.routing.test_choice import ADDRESS, OP, StandInModem, Vehicle, settings, until
 from tests.support.nats import NATS_SERVER, Secured
 
 pytestmark = pytest.mark.skipif(not Path(NATS_SERVER).exists(), reason="nats-server is not installed")
