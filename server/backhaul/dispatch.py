@@ -29,7 +29,7 @@ the frame's stamp, so that dispatch is superseded and the command dispatched aga
 SYNCs stop coming (the backhaul cut, the center down), the vehicle's gateway holds a budget of SYNCs
 signed ahead (``server.backhaul.budget``), which the dispatcher keeps after the routes.
 
-The dispatcher also hands the gateways their TDMA slots (``server.backhaul.slots``) whenever the set of
+The dispatcher also hands the gateways their TDMA slots (``gateway.slots``) whenever the set of
 live gateways or of vehicles to poll changes. A center that starts finds the plans the stream kept from
 the one before it (``kept``): gateways may still follow them, heard from or not, so for its first
 ``gateway_timeout`` s every gateway they name keeps a slot in its plans (a dead one is dropped after),
@@ -46,9 +46,10 @@ import math
 import time
 from collections.abc import Awaitable, Callable
 
+from gateway.queue import FrameKind
+from gateway.slots import ATTEMPT_AIRTIME, SYNC_WINDOW, Schedule, SlotPlan
 from server.backhaul import subjects
 from server.backhaul.budget import Publish, SyncBudgets
-from server.backhaul.slots import ATTEMPT_AIRTIME, SYNC_WINDOW, Schedule, SlotPlan
 from server.backhaul.subjects import CommandMessage, EventMessage, GatewayState, ScheduleMessage
 from server.commands.models import CommandRecord, CommandState, Origin, StepSource
 from server.commands.service import CommandDesk
@@ -170,7 +171,7 @@ class Dispatcher:
             message = CommandMessage(
                 subjects.sync_id(state.address, sync.seq), gateway, state.address, sync.frame, attempts=1,
                 ack_timeout=self.ack_timeout(), expires_at=at + SYNC_WINDOW,
-                start_by=time.time() + self.settings.dispatch_receipt,
+                start_by=time.time() + self.settings.dispatch_receipt, kind=FrameKind.SYNC, stamp=at,
             )  # fmt: skip
             await self.publish(subjects.commands(gateway), message.encode(), message.id)
             self.heartbeat.sent(state, sync, acked=False)

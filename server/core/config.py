@@ -37,6 +37,9 @@ class Settings(BaseSettings):
     port: int = Field(8000, ge=0, le=65535)
     map_port: int = Field(8080, ge=0, le=65535)
     map_enabled: bool = True
+    # the 3D map's address as browsers reach it (e.g. https://shore.example.org:8443 behind a proxy): the
+    # dashboard frames it and its Content-Security-Policy allows it; empty: the dashboard's host on map_port
+    map_url: str = Field("", pattern=r"^(https?://[A-Za-z0-9.\-]+(:[0-9]{1,5})?(/[A-Za-z0-9._~/\-]*)?)?$")
     write_tokens: Csv = []
     sign_in_failures: int = Field(10, ge=1)  # wrong tokens from one client within sign_in_window: then 429
     sign_in_window: float = Field(60.0, gt=0)  # s

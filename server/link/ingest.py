@@ -135,9 +135,8 @@ class Ingest:
     def _resume(self, s: Tx, v: Vehicle) -> VehicleState:
         """A vehicle's state as the last run left it, and its last verified check-point (the pose the limits
         check against, and what the screens show with its age) instead of none until its next one."""
-        state = VehicleState(
-            v.id or 0, v.name, v.address, PacketDecoder(list(self.streams.values())), share=v.share
-        )
+        decoder = PacketDecoder(list(self.streams.values()), v.protocol)
+        state = VehicleState(v.id or 0, v.name, v.address, decoder, share=v.share, protocol=v.protocol)
         saved = link_repo.saved_state(s, state.id)
         if saved is not None:
             state.restore(saved)
@@ -334,6 +333,11 @@ class Ingest:
             packet = packets.decode(chunk)
             if isinstance(packet, packets.ControlPacket):
                 raise PacketError("a control packet from a vehicle")
+            if isinstance(packet, PriorityPacket) and packet.version != v.protocol:
+                raise packets.OtherVersion(
+                    f"protocol version {packet.version}: {v.name} is registered as speaking version "
+                    f"{v.protocol} (its agent's protocol and its registration must agree)"
+                )
         except packets.OldVersion as exc:
             return self._old_version(batch, v, chunk, at, exc)
         except PacketError as exc:
@@ -393,8 +397,9 @@ class Ingest:
     def _old_version(
         self, batch: Batch, v: VehicleState, chunk: bytes, at: float, exc: packets.OldVersion
     ) -> list[Event]:
-        """A packet of the previous protocol version: refused and counted; logged (and a ``bad_packet``
-        event stored) once per vehicle, since an old agent sends nothing else until it is updated."""
+        """A packet of the previous protocol version, or samples in another version than the vehicle's
+        registered one: refused and counted; logged (and a ``bad_packet`` event stored) once per vehicle,
+        since such an agent sends nothing else until it or the registration is changed."""
         self.stats["rejected"] += 1
         self.stats["old_protocol"] += 1
         v.old_protocol += 1
@@ -501,7 +506,8 @@ class Ingest:
         decoded = decode(batch, v, pp, row["at"], packet_id, restart_every, late)
         row["body"].update(decoded.body)  # what decoding found (or why it could not)
         row["origin"] = decoded.origin
-        if late and v.link.waiting:
+        window = v.decoder.coding.window and "error" not in decoded.body  # it may be what others wait for
+        if (late or window) and v.link.waiting:
             return packet_id, decoded.events + self._unblocked(s, batch, v)
         return packet_id, decoded.events
 
@@ -524,8 +530,9 @@ class Ingest:
             return all(v.link.recent.get(q) for q in packet.covered_seqs())
         if not isinstance(packet, PriorityPacket):
             return False
-        base = chain_ids(packet.payload)[0]
-        return base in v.decoder.snapshots and v.link.made.get(base, -math.inf) <= at
+        base = chain_ids(packet.payload, packet.seq)[0]
+        named_once = v.decoder.coding.window  # version 4: a state held under its name is its packet's
+        return base in v.decoder.snapshots and (named_once or v.link.made.get(base, -math.inf) <= at)
 
     def _again(
         self, s: Tx, batch: Batch, v: VehicleState, packet_id: int, data: bytes, at: float

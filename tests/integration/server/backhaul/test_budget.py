@@ -20,6 +20,7 @@ import pytest
 from fastapi.testclient import TestClient
 from nats.errors import Error as NatsError
 
+from gateway.timing import Timing
 from server.app import create_app
 from server.backhaul import access, subjects
 from server.backhaul.budget import scheduled_syncs
@@ -105,7 +106,7 @@ def ship_and_rov1(
         ptys = {m["name"]: m["pty"] for m in world.describe()["modems"]}
         driver = mm.ModemDriver(mm.DriverSettings(url=ptys["ship"], address=1, keepalive=10.0))
         outbox = Outbox(tmp_path / "ship.db", "ship")
-        gateway = Gateway(outbox, broker.url, driver, heartbeat=0.2)
+        gateway = Gateway(outbox, broker.url, driver, heartbeat=0.2, timing=Timing(time_scale=SCALE))
         register(client)
         agent = make_agent(tmp_path, ptys["rov1"])
         prepare(agent)

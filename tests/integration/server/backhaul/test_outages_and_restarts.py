@@ -22,20 +22,21 @@ import pytest
 from sqlalchemy import create_engine, text
 from sqlmodel import Session
 
+from gateway.slots import SlotPlan
+from gateway.timing import Timing
 from server.backhaul import broker as broker_client
 from server.backhaul import subjects
 from server.backhaul.audit import audit
 from server.backhaul.center import Center
 from server.backhaul.gateway import Gateway
 from server.backhaul.outbox import Outbox
-from server.backhaul.slots import SlotPlan
 from server.backhaul.subjects import EventMessage
 from server.core.db import make_engine, migrate, reading
 from server.telemetry import repository as telemetry
 from server.telemetry.models import Frame
 from server.vehicles.models import Vehicle
 from tacit import auth
-from tacit.packets import CheckpointPacket, MissionState, Stream, cover_bitmap, with_seq
+from tacit.packets import CheckpointPacket, MissionState, Stream, cover_bitmap
 from tacit.streams import default_streams
 from tests.integration.server.backhaul.test_frames_and_commands import ingest_on, until
 from tests.support.nats import NATS_SERVER, NatsServer
@@ -67,9 +68,9 @@ class Rov:
             values = [20.0 + 0.3 * math.sin(self.t / 7), 5.0 + self.t % 3, 8.0]
             self.truth[ENV.tick(self.t)] = values
             self.compressor.add(Stream.ENVIRONMENTAL, self.t, values)
-        ready = [p for p in self.compressor.ready(self.t + 100) if p[0] is Stream.ENVIRONMENTAL]
-        packet = auth.tag_priority(with_seq(ready[0][1].packet, self.seq), KEY, ADDRESS)
-        self.compressor.resolve(Stream.ENVIRONMENTAL, True)  # a gateway's modem ACKed it
+        ready = [p for p in self.compressor.ready(self.t + 100, self.seq) if p[0] is Stream.ENVIRONMENTAL]
+        packet = auth.tag_priority(ready[0][1].packet, KEY, ADDRESS)
+        self.compressor.resolve(self.seq, True)  # a gateway's modem ACKed it
         self.delivered.append((self.seq, packet))
         self.seq += 1
         return packet
@@ -329,7 +330,9 @@ def test_a_restarted_center_hands_out_slots_no_gateway_collides_with(
     def gateway(name: str) -> Gateway:
         pty = next(m["pty"] for m in world.describe()["modems"] if m["name"] == name)
         driver = mm.ModemDriver(mm.DriverSettings(url=pty, address=addresses[name], keepalive=10.0))
-        g = Gateway(outboxes[name], broker.url, driver, heartbeat=0.2)
+        g = Gateway(
+            outboxes[name], broker.url, driver, heartbeat=0.2, timing=Timing(time_scale=config.time_scale)
+        )
         loop.call(g.start)
         until_sync(lambda: driver.state is mm.LinkState.READY, "the modem")
         return g

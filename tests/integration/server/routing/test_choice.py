@@ -19,6 +19,7 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
+from gateway.timing import Timing
 from launch.split import throwaway_database as postgres_database
 from server.app import create_app
 from server.backhaul.center import Center, serve
@@ -75,6 +76,9 @@ class StandInModem:
     async def poll(self, remote: int, rate: int = 0, ack: bool = False) -> None:
         self.polls.append(remote)
 
+    async def ping(self, dest: int, timeout: float = 10.0) -> float | None:
+        return None  # unanswered, as its polls
+
     async def send(
         self,
         dest: int,
@@ -92,6 +96,9 @@ class StandInModem:
         return mm.TransmitResult(
             dest, len(frames), transmitted=True, acked=frozenset(range(1, len(frames) + 1))
         )
+
+
+FAST = Timing(time_scale=20.0)  # the stand-in modems' exchanges fit the tests' 0.8 s slots
 
 
 def settings(url: str, **changes: Any) -> Settings:
@@ -146,7 +153,7 @@ class Layout(Air):
         super().__init__(tmp_path)
         self.client = client
         self.gateways = {
-            name: Gateway(outbox, broker.url, StandInModem(name, self.vehicle), heartbeat=0.2)  # type: ignore[arg-type]
+            name: Gateway(outbox, broker.url, StandInModem(name, self.vehicle), heartbeat=0.2, timing=FAST)  # type: ignore[arg-type]
             for name, outbox in self.outboxes.items()
         }
 
@@ -389,7 +396,10 @@ def test_two_gateways_on_one_band_never_collide(
                 for name, address in (("ship", 1), ("buoy", 5))
             }
             outboxes = {name: Outbox(tmp_path / f"{name}.db", name) for name in drivers}
-            gateways = [Gateway(outboxes[n], broker.url, drivers[n], heartbeat=0.2) for n in drivers]
+            timing = Timing(time_scale=scale)
+            gateways = [
+                Gateway(outboxes[n], broker.url, drivers[n], heartbeat=0.2, timing=timing) for n in drivers
+            ]
             try:
                 for gateway in gateways:
                     client.portal.call(gateway.start)

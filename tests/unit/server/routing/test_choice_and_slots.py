@@ -1,4 +1,4 @@
-"""The assignment rule (``server.routing.choice``) and the gateways' TDMA frame (``server.backhaul.slots``)."""
+"""The assignment rule (``server.routing.choice``) and the gateways' TDMA frame (``gateway.slots``)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from server.backhaul.slots import Schedule, SlotPlan, guard_for
+from gateway.slots import Schedule, SlotPlan, guard_for
 from server.routing.choice import Current, Quality, choose
 
 ALIVE = {"ship", "buoy"}

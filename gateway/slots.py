@@ -11,7 +11,10 @@ than ``guard - e`` after the slot's end: nothing overlaps at any receiver while
 GPS (a PPS-disciplined clock is within a microsecond) or NTP over the backhaul (tens of milliseconds);
 the acoustic term dominates: 1 s for 3 km.
 
-Standard library and the core: the gateway imports it.
+The gateway's MAC (``gateway.mac``) asks ``Schedule.room`` how long its slot still holds before each
+exchange; the center stamps SYNCs for ``Schedule.opening``.
+
+Standard library and the core.
 """
 
 from __future__ import annotations
@@ -73,6 +76,15 @@ class SlotPlan:
                 return max(now, begins + self.guard)
         raise AssertionError("unreachable: every frame holds one slot of each gateway")
 
+    def room(self, gateway: str, now: float) -> float:
+        """Seconds from ``now`` to the end of ``gateway``'s transmissions in the slot ``now`` falls in (its
+        end less the guard); 0 outside its own slot or in its opening guard."""
+        k = math.floor((now - self.epoch) / self.slot)
+        begins = self.epoch + k * self.slot
+        if self.order[k % len(self.order)] != gateway or now < begins + self.guard:
+            return 0.0
+        return max(0.0, begins + self.slot - self.guard - now)
+
     def next_slot(self, gateway: str, after: float) -> float:
         """When ``gateway``'s first slot whose transmissions start at ``after`` or later opens (its
         beginning plus the guard)."""
@@ -119,6 +131,19 @@ class Schedule:
             lambda plan, t: plan.next_start(gateway, t, min(duration, plan.usable)),
             lambda plan: min(duration, plan.usable),
         )
+
+    def room(self, gateway: str, now: float) -> float:
+        """How long from ``now`` ``gateway`` may go on transmitting (its ACKs in): to its slot's end less the
+        guard in the plan in force, cut at a coming plan's epoch; 0 outside its slot, and before the
+        epoch of a plan to come when none is in force; ``inf`` when no plan holds it (alone on its band)."""
+        self._promote(now)
+        plan, coming = self.current, self.coming
+        if plan is None:
+            return 0.0 if coming is not None else math.inf
+        if gateway not in plan.order:
+            return math.inf if coming is None else max(0.0, coming.epoch - now)
+        room = plan.room(gateway, now)
+        return room if coming is None else min(room, max(0.0, coming.epoch - now))
 
     def opening(self, gateway: str, after: float) -> float:
         """When ``gateway``'s first slot opening at ``after`` or later opens (as ``start`` picks it for
