@@ -22,7 +22,9 @@ class CommandState(enum.StrEnum):
     REFUSED = "refused"
     SUPERSEDED = "superseded"
     FAILED = "failed"
-    CANCELLED = "cancelled"  # by an operator while queued, never signed for transmission: never sent
+    CANCELLING = "cancelling"  # an operator's cancel of a command a gateway holds: withdrawn from it,
+    # waiting for its word (cancelled if it had not sent it; else it goes on as sent)
+    CANCELLED = "cancelled"  # by an operator while queued: never sent
 
 
 class StepSource(enum.StrEnum):
