@@ -39,7 +39,7 @@ TOKEN = "claims-operator"
 OP = {"Authorization": f"Bearer {TOKEN}"}
 ADDRESS = 2
 SLOT = 0.8  # s: each gateway's TDMA slot (two gateways: a gateway's slot comes every 1.6 s)
-TEST = "test_gateway_claims"
+TEST = "test_claims"
 
 
 class Scene:

@@ -30,7 +30,7 @@ from tacit import auth
 from tacit import modem as mm
 from tacit.packets import Command
 from tests.integration.server.routing.test_choice import StandInModem, until
-from tests.integration.server.routing.test_gateway_claims import running
+from tests.integration.server.routing.test_claims import running
 from tests.support.api import OP, offline_settings
 from tests.support.nats import Secured
 from tests.support.shore import AckingModem, scripted_shore
