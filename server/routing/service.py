@@ -169,18 +169,19 @@ class Routing:
         ``gateway_quarantine`` s, and shown so) when
 
         * it reported a command acknowledged, and a verified check-point the vehicle stamped
-          ``ARRIVAL_SLACK`` s after the center took that report names an older command as its last
-          (the command never arrived): the dispatch is ``refuted``; these are returned, for their
-          commands to go again through another gateway;
+          ``ARRIVAL_SLACK`` s after the center took that report, and heard a frame of slots after it (a
+          check-point made before the command came has been sent at a poll by then), names an older command as
+          its last (the command never arrived): the dispatch is ``refuted``; these are returned, for
+          their commands to go again through another gateway;
         * it has held a command (stored or sent, no final outcome) for ``gateway_faulty_slots`` of its
           slots (a slot of each live gateway in turn), reported nothing of any command in that time, and
           nothing verified of the vehicle came through it: the dispatch is ``unanswered``, and the
           command goes through the next gateway."""
         now = time.time() if now is None else now
-        span = self.settings.gateway_faulty_slots * self.settings.tdma_slot * max(1, len(self.alive(now)))
+        frame = self.settings.tdma_slot * max(1, len(self.alive(now)))  # a slot of each live gateway
         with writing(self.db) as s:
-            refuted, faults = self._refuted(s, now)
-            faults += self._held(s, now, span)
+            refuted, faults = self._refuted(s, now, max(ARRIVAL_SLACK, frame))
+            faults += self._held(s, now, self.settings.gateway_faulty_slots * frame)
             for gateway, why in faults:
                 repo.set_faulty(s, gateway, why, now)
             s.commit()
@@ -190,15 +191,14 @@ class Routing:
         return refuted
 
     @staticmethod
-    def _refuted(s: Tx, now: float) -> tuple[list[Dispatch], list[tuple[str, str]]]:
-        """The ACKs of the commands still only acknowledged that a later verified check-point (heard after
-        the report, stamped ``ARRIVAL_SLACK`` s after it) refutes: those dispatches, and their gateways'
-        faults."""
+    def _refuted(s: Tx, now: float, heard_after: float) -> tuple[list[Dispatch], list[tuple[str, str]]]:
+        """The ACKs of the commands still only acknowledged that a later verified check-point (heard
+        ``heard_after`` s after the report, stamped ``ARRIVAL_SLACK`` s after it) refutes: those
+        dispatches, and their gateways' faults."""
         refuted, faults = [], []
         for row, command in repo.acked_since(s, now - COMMAND_MAX_AGE):
-            last = _last_command(
-                repo.checkpoints(s, command.vehicle_id, row.updated_at), row.updated_at + ARRIVAL_SLACK
-            )
+            checkpoints = repo.checkpoints(s, command.vehicle_id, row.updated_at + heard_after)
+            last = _last_command(checkpoints, row.updated_at + ARRIVAL_SLACK)
             if last is None or _arrived(last, command.seq):
                 continue
             repo.set_dispatch(s, row, DispatchState.REFUTED)
