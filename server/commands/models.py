@@ -47,9 +47,6 @@ class Origin:
     source: StepSource
     via: str = ""
 
-    def __str__(self) -> str:
-        return f"{self.source.value} {self.via}".strip()
-
 
 class CommandRecord(SQLModel, table=True):
     """A control packet queued for a vehicle, and where it stands."""
