@@ -20,6 +20,7 @@ def migrated(path: Path) -> str:
     (a test that restarts its shore finds what it stored)."""
     if not path.exists():
         shutil.copyfile(_template(), path)
+        path.chmod(0o600)  # as the app makes it: it holds the vehicles' keys
     return f"sqlite:///{path}"
 
 
