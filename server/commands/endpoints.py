@@ -15,6 +15,8 @@ from server.commands.schemas import (
     FleetCommandIn,
     FleetCommandsOut,
 )
+from server.core import errors
+from server.core.errors import Conflict
 
 router = APIRouter(prefix="/api/v1", tags=["commands"])
 
@@ -66,9 +68,8 @@ def get_command(command_id: Id, desk: CommandsDep) -> CommandDetail:
 @router.post(
     "/commands/{command_id}/cancel",
     response_model=CommandDetail,
-    responses={409: {"description": "too late: it was signed for transmission, or is past queued; the "
-                     "detail says which, and the command goes on as sent"}},
-)  # fmt: skip
+    responses=errors.responses(Conflict),
+)
 def cancel_command(command_id: Id, desk: CommandsDep, actor: Writer) -> CommandDetail:
     """Take back a queued command: it ends ``cancelled`` (the history says by whom and when) and is never
     sent. 409 with the reason when it lost the race with a transmission (signed for one already: on the
