@@ -50,7 +50,14 @@ from gateway.queue import FrameKind
 from gateway.slots import ATTEMPT_AIRTIME, SYNC_WINDOW, Schedule, SlotPlan
 from server.backhaul import subjects
 from server.backhaul.budget import Publish, SyncBudgets
-from server.backhaul.subjects import CommandMessage, EventMessage, GatewayState, ScheduleMessage
+from server.backhaul.subjects import (
+    CommandMessage,
+    EventMessage,
+    GatewayState,
+    ScheduleMessage,
+    WithdrawMessage,
+    WithdrawReason,
+)
 from server.commands.models import CommandRecord, CommandState
 from server.commands.service import CommandDesk
 from server.core.config import Settings
@@ -61,6 +68,7 @@ from server.routing.models import Dispatch, DispatchState
 from server.routing.service import Route, Routing
 from server.vehicles.models import Vehicle
 from tacit import auth
+from tacit.packets import Command
 
 log = logging.getLogger("tacit.backhaul.dispatch")
 
@@ -251,12 +259,14 @@ class Dispatcher:
         gateway taken for down, for the next one to try."""
         if self._stale(latest, vehicle.address):
             await asyncio.to_thread(self.routing.set_dispatch, latest.id, DispatchState.SUPERSEDED)
+            await self.withdraw(latest, WithdrawReason.SUPERSEDED)  # before the new frame is there
             log.info(
                 "vehicle %s: dispatch %s signed before its answering SYNC: anew", vehicle.name, latest.id
             )
             await self._dispatch(command, vehicle, latest.gateway, tries + 1, now)
             return True
         if await self._overdue(latest, now):
+            await self.withdraw(latest, WithdrawReason.SUPERSEDED)  # the next gateway sends it, not both
             return False
         if latest.state == DispatchState.PUBLISHED and latest.id not in self._published:
             await self._publish(latest, command, vehicle)  # a restart cut it: the same id
@@ -300,6 +310,7 @@ class Dispatcher:
 
     async def _publish(self, row: Dispatch, command: CommandRecord, vehicle: Vehicle) -> None:
         frame = await asyncio.to_thread(self.desk.frame, command)  # signed now: a fresh stamp
+        stops = Command[command.command.upper()].stops
         message = CommandMessage(
             row.id,
             row.gateway,
@@ -309,9 +320,18 @@ class Dispatcher:
             ack_timeout=self.ack_timeout(),
             expires_at=time.time() + subjects.COMMAND_MAX_AGE,
             start_by=row.start_by,
+            kind=FrameKind.STOP if stops else FrameKind.COMMAND,
+            rank=command.seq,  # the vehicle's commands in the order queued
         )
         await self.publish(subjects.commands(row.gateway), message.encode(), row.id)
         self._published.add(row.id)
+
+    async def withdraw(self, dispatch: Dispatch, reason: WithdrawReason) -> None:
+        """Take back the frame of ``dispatch`` from its gateway (it sends it no more). The broker keeps one
+        withdrawal per dispatch: asking twice is harmless."""
+        message = WithdrawMessage(subjects.withdraw_id(dispatch.id), dispatch.gateway, dispatch.id, reason)
+        await self.publish(subjects.commands(dispatch.gateway), message.encode(), message.id)
+        log.info("dispatch %s withdrawn from %s (%s)", dispatch.id, dispatch.gateway, reason)
 
     def ack_timeout(self) -> float:
         """The ACK wait that fits a slot with the attempt's airtime (faster in a faster simulation) and
@@ -330,10 +350,12 @@ class Dispatcher:
         else:
             await asyncio.to_thread(self.routing.seen, event.gateway, at)
         if event.kind == "attempt":
-            await asyncio.to_thread(self._attempt, event)
+            for other in await asyncio.to_thread(self._attempt, event):
+                await self.withdraw(other, WithdrawReason.ACKNOWLEDGED)
 
-    def _attempt(self, event: EventMessage) -> None:
-        """A gateway's attempt report, into the dispatch and the command's lifecycle."""
+    def _attempt(self, event: EventMessage) -> list[Dispatch]:
+        """A gateway's attempt report, into the dispatch and the command's lifecycle; the dispatches to
+        withdraw since (the command's others, once one is acknowledged)."""
         detail = event.detail
         outcome = str(detail.get("outcome", ""))
         final = bool(detail.get("final"))
@@ -342,13 +364,13 @@ class Dispatcher:
         if subjects.is_sync(str(detail.get("command", ""))):
             if final and outcome in ("expired", "failed"):
                 self._sync_lost(str(detail["command"]), expired=outcome == "expired")
-            return  # sent: the next check-point says whether it arrived
+            return []  # sent: the next check-point says whether it arrived
         report = self.routing.report(str(detail.get("command", "")), state, attempt)
         if report is None:
             log.warning("gateway %s reported an unknown command %s", event.gateway, detail.get("command"))
-            return
+            return []
         if report.dispatch.state == DispatchState.SUPERSEDED:
-            return  # its frame, refused by the vehicle, says nothing of the command
+            return []  # its frame, refused by the vehicle, says nothing of the command
         command, _ = self.desk.get(report.dispatch.command_id)
         if report.fresh_attempt:
             self.desk.record(
@@ -357,6 +379,16 @@ class Dispatcher:
             )  # fmt: skip
         if final and outcome == "acked":
             self.desk.record(command, CommandState.ACKNOWLEDGED, f"via {event.gateway}", at=event.at)
+            return self._others(report.dispatch)
+        return []
+
+    def _others(self, acked: Dispatch) -> list[Dispatch]:
+        """The command's other dispatches still held at gateways, superseded: acknowledged through
+        ``acked``'s gateway, they are withdrawn (no other gateway sends the frame again)."""
+        others = [d for d in self.routing.dispatches(acked.command_id) if d.id != acked.id and not d.final]
+        for other in others:
+            self.routing.set_dispatch(other.id, DispatchState.SUPERSEDED)
+        return others
 
     # --- slots -----------------------------------------------------------------------------------
 

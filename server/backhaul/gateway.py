@@ -226,10 +226,12 @@ class Gateway:
             self.mac.wake()
 
     def _withdraw(self, withdrawal: WithdrawMessage) -> None:
-        """The center took a frame back: not sent again (its end reported ``withdrawn`` if it was held)."""
+        """The center took a frame back: not sent again (its end reported ``withdrawn`` if it was held; one
+        that ended already keeps its end)."""
         log.info("gateway %s: %s withdrawn (%s)", self.name, withdrawal.command, withdrawal.reason)
-        if not self.queue.withdraw(withdrawal.command):
-            self.outbox.set_command(withdrawal.command, Outcome.WITHDRAWN)
+        held = self.queue.withdraw(withdrawal.command)
+        if not held and any(c.id == withdrawal.command for c in self.outbox.commands("stored")):
+            self.outbox.set_command(withdrawal.command, Outcome.WITHDRAWN)  # kept, not sent (no modem)
 
     async def _run_mac(self, mac: Mac) -> None:
         await self._planned.wait()  # not a transmission at will before the slots it may already have
