@@ -28,7 +28,7 @@ import contextlib
 import logging
 import math
 import time
-from collections import Counter
+from collections import Counter, defaultdict
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -70,6 +70,9 @@ class MacStatus:
     """What the MAC says of itself (the gateway's heartbeat carries it)."""
 
     exchanges: Counter[str] = field(default_factory=Counter)  # by ``Exchange``, on the air
+    airtime: defaultdict[str, float] = field(
+        default_factory=lambda: defaultdict(float)
+    )  # s held, by ``Exchange``
     outcomes: Counter[str] = field(default_factory=Counter)  # by ``Outcome``
     late: int = 0  # turns that no longer fitted their slot when their time came: waited for the next
     refused: str = ""  # why the plan in force is refused ("" none)
@@ -78,6 +81,7 @@ class MacStatus:
         return {
             "exchanges": dict(self.exchanges),
             "outcomes": dict(self.outcomes),
+            "airtime": {kind: round(seconds, 1) for kind, seconds in self.airtime.items()},
             "late": self.late,
             "refused": self.refused,
         }
@@ -155,6 +159,7 @@ class Mac:
         started = self.clock()
         outcome = await self._exchange(turn)
         self.transmissions.append((started, self.clock()))
+        self.status.airtime[turn.exchange] += self.clock() - started
         self.status.exchanges[turn.exchange] += outcome is not Outcome.FAILED
         self.status.outcomes[outcome] += 1
         self.queue.done(turn, outcome, self.clock())
