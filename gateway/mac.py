@@ -33,10 +33,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-from gateway.queue import Exchange, Outcome, Queue, Turn
+from gateway.queue import PACKETS_PER_POLL, Exchange, Outcome, Queue, Turn
 from gateway.slots import Schedule
 from gateway.timing import Timing
 from tacit import modem as mm
+from tacit.link import choose_rate
 
 log = logging.getLogger("tacit.gateway.mac")
 
@@ -108,6 +109,23 @@ class Mac:
         self._work = asyncio.Event()
         self._heard: dict[int, asyncio.Event] = {}
         driver.add_listener(self._on_modem)
+
+    def detail(self) -> dict[str, Any]:
+        """Its status and, per vehicle it polls or holds frames for, what this station knows of it: the
+        range it measured, the rate its next poll would take, the SNR it heard, its polls (what the
+        gateway's heartbeat carries: ranges and rates per vehicle and gateway)."""
+        vehicles = {
+            str(v.address): {
+                "range_m": None if v.range_m is None else round(v.range_m, 1),
+                "rate": choose_rate(v.recent_snr, loss_sensitive=False, packets=PACKETS_PER_POLL),
+                "snr": v.recent_snr,
+                "share": v.share,
+                "polls": v.polls,
+                "answered": v.answered,
+            }
+            for v in self.queue.vehicles.values()
+        }
+        return {**self.status.detail(), "vehicles": vehicles}
 
     def wake(self) -> None:
         """Something was queued or the plan changed: look again at once."""

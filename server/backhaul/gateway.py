@@ -401,7 +401,7 @@ class Gateway:
             self.address,
             self.place,
             self.outage,
-            link=None if self.mac is None else self.mac.status.detail(),
+            link=None if self.mac is None else self.mac.detail(),
         )
 
 
