@@ -175,7 +175,7 @@ class Mac:
             )
             return
         started = self.clock()
-        outcome = await self._exchange(turn)
+        outcome = await self._exchange(turn, min(room - turn.duration, turn.duration / 4))
         self.transmissions.append((started, self.clock()))
         self.status.airtime[turn.exchange] += self.clock() - started
         self.status.exchanges[turn.exchange] += outcome is not Outcome.FAILED
@@ -202,28 +202,34 @@ class Mac:
 
     # --- the exchanges ------------------------------------------------------------------------------
 
-    async def _exchange(self, turn: Turn) -> Outcome:
+    async def _exchange(self, turn: Turn, spare: float) -> Outcome:
+        """``spare``: s of its slot the exchange may wait beyond its timing for a late answer (a late ACK
+        costs nothing inside the slot; up to a quarter of the exchange's length)."""
         try:
             if turn.exchange is Exchange.POLL:
-                return await self._poll(turn)
+                return await self._poll(turn, spare)
             if turn.exchange is Exchange.PING:
                 return await self._ping(turn)
-            return await self._send(turn)
+            return await self._send(turn, spare)
         except mm.ModemError as exc:
             log.info("%s: %s to %d not sent: %s", self.name, turn.exchange, turn.address, exc)
             return Outcome.FAILED
 
-    async def _send(self, turn: Turn) -> Outcome:
+    async def _send(self, turn: Turn, spare: float) -> Outcome:
         assert turn.frame is not None
         range_m = self.queue.vehicle(turn.address).range_m
         result = await self.driver.send(
-            turn.address, [turn.frame.data], rate=0, ack=True, ack_timeout=self.timing.ack_wait(range_m)
+            turn.address,
+            [turn.frame.data],
+            rate=0,
+            ack=True,
+            ack_timeout=self.timing.ack_wait(range_m) + spare,
         )
         if result.all_acked:
             return Outcome.ACKED
         return Outcome.SENT if result.transmitted else Outcome.FAILED
 
-    async def _poll(self, turn: Turn) -> Outcome:
+    async def _poll(self, turn: Turn, spare: float) -> Outcome:
         """Ask the vehicle for its data at the turn's rate; the answer's frames arrive as modem events.
         Answered once one came (the rest of one transmission come with it) and the modem has ACKed them."""
         heard = self._heard.setdefault(turn.address, asyncio.Event())
@@ -231,7 +237,7 @@ class Mac:
         range_m = self.queue.vehicle(turn.address).range_m
         await self.driver.poll(turn.address, rate=turn.rate, ack=True)
         try:
-            await asyncio.wait_for(heard.wait(), self.timing.poll_window(range_m, turn.rate))
+            await asyncio.wait_for(heard.wait(), self.timing.poll_window(range_m, turn.rate) + spare)
         except TimeoutError:
             return Outcome.SILENT
         await asyncio.sleep(self.timing.ack_tail())  # the modem's ACK of the answer leaves
