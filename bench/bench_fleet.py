@@ -14,7 +14,8 @@ scripted: the modems (no NMEA, no ptys) and the vehicles' answers; time is virtu
 Every vehicle gets a SYNC every ``sync_interval`` (60 s) through its own station, stamped for that
 station's next slot opening, and a command every ``--command-every`` s; every station pings and polls
 every vehicle (through two gateways, each gateway's polls of the other's vehicles are the scoring polls
-the center routes by). A poll at rate r is answered with as many queued packets as rate r carries, up to
+the center routes by; a vehicle's own gateway polls it ``OWN_SHARE`` times as often, as the center's
+schedule says). A poll at rate r is answered with as many queued packets as rate r carries, up to
 ``--window`` packets (1: one packet in flight, as a vehicle of protocol 3 keeps; 0: no limit but the
 rate's), each coded on the chain the previous one leaves.
 
@@ -48,6 +49,7 @@ from gateway.mac import Mac
 from gateway.queue import FrameKind, Held, Outcome, Queue, Report
 from gateway.slots import Schedule, SlotPlan, guard_for
 from gateway.timing import Timing
+from server.backhaul.dispatch import OWN_SHARE
 from simulators.acoustics import ChannelParameters, cycle_with_ack_s
 from simulators.sea import Band, SeaModem, SeaVehicle
 from simulators.virtual_loop import run as run_virtual
@@ -273,6 +275,8 @@ def run(vehicles: int, gateways: int, plan: Plan) -> RunResult:
         modem.add_listener(_listener(by_address))
         queue = Queue(timing, reporter)
         queue.poll(c.address for c in crafts)  # every station polls every vehicle (scoring, routing)
+        for craft in crafts:  # its own gateway more often, as the center's schedule says
+            queue.share(craft.address, OWN_SHARE if gateways > 1 and craft.station == name else 1.0)
         macs[name] = Mac(
             name, modem, queue, schedule, timing, clock=lambda: asyncio.get_running_loop().time()
         )

@@ -76,6 +76,7 @@ Kept = Callable[[], Awaitable[list[ScheduleMessage]]]  # the last schedule the s
 FINAL = {"acked": DispatchState.ACKED, "failed": DispatchState.FAILED, "expired": DispatchState.EXPIRED}
 STEP = {"stored": DispatchState.STORED, "sent": DispatchState.SENT, "acked": DispatchState.SENT}
 SYNC_LEAD = 1.0  # s: a SYNC published now reaches its gateway before a slot opening this much later
+OWN_SHARE = 4.0  # a vehicle's own gateway polls it this many times as often as each other gateway
 
 
 class Dispatcher:
@@ -101,7 +102,12 @@ class Dispatcher:
         self.tick = tick
         self.coordinating = coordinating  # this process runs the routing, the slots and the SYNC budgets
         self.decoding = decoding  # by address: this process decodes the vehicle, its lease fresh
-        self.handed: tuple[tuple[str, ...], tuple[int, ...]] = ((), ())  # the last schedule's gateways, polls
+        # the last schedule's gateways, polls and (address, gateway, share) of each vehicle
+        self.handed: tuple[tuple[str, ...], tuple[int, ...], tuple[tuple[int, str, float], ...]] = (
+            (),
+            (),
+            (),
+        )
         self.kept = kept
         self.inherited: tuple[float, set[str], float] | None = None  # (read at, gateways, slot) of kept plans
         self._published: set[str] = set()  # dispatches published by this process
@@ -147,7 +153,7 @@ class Dispatcher:
             await asyncio.to_thread(self.routing.update, now)
         routes = await asyncio.to_thread(self.routing.routes, now)
         if coordinating:
-            await self._schedule(now, tuple(sorted(r.vehicle.address for r in routes)))
+            await self._schedule(now, routes)
         else:
             await self._follow(now)
         await self._syncs(routes)
@@ -392,26 +398,31 @@ class Dispatcher:
 
     # --- slots -----------------------------------------------------------------------------------
 
-    async def _schedule(self, now: float, polls: tuple[int, ...]) -> None:
-        """Hand the live gateways a new TDMA frame when they (or the vehicles they poll) change; it
-        starts two slots from now, so every gateway has it before it applies. Every gateway polls every
-        vehicle in its slots: each one's answers score the gateways that hear it."""
+    async def _schedule(self, now: float, routes: list[Route]) -> None:
+        """Hand the live gateways a new TDMA frame when they (or the vehicles they poll, or whose gateway
+        each vehicle has) change; it starts two slots from now, so every gateway has it before it
+        applies. Every gateway polls every vehicle in its slots (each one's answers score the gateways
+        that hear it); a vehicle's own gateway polls it ``OWN_SHARE`` times as often as the others, each
+        by the vehicle's share."""
         inherited, lead = await self._inherited(now)
         order = tuple(sorted(await asyncio.to_thread(self.routing.alive, now) | inherited))
-        if (order, polls) == self.handed or not order:
+        polls = tuple(sorted(r.vehicle.address for r in routes))
+        owners = tuple(sorted((r.vehicle.address, r.gateway or "", r.vehicle.share) for r in routes))
+        if (order, polls, owners) == self.handed or not order:
             return
         slot = self.settings.tdma_slot
         epoch = math.ceil((now + max(slot, lead)) / slot) * slot
         plan = hashlib.sha256(
-            repr((epoch, slot, self.settings.tdma_guard, order, polls)).encode()
+            repr((epoch, slot, self.settings.tdma_guard, order, polls, owners)).encode()
         ).hexdigest()
         self.slots.receive(SlotPlan(epoch, slot, self.settings.tdma_guard, order), now)
         for gateway in order:  # the id names the plan: another plan from the same epoch is not a duplicate
+            shares = tuple((a, share * (OWN_SHARE if own == gateway else 1.0)) for a, own, share in owners)
             message = ScheduleMessage(f"schedule-{plan[:16]}-{gateway}", gateway, epoch, slot,
-                                      self.settings.tdma_guard, order, polls)  # fmt: skip
+                                      self.settings.tdma_guard, order, polls, shares)  # fmt: skip
             await self.publish(subjects.schedule(gateway), message.encode(), message.id)
         log.info("schedule: %d gateways, %.1f s slots from %.0f, polling %s", len(order), slot, epoch, polls)
-        self.handed = (order, polls)
+        self.handed = (order, polls, owners)
 
     async def _follow(self, now: float) -> None:
         """A process that does not hand out the slots reads them from the stream, once a slot: it stamps

@@ -296,6 +296,8 @@ class Gateway:
                 SlotPlan(schedule.epoch, schedule.slot, schedule.guard, schedule.order), time.time()
             )
             self.queue.poll(schedule.poll)
+            for address, share in schedule.shares:
+                self.queue.share(address, share)
             if self.mac is not None:
                 self.mac.wake()
         except (PayloadError, ValueError) as exc:
