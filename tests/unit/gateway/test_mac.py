@@ -224,6 +224,7 @@ def test_shares_weigh_the_polls_and_commands_never_starve_a_vehicle_of_them() ->
     polls = {a: station.queue.vehicle(a).polls for a in (2, 3)}
     assert polls[3] > 10  # its endless commands leave it polled
     assert 1.6 <= polls[2] / polls[3] <= 2.4
+    assert 10 <= station.mac.status.exchanges[Exchange.PING] <= 8 + 4  # every 120 s, every 240 s (not 16)
 
 
 def test_a_turn_is_the_first_in_order_that_fits_the_room() -> None:
