@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import enum
 
+from sqlalchemy import JSON, Column
 from sqlmodel import AutoString, Field, SQLModel
 
 from server.core.db import now
@@ -58,6 +59,7 @@ class GatewayRecord(SQLModel, table=True):
     outage_s: float | None = None  # how long its last backhaul outage lasted (its own account)
     outage_ended: float | None = None  # when it ended (the gateway's clock)
     outage_backlog: int | None = None  # messages its outbox held when the backhaul came back
+    mac: dict | None = Field(default=None, sa_column=Column(JSON, nullable=True))  # gateway.mac.Mac.detail
 
 
 class Assignment(SQLModel, table=True):
