@@ -50,6 +50,7 @@ from gateway.queue import FrameKind, Held, Outcome, Queue, Report
 from gateway.slots import Schedule, SlotPlan, guard_for
 from gateway.timing import Timing
 from server.backhaul.dispatch import OWN_SHARE
+from server.backhaul.gateway import PING_INTERVAL
 from simulators.acoustics import ChannelParameters, cycle_with_ack_s
 from simulators.sea import Band, SeaModem, SeaVehicle
 from simulators.virtual_loop import run as run_virtual
@@ -273,7 +274,7 @@ def run(vehicles: int, gateways: int, plan: Plan) -> RunResult:
     for name in names:
         modem = SeaModem(band, name)
         modem.add_listener(_listener(by_address))
-        queue = Queue(timing, reporter)
+        queue = Queue(timing, reporter, PING_INTERVAL)  # as `tacit gateway` runs it
         queue.poll(c.address for c in crafts)  # every station polls every vehicle (scoring, routing)
         for craft in crafts:  # its own gateway more often, as the center's schedule says
             queue.share(craft.address, OWN_SHARE if gateways > 1 and craft.station == name else 1.0)
