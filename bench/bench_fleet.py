@@ -16,8 +16,9 @@ station's next slot opening, and a command every ``--command-every`` s; every st
 every vehicle (through two gateways, each gateway's polls of the other's vehicles are the scoring polls
 the center routes by; a vehicle's own gateway polls it ``OWN_SHARE`` times as often, as the center's
 schedule says). A poll at rate r is answered with as many queued packets as rate r carries, up to
-``--window`` packets (1: one packet in flight, as a vehicle of protocol 3 keeps; 0: no limit but the
-rate's), each coded on the chain the previous one leaves.
+``--window`` packets (1: one packet in flight, a vehicle of protocol 3; 0: a vehicle of protocol 4,
+whose compressor keeps as many in flight as the last poll's rate carries, up to ``MAX_WINDOW``), each
+coded on the chain the previous one leaves.
 
 Per vehicle and run: polls, packets, command POST to modem ACK (median, p95) beside the channel's minimum,
 the worst latency of unpredictable samples and the p95 of all, samples waiting at the end. Per station:
@@ -56,8 +57,9 @@ from simulators.sea import Band, SeaModem, SeaVehicle
 from simulators.virtual_loop import run as run_virtual
 from tacit import modem as mm
 from tacit import rates
+from tacit.codec.format import MAX_WINDOW
 from tacit.link import capacity, packets_per_frame
-from tacit.packets import PACKET_SIZE, Priority, Stream
+from tacit.packets import NEWEST, PACKET_SIZE, Priority, Stream
 from tacit.streams import default_streams
 from vehicle_agent.agent import AgentConfig
 from vehicle_agent.compressor import Compressor
@@ -105,6 +107,7 @@ class Outgoing:
     surprise_times: list[float] = field(default_factory=list)
     time_sensitive: bool = False
     checkpoint: bool = False
+    seq: int | None = None  # a data packet's number (the compressor resolves it when heard)
 
 
 @dataclass
@@ -128,7 +131,14 @@ class Craft:
         self.station = station  # its own: its SYNCs and commands go through it
         self.range_m = range_m
         self.window = plan.window
-        self.compressor = Compressor(default_streams(), config.max_latency, config.max_silence)
+        # version 3 keeps one packet in flight; version 4 as many as the last poll's rate carries
+        self.compressor = Compressor(
+            default_streams(),
+            config.max_latency,
+            config.max_silence,
+            protocol=3 if plan.window == 1 else NEWEST,
+        )
+        self.seq = 0  # the vehicle's packet counter
         self.outbox: list[Outgoing] = []
         self.in_flight = 0  # compressed packets sent, not yet heard by a shore
         self.next_command = rng.uniform(0.0, plan.command_every)
@@ -167,20 +177,18 @@ class Craft:
         self._queue_ready(now)
 
     def _queue_ready(self, now: float) -> None:
-        """Packets coded while the window has room, each on the chain the previous one leaves."""
-        while self.window == 0 or self.in_flight < self.window:
-            ready = self.compressor.ready(now)
-            if not ready:
-                return
-            for _, encoded in ready:
-                urgent = encoded.packet.priority is Priority.TIME_SENSITIVE
-                packet = Outgoing(urgent, now, encoded.sample_times, encoded.surprise_times, urgent)
-                self.in_flight += 1
-                self.outbox.insert(sum(p.urgent for p in self.outbox) if urgent else len(self.outbox), packet)
-                self.compressor.resolve(Stream.KINEMATIC, True)  # the next codes on its chain
+        """Packets coded while the compressor's window has room, each on the chain the previous one
+        leaves (``vehicle_agent.compressor``); one not heard stays queued and goes again."""
+        for _, encoded in self.compressor.ready(now, self.seq):
+            urgent = encoded.packet.priority is Priority.TIME_SENSITIVE
+            packet = Outgoing(urgent, now, encoded.sample_times, encoded.surprise_times, urgent, seq=self.seq)
+            self.seq += 1
+            self.in_flight += 1
+            self.outbox.insert(sum(p.urgent for p in self.outbox) if urgent else len(self.outbox), packet)
 
     def answer(self, rate: int, nframes: int, now: float) -> list[bytes]:
         """A poll's answer at ``rate``: the first queued packets, as many as the rate carries."""
+        self.compressor.follow(min(capacity(rate), self.window or MAX_WINDOW))  # as the agent does
         self.advance(now)
         self.tally.polls += 1
         taken = self.outbox[: capacity(rate)]
@@ -204,6 +212,8 @@ class Craft:
             if packet.checkpoint:
                 continue
             self.in_flight -= 1
+            if packet.seq is not None:
+                self.compressor.resolve(packet.seq, True)
             self.tally.samples_delivered += len(packet.sample_times)
             self.tally.sample_latency.extend(at - t for t in packet.sample_times)
             self.tally.surprise_latency.extend(at - t for t in packet.surprise_times)

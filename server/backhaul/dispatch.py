@@ -58,7 +58,7 @@ from server.backhaul.subjects import (
     WithdrawMessage,
     WithdrawReason,
 )
-from server.commands.models import CommandRecord, CommandState
+from server.commands.models import CommandRecord, CommandState, Origin, StepSource
 from server.commands.service import CommandDesk
 from server.core.config import Settings
 from server.core.db import saved_id
@@ -150,6 +150,8 @@ class Dispatcher:
         now = time.time() if now is None else now
         coordinating = self.coordinating()
         if coordinating:
+            for refuted in await asyncio.to_thread(self.routing.audit, now):
+                await asyncio.to_thread(self._refuted, refuted)
             await asyncio.to_thread(self.routing.update, now)
         routes = await asyncio.to_thread(self.routing.routes, now)
         if coordinating:
@@ -255,7 +257,10 @@ class Dispatcher:
             await self._dispatch(command, vehicle, options[0], len(tries) + 1, now)
         elif round_:
             detail = f"no gateway reached it (tried {', '.join(sorted(tried))})"
-            await asyncio.to_thread(self.desk.record, command, CommandState.FAILED, detail, "unreachable")
+            shore = Origin(StepSource.SHORE)
+            await asyncio.to_thread(
+                self.desk.said, shore, command, CommandState.FAILED, detail, "unreachable"
+            )
 
     async def _in_flight(
         self, latest: Dispatch, command: CommandRecord, vehicle: Vehicle, tries: int, now: float
@@ -286,14 +291,15 @@ class Dispatcher:
         return answered is not None and dispatch.created_at < answered - auth.FLOOR_SLACK
 
     async def _overdue(self, dispatch: Dispatch, now: float) -> bool:
-        """A dispatch whose receipt is late, whose gateway fell silent (no heartbeat), or that outlived
+        """A dispatch whose receipt is late, whose gateway fell silent (no heartbeat) or was found faulty
+        (``Routing.audit``), or that outlived
         its frame's age (the gateway would have said ``expired``): its gateway is taken for down. A
         gateway that stored it and beats is waited for: its attempts share its slots with its polls
         and its other vehicles' commands, so no fixed time bounds them."""
         late = (
             (dispatch.state == DispatchState.PUBLISHED and now > dispatch.start_by)
             or now > dispatch.deadline
-            or dispatch.gateway not in await asyncio.to_thread(self.routing.alive, now)
+            or dispatch.gateway not in await asyncio.to_thread(self.routing.usable, now)
         )
         if late:
             log.warning("dispatch %s: %s did not answer in time; next gateway", dispatch.id, dispatch.gateway)
@@ -316,6 +322,9 @@ class Dispatcher:
 
     async def _publish(self, row: Dispatch, command: CommandRecord, vehicle: Vehicle) -> None:
         frame = await asyncio.to_thread(self.desk.frame, command)  # signed now: a fresh stamp
+        if frame is None:  # cancelled by an operator since it was chosen: never published
+            await asyncio.to_thread(self.routing.set_dispatch, row.id, DispatchState.WITHDRAWN)
+            return
         stops = Command[command.command.upper()].stops
         message = CommandMessage(
             row.id,
@@ -371,20 +380,20 @@ class Dispatcher:
             if final and outcome in ("expired", "failed"):
                 self._sync_lost(str(detail["command"]), expired=outcome == "expired")
             return []  # sent: the next check-point says whether it arrived
-        report = self.routing.report(str(detail.get("command", "")), state, attempt)
-        if report is None:
-            log.warning("gateway %s reported an unknown command %s", event.gateway, detail.get("command"))
-            return []
+        report = self.routing.report(str(detail.get("command", "")), state, attempt, event.gateway)
+        if report is None or report.foreign:
+            return []  # unknown, or another gateway's dispatch (logged and counted by the routing)
         if report.dispatch.state == DispatchState.SUPERSEDED:
             return []  # its frame, refused by the vehicle, says nothing of the command
         command, _ = self.desk.get(report.dispatch.command_id)
+        said = Origin(StepSource.GATEWAY, event.gateway)
         if report.fresh_attempt:
-            self.desk.record(
-                command, CommandState.SENT, f"attempt {command.attempts + 1} via {event.gateway}",
+            self.desk.said(
+                said, command, CommandState.SENT, f"attempt {command.attempts + 1} via {event.gateway}",
                 at=event.at, attempts=command.attempts + 1,
             )  # fmt: skip
         if final and outcome == "acked":
-            self.desk.record(command, CommandState.ACKNOWLEDGED, f"via {event.gateway}", at=event.at)
+            self.desk.said(said, command, CommandState.ACKNOWLEDGED, f"via {event.gateway}", at=event.at)
             return self._others(report.dispatch)
         return []
 
@@ -395,6 +404,13 @@ class Dispatcher:
         for other in others:
             self.routing.set_dispatch(other.id, DispatchState.SUPERSEDED)
         return others
+
+    def _refuted(self, dispatch: Dispatch) -> None:
+        """A gateway's ACK the vehicle's check-points refute: the command is the link's again (sent, not
+        acknowledged), for another gateway to send."""
+        command, _ = self.desk.get(dispatch.command_id)
+        detail = f"{dispatch.gateway}'s acknowledgement refuted by the vehicle's check-points: sent again"
+        self.desk.said(Origin(StepSource.VEHICLE), command, CommandState.SENT, detail)
 
     # --- slots -----------------------------------------------------------------------------------
 

@@ -36,7 +36,7 @@ from server.telemetry import repository as telemetry
 from server.telemetry.models import Frame
 from server.vehicles.models import Vehicle
 from tacit import auth
-from tacit.packets import CheckpointPacket, MissionState, Stream, cover_bitmap, with_seq
+from tacit.packets import CheckpointPacket, MissionState, Stream, cover_bitmap
 from tacit.streams import default_streams
 from tests.integration.server.backhaul.test_frames_and_commands import ingest_on, until
 from tests.support.nats import NATS_SERVER, NatsServer
@@ -68,9 +68,9 @@ class Rov:
             values = [20.0 + 0.3 * math.sin(self.t / 7), 5.0 + self.t % 3, 8.0]
             self.truth[ENV.tick(self.t)] = values
             self.compressor.add(Stream.ENVIRONMENTAL, self.t, values)
-        ready = [p for p in self.compressor.ready(self.t + 100) if p[0] is Stream.ENVIRONMENTAL]
-        packet = auth.tag_priority(with_seq(ready[0][1].packet, self.seq), KEY, ADDRESS)
-        self.compressor.resolve(Stream.ENVIRONMENTAL, True)  # a gateway's modem ACKed it
+        ready = [p for p in self.compressor.ready(self.t + 100, self.seq) if p[0] is Stream.ENVIRONMENTAL]
+        packet = auth.tag_priority(ready[0][1].packet, KEY, ADDRESS)
+        self.compressor.resolve(self.seq, True)  # a gateway's modem ACKed it
         self.delivered.append((self.seq, packet))
         self.seq += 1
         return packet

@@ -4,6 +4,7 @@ queues anything."""
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import pytest
@@ -89,18 +90,24 @@ def test_the_fleet_lists_every_vehicle_in_its_own_colour_with_the_one_origin(tmp
     settings = offline_settings(tmp_path, origin=(40.0, -74.0))
     with TestClient(create_app(settings)) as c:
         for name, address, east in (("rov1", 2, 0.0), ("rov2", 3, 15.0)):
-            body = {"name": name, "address": address, "home": [0.0, east]}
+            body = {"name": name, "address": address, "home": [0.0, east], "report_interval": 20.0}
             assert c.post("/api/v1/vehicles", json=body, headers=OP).status_code == 201
+        screens = c.app.state.shore.screens
         moved = c.put("/api/v1/vehicles/2/home", json={"home": [0.0, 30.0]}, headers=OP)
         assert moved.status_code == 200 and moved.json()["home"] == [0.0, 30.0]
         assert c.put("/api/v1/vehicles/2/home", json={"home": [0.0, 1e6]}, headers=OP).status_code == 422
         assert c.put("/api/v1/vehicles/9/home", json={"home": [0.0, 1.0]}, headers=OP).status_code == 404
         fleet = c.get("/api/v1/fleet", headers=OP).json()
+        due = fleet["vehicles"][0]["first_report_due"]
+        late = screens.fleet(now=due + 1.0)["vehicles"][0]
     assert fleet["origin"] == {"lat": 40.0, "lon": -74.0}
     rov1, rov2 = fleet["vehicles"]
     assert (rov1["name"], rov2["name"]) == ("rov1", "rov2") and rov2["home"] == [0.0, 30.0]
     assert [rov1["colour"], rov2["colour"]] == fleet["palette"][:2] and rov1["colour"] != rov2["colour"]
-    assert rov1["overdue"] and rov1["reported"] is None  # never heard: greyed
+    # never heard, its first report not due yet: starting, not greyed; due after its report interval
+    assert rov1["awaited"] and not rov1["overdue"] and rov1["reported"] is None
+    assert rov1["overdue_after_s"] == 20.0 and rov1["first_report_due"] > time.time()
+    assert late["overdue"] and not late["awaited"] and late["first_report_due"] is None
     assert rov1["airtime_s"]["total"] == 0.0
 
 

@@ -12,7 +12,7 @@ from fastapi.testclient import TestClient
 from server.app import create_app
 from server.commands.models import CommandRecord as Command
 from server.commands.models import CommandState as Status
-from server.commands.service import advance
+from server.commands.service import MODEM, advance
 from server.core.config import Settings
 from server.link.state import IncomingFrame
 from server.shore import Shore
@@ -55,7 +55,7 @@ def attempt(client: TestClient, command_id: int, status: Status, detail: str = "
     from server.core.db import writing
 
     with writing(shore(client).db) as s:
-        assert advance(s, s.get(Command, command_id), status, detail, **extra)  # type: ignore[arg-type]
+        assert advance(s, s.get(Command, command_id), status, detail, origin=MODEM, **extra)  # type: ignore[arg-type]
         s.commit()
 
 

@@ -10,7 +10,7 @@ from sqlmodel import Session
 from server.commands.models import CommandState as Status
 from server.commands.repository import steps as history_of
 from server.commands.schemas import CommandIn
-from server.commands.service import CommandDesk, CommandRefused, advance
+from server.commands.service import MODEM, CommandDesk, CommandRefused, advance
 from server.core.config import Settings
 from server.core.db import make_engine, migrate, writing
 from server.core.errors import NotFound
@@ -58,7 +58,7 @@ def test_advance_writes_history_only_for_allowed_moves(desk: CommandDesk) -> Non
     for status, applied in steps:
         with writing(desk.db) as s:
             current = s.get(type(command), command.id)
-            assert advance(s, current, status, "detail") is applied
+            assert advance(s, current, status, "detail", origin=MODEM) is applied
             s.commit()
     with Session(desk.db) as s:
         assert [e.status for e in history_of(s, [command.id])[command.id]] == ["queued", "sent", "executed"]

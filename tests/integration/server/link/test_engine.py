@@ -12,7 +12,7 @@ from sqlalchemy import update
 from server.commands.models import CommandRecord as Command
 from server.commands.models import CommandState as Status
 from server.commands.schemas import CommandIn
-from server.commands.service import CommandDesk, advance
+from server.commands.service import MODEM, CommandDesk, advance
 from server.core.config import Settings
 from server.core.db import make_engine, migrate, writing
 from server.core.events import Bus as EventBus
@@ -45,7 +45,9 @@ def test_the_oldest_pending_command_goes_first_then_an_unconfirmed_latest(
     with writing(desk.db) as s:
         for command in (first, second):
             current = s.get(Command, command.id)
-            assert advance(s, current, Status.SENT) and advance(s, current, Status.ACKNOWLEDGED)
+            assert advance(s, current, Status.SENT, origin=MODEM) and advance(
+                s, current, Status.ACKNOWLEDGED, origin=MODEM
+            )
         s.commit()
     assert asyncio.run(link.next_command(1)) is None  # acknowledged recently: wait for a check-point
     with writing(desk.db) as s:  # a minute later, still no check-point has confirmed it
@@ -53,7 +55,7 @@ def test_the_oldest_pending_command_goes_first_then_an_unconfirmed_latest(
         s.commit()
     assert asyncio.run(link.next_command(1)).id == second.id  # only the latest
     with writing(desk.db) as s:
-        assert advance(s, s.get(Command, second.id), Status.EXECUTED)
+        assert advance(s, s.get(Command, second.id), Status.EXECUTED, origin=MODEM)
         s.commit()
     assert asyncio.run(link.next_command(1)) is None
 
@@ -66,8 +68,8 @@ def test_a_command_sent_again_after_its_ack_gets_a_fresh_round_of_attempts(
     with writing(desk.db) as s:
         current = s.get(Command, command.id)
         for _ in range(3):  # three attempts, the third acknowledged
-            assert advance(s, current, Status.SENT)
-        assert advance(s, current, Status.ACKNOWLEDGED)
-        assert advance(s, current, Status.SENT)  # no check-point confirmed it: again
+            assert advance(s, current, Status.SENT, origin=MODEM)
+        assert advance(s, current, Status.ACKNOWLEDGED, origin=MODEM)
+        assert advance(s, current, Status.SENT, origin=MODEM)  # no check-point confirmed it: again
         s.commit()
     assert desk.unanswered(command.id) == 1  # not 4: one more miss must not fail it at once

@@ -13,7 +13,7 @@ from server.commands.schemas import CommandIn
 from server.link.state import IncomingFrame
 from tacit import auth
 from tacit import modem as mm
-from tacit.packets import SYNC_RESTART_CHAINS, Stream, with_seq
+from tacit.packets import SYNC_RESTART_CHAINS, Stream
 from tacit.streams import default_streams
 from tests.support.api import OP, offline_settings
 from tests.support.shore import AckingModem, scripted_shore
@@ -73,9 +73,9 @@ def unknown_bases(n: int) -> list[bytes]:
         for _ in range(10):
             t += 1.0
             compressor.add(Stream.ENVIRONMENTAL, t, [20.0 + i, 5.0, 8.0])
-        ready = [p for s, p in compressor.ready(t + 100) if s is Stream.ENVIRONMENTAL]
-        out.append(auth.tag_priority(with_seq(ready[0].packet, i), KEY, 2))
-        compressor.resolve(Stream.ENVIRONMENTAL, True)
+        ready = [p for s, p in compressor.ready(t + 100, i) if s is Stream.ENVIRONMENTAL]
+        out.append(auth.tag_priority(ready[0].packet, KEY, 2))
+        compressor.resolve(i, True)
     return out[1:]  # the first, on the initial state, is never sent
 
 

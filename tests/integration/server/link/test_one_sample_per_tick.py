@@ -22,7 +22,7 @@ from server.link.state import IncomingFrame
 from server.telemetry.models import Telemetry
 from server.vehicles.models import Vehicle
 from tacit import auth
-from tacit.packets import Stream, with_seq
+from tacit.packets import Stream
 from tacit.sampletime import boot_seconds
 from tacit.streams import default_streams
 from tests.support.shore import store_with
@@ -84,11 +84,11 @@ def test_a_real_dive_delivered_late_and_in_bursts_keeps_one_sample_per_time(tmp_
 
     def deliver(now: float) -> None:
         nonlocal seq
-        for stream, encoded in agent.compressor.ready(now):
-            frame = auth.tag_priority(with_seq(encoded.packet, seq), KEY, ADDRESS)
+        for _, encoded in agent.compressor.ready(now, seq):
+            frame = auth.tag_priority(encoded.packet, KEY, ADDRESS)
             seq += 1
             ingest.handle(IncomingFrame(ADDRESS, 1, frame, at=now))
-            agent.compressor.resolve(stream, True)
+            agent.compressor.resolve(encoded.packet.seq, True)
 
     loop = messages[0]._timestamp
     for msg in messages:

@@ -5,7 +5,6 @@ of what it sent."""
 
 from __future__ import annotations
 
-import contextlib
 import itertools
 import re
 from pathlib import Path
@@ -21,7 +20,7 @@ from launch.demo import SQUARE
 from server.app import create_app
 from server.commands.models import CommandRecord as Command
 from server.commands.schemas import CommandIn
-from server.core.events import CommandChanged, PacketsSettled, TelemetryDecoded
+from server.core.events import CommandChanged, PacketsSettled, TelemetryDecoded, VehicleReported
 from server.core.security import Actor, Role
 from server.map.panel import LEGEND, OperatorPanel
 from server.map.scene import OperatorMap
@@ -29,77 +28,7 @@ from server.operators.schemas import OperatorIn
 from server.screens.fleet import PALETTE, rgb
 from server.vehicles.schemas import VehicleIn
 from tests.support.api import OP, offline_settings
-
-
-class Handle(SimpleNamespace):
-    def __init__(self, **kw: Any) -> None:
-        super().__init__(**{"visible": True, "disabled": False, "hint": None, "callbacks": [], **kw})
-
-    def on_click(self, cb: Any) -> Any:
-        self.callbacks.append(cb)
-        return cb
-
-    on_update = on_click
-
-    def press(self) -> None:
-        """What a websocket client does when it clicks (viser calls the callbacks, whatever the page shows)."""
-        for cb in self.callbacks:
-            cb(None)
-
-
-class FakeGui:
-    def __init__(self) -> None:
-        self.handles: dict[str, Handle] = {}
-
-    def _add(self, label: str, **kw: Any) -> Handle:
-        handle = Handle(label=label, **kw)
-        self.handles[label] = handle
-        return handle
-
-    def add_folder(self, label: str) -> contextlib.AbstractContextManager:
-        return contextlib.nullcontext()
-
-    def add_text(self, label: str, value: str, **kw: Any) -> Handle:
-        return self._add(label, value=value)
-
-    def add_number(self, label: str, value: float, **kw: Any) -> Handle:
-        return self._add(label, value=value, min=None, max=None, step=kw.get("step"))
-
-    def add_dropdown(self, label: str, options: list, initial_value: Any = None, **kw: Any) -> Handle:
-        return self._add(label, value=initial_value or options[0], options=list(options))
-
-    def add_checkbox(self, label: str, value: bool, **kw: Any) -> Handle:
-        return self._add(label, value=value)
-
-    def add_button(self, label: str, **kw: Any) -> Handle:
-        return self._add(label, visible=kw.get("visible", True))
-
-    def add_markdown(self, content: str, **kw: Any) -> Handle:
-        return Handle(content=content)
-
-    add_html = add_markdown
-
-
-class FakeScene:
-    """viser's scene: every ``add_*`` keeps its node (name, arguments) until the node is removed."""
-
-    def __init__(self) -> None:
-        self.nodes: dict[str, Handle] = {}
-
-    def __getattr__(self, method: str) -> Any:
-        def add(name: str = "", *args: Any, **kw: Any) -> Handle:
-            handle = Handle(method=method, name=name, args=args, **kw)
-            handle.remove = lambda: self.nodes.pop(name, None)
-            self.nodes[name] = handle
-            return handle
-
-        return add
-
-
-def fake_server() -> SimpleNamespace:
-    return SimpleNamespace(
-        scene=FakeScene(), initial_camera=SimpleNamespace(position=None, look_at=None, fov=None)
-    )
+from tests.support.viser import FakeGui, fake_server
 
 
 @pytest.fixture
@@ -116,6 +45,8 @@ def shore_map(tmp_path: Path):
                 shore.bus,
                 settings.model_copy(update={"map_port": 0}),
                 shore.operators.actor,
+                shore.safety.paths,
+                shore.teams.every,
             ),
         )
 
@@ -225,18 +156,22 @@ def decoded(packet_id: int, temperature: float) -> TelemetryDecoded:
 
 def test_the_temperature_estimate_is_fitted_on_verified_samples_only(shore_map: tuple) -> None:
     _, owner = shore_map
-    owner.server = fake_server()
-    owner._checkpoint(
-        "rov1", {"north": 5.0, "east": 5.0, "depth": 2.0, "heading": 0.0, "state": "preprogrammed"}
+    owner.attach(fake_server())
+    owner.handle(
+        VehicleReported(
+            vehicle="rov1",
+            checkpoint={"north": 5.0, "east": 5.0, "depth": 2.0, "heading": 0.0, "state": "preprogrammed"},
+        )
     )
     for packet_id, temperature in ((1, 20.0), (2, 40.0), (3, 21.0)):
-        owner._handle(decoded(packet_id, temperature))
+        owner.handle(decoded(packet_id, temperature))
     nodes = owner.server.scene.nodes
-    assert owner.temperatures == [] and len(nodes["/temperature/pending"].args[0]) == 3
+    assert len(owner.field.samples()[0]) == 0 and len(nodes["/temperature/pending"].args[0]) == 3
     assert "/temperature/samples" not in nodes  # nothing coloured (nor fitted) before a check-point vouches
     # 1 verified and trusted; 2 forged; 3 verified but decoded on a state nobody vouched for
-    owner._handle(PacketsSettled(vehicle="rov1", verified=[1, 3], forged=[2], trusted=[1]))
-    assert [t for *_, t in owner.temperatures] == [20.0] and owner.pending == {}
+    owner.handle(PacketsSettled(vehicle="rov1", verified=[1, 3], forged=[2], trusted=[1]))
+    verified, pending = owner.field.samples()
+    assert list(verified[:, 3]) == [20.0] and len(pending) == 0
     assert "/temperature/pending" not in nodes and len(nodes["/temperature/samples"].args[0]) == 1
     panel = panel_for(owner)
     assert "verified samples" in panel.estimate_cb.label and "grey squares" in LEGEND
@@ -249,8 +184,7 @@ def segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
 
 def test_the_map_opens_top_down_with_its_labels_clear_of_the_track_and_each_other(shore_map: tuple) -> None:
     _, owner = shore_map
-    owner.server = fake_server()
-    owner._build_scene()
+    owner.attach(fake_server())
     camera = owner.server.initial_camera
     eye = np.array(camera.position)
     down = np.array(camera.look_at) - eye
@@ -319,19 +253,43 @@ def test_the_fleet_buttons_send_one_command_per_vehicle_once_confirmed(shore_map
 
 
 def test_each_vehicle_in_its_colour_and_greyed_while_overdue(shore_map: tuple) -> None:
+    """The shore never hears either on its link (no modem here): rov1 (a check-point a minute) is awaited,
+    rov2 (one a microsecond) overdue by the time the map lists them."""
     shore, owner = shore_map
-    shore.vehicles.create(VehicleIn(name="rov2", address=3, home=(0.0, 30.0)))
-    owner.server = fake_server()
+    shore.vehicles.create(VehicleIn(name="rov2", address=3, home=(0.0, 30.0), report_interval=1e-6))
+    owner.attach(fake_server())
     panel = panel_for(owner)
     owner.panels[1] = panel
     for name, east in (("rov1", 0.0), ("rov2", 30.0)):
         for north in (0.0, 4.0):
-            owner._checkpoint(
-                name, {"north": north, "east": east, "depth": 2.0, "heading": 0.0, "state": "holding"}
-            )
+            cp = {"north": north, "east": east, "depth": 2.0, "heading": 0.0, "state": "holding"}
+            owner.handle(VehicleReported(vehicle=name, checkpoint=cp))
     nodes = owner.server.scene.nodes
     assert nodes["/tracks/rov1/actual"].args[1] == rgb(PALETTE[0])
     assert nodes["/tracks/rov2/actual"].args[1] == rgb(PALETTE[1])  # the dashboard's colours: one palette
-    owner._tick()  # the shore never heard either on its link (no modem here): both overdue
+    owner.tick()
     assert "rov1" in panel.fleet_html.content and "rov2" in panel.fleet_html.content
-    assert panel.fleet_html.content.count("(overdue)") == 2
+    assert (
+        panel.fleet_html.content.count("(overdue)") == 1
+        and "rov2</b>: no report yet <b>(overdue)" in panel.fleet_html.content
+    )
+    assert "rov1</b>: waiting for its first report (due by " in panel.fleet_html.content
+
+
+def test_an_operator_cancels_a_queued_command_from_the_panel(shore_map: tuple) -> None:
+    """The panel's Cancel takes back the command it sent last (the number is filled in), as the API's
+    cancel does; the status says how many of the vehicle's commands wait against the cap."""
+    shore, owner = shore_map
+    panel = panel_for(owner)
+    panel.withdraw_btn.press()  # not signed in: nothing cancelled
+    assert "sign in with an operator's token" in panel.status_md.content
+    panel.sign_in("operator-token")
+    panel.send(CommandIn(command="hold"))
+    assert "(1 / 20 of rov1's commands waiting for the link)" in panel.status_md.content
+    [sent] = commands(shore)
+    assert panel.cancel_in.value == sent.id
+    panel.withdraw_btn.press()
+    assert "**cancelled**, never sent" in panel.status_md.content
+    assert [c.status for c in commands(shore)] == ["cancelled"]
+    panel.withdraw_btn.press()
+    assert "nothing left to cancel" in panel.status_md.content

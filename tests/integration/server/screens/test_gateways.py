@@ -23,13 +23,14 @@ from server.backhaul.guard import Guard
 from server.backhaul.subjects import EventMessage, Place
 from server.link.state import IncomingFrame
 from server.map.scene import OperatorMap
-from server.screens.fleet import GATEWAY, PALETTE, rgb
+from server.screens.fleet import GATEWAYS, PALETTE, rgb
 from tacit import auth
 from tacit.packets import CheckpointPacket, MissionState
-from tests.integration.server.map.test_panel import fake_server, panel_for
+from tests.integration.server.map.test_panel import panel_for
 from tests.integration.server.routing.test_choice import ADDRESS, OP, Layout, running_center, until
 from tests.support.api import offline_settings
 from tests.support.nats import NATS_SERVER, NatsServer
+from tests.support.viser import fake_server
 
 needs_nats = pytest.mark.skipif(not Path(NATS_SERVER).exists(), reason="nats-server is not installed")
 PLACES = {"ship": (Place(0.0, -300.0, 1.0), 1), "buoy": (Place(0.0, 600.0, 1.0), 101)}
@@ -71,7 +72,7 @@ def test_every_gateway_its_place_state_outbox_frames_and_vehicles_on_the_api_and
     assert ship["place"] == {"north": 0.0, "east": -300.0, "depth": 1.0} and buoy["place"]["east"] == 600.0
     assert ship["latlon"][0] == pytest.approx(40.0, abs=1e-4) and ship["latlon"][1] < -74.0  # west of it
     assert (ship["address"], ship["modem"], buoy["address"]) == (1, "ready", 101)
-    assert ship["outbox"] == 0 and ship["last_outage"] is None and ship["colour"] == GATEWAY
+    assert ship["outbox"] == 0 and ship["last_outage"] is None and ship["colour"] == GATEWAYS[1]
     until(
         lambda: "poll" in (gateways(layout)["ship"]["mac"] or {}).get("exchanges", {}), what="the ship's MAC"
     )
@@ -93,17 +94,27 @@ def test_every_gateway_its_place_state_outbox_frames_and_vehicles_on_the_api_and
 
     # the map: each gateway at its place, a line in the vehicle's colour from it to its gateway
     shore = layout.client.app.state.shore
-    owner = OperatorMap(shore.screens, shore.commands, shore.bus, shore.settings, shore.operators.actor)
-    owner.server = fake_server()
+    owner = OperatorMap(
+        shore.screens,
+        shore.commands,
+        shore.bus,
+        shore.settings,
+        shore.operators.actor,
+        shore.safety.paths,
+        shore.teams.every,
+    )
+    owner.attach(fake_server())
     panel = owner.panels[1] = panel_for(owner)
-    owner._tick()
+    owner.tick()
     assert (
         "via gateway ship" in panel.fleet_html.content and "**Gateway buoy**: up for" in panel.link_md.content
     )
     nodes = owner.server.scene.nodes
     assert nodes["/gateways/ship"].position == (-300.0, 0.0, -1.0)  # (east, north, -depth)
     assert nodes["/gateways/buoy"].position == (600.0, 0.0, -1.0)
-    assert nodes["/gateways/ship"].color == rgb(GATEWAY)
+    assert nodes["/gateways/ship"].color == rgb(GATEWAYS[1]) and nodes["/gateways/buoy"].color == rgb(
+        GATEWAYS[0]
+    )
     assert "Gateway ship: up for" in nodes["/gateways/ship/label"].args[0]
     line = nodes["/gateway_links/rov1"]
     assert line.args[1] == rgb(PALETTE[0]) and tuple(line.args[0][0][1]) == (-300.0, 0.0, -1.0)
@@ -114,7 +125,7 @@ def test_every_gateway_its_place_state_outbox_frames_and_vehicles_on_the_api_and
     ).is_success
     assert (fleet_row(layout)["gateway"], fleet_row(layout)["gateway_pinned"]) == ("buoy", True)
     assert gateways(layout)["buoy"]["vehicles"] == [{"id": vehicle_id, "name": "rov1", "pinned": True}]
-    owner._tick()
+    owner.tick()
     assert tuple(nodes["/gateway_links/rov1"].args[0][0][1]) == (600.0, 0.0, -1.0)
 
 
@@ -140,7 +151,7 @@ def test_a_silent_gateway_and_an_outage_the_gateway_reports_with_its_backlog(
     until(lambda: not gateways(layout)["buoy"]["alive"], what="the buoy silent")
     buoy, ship = gateways(layout)["buoy"], gateways(layout)["ship"]
     assert buoy["state"] == "silent" and buoy["since"] == buoy["last_seen"] and buoy["for_s"] >= 5.0
-    assert buoy["colour"] != GATEWAY and ship["state"] == "up"
+    assert buoy["colour"] not in GATEWAYS and ship["state"] == "up"
 
 
 def test_a_heartbeat_that_is_not_one_is_refused() -> None:
@@ -166,9 +177,17 @@ def test_one_shore_modem_lists_no_gateway_and_shows_its_snr(tmp_path: Path) -> N
         assert (row["gateway"], row["gateway_pinned"]) == (None, False)
         [packet] = client.get("/api/v1/packets", headers=OP).json()["items"]
         assert (packet["snr"], packet["heard"]) == (9.5, [])
-        owner = OperatorMap(shore.screens, shore.commands, shore.bus, shore.settings, shore.operators.actor)
-        owner.server = fake_server()
-        owner._tick()
+        owner = OperatorMap(
+            shore.screens,
+            shore.commands,
+            shore.bus,
+            shore.settings,
+            shore.operators.actor,
+            shore.safety.paths,
+            shore.teams.every,
+        )
+        owner.attach(fake_server())
+        owner.tick()
         assert not [n for n in owner.server.scene.nodes if n.startswith(("/gateways", "/gateway_links"))]
 
 

@@ -1,5 +1,5 @@
 """The fleet on the screens (``server.screens.fleet``): one palette, and when a silent vehicle is overdue
-for its place in the schedule."""
+for its place in the schedule (or, never heard, awaited until its first report is due)."""
 
 from __future__ import annotations
 
@@ -22,5 +22,12 @@ def test_a_vehicle_is_overdue_after_its_report_gap_and_three_of_its_slot_interva
     assert fleet.slot_interval(1.0, two_equal) == pytest.approx(10.0)  # every other slot, 5 s each
     assert fleet.slot_interval(2.0, [(2.0, 5.0), (1.0, 5.0)]) == pytest.approx(7.5)  # a double share
     assert fleet.overdue_after(gap, 10.0) == pytest.approx(20.0 + fleet.OVERDUE_SLOTS * 10.0)
-    assert fleet.overdue_after(None, 10.0) is None  # fewer than two check-points: cannot tell yet
+    assert fleet.overdue_after(20.0, None) == 20.0  # no slot planned yet
     assert fleet.slot_interval(1.0, []) is None
+    assert fleet.report_gap([100.0]) is None  # fewer than two check-points: the report interval stands in
+
+
+def test_a_silence_counts_from_the_last_frame_or_from_when_the_shore_could_first_hear() -> None:
+    assert fleet.silence(990.0, listening=900.0, registered=800.0, now=1000.0) == 10.0
+    assert fleet.silence(None, listening=900.0, registered=800.0, now=1000.0) == 100.0  # since it listens
+    assert fleet.silence(None, listening=900.0, registered=950.0, now=1000.0) == 50.0  # since registered
