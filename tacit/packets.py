@@ -212,6 +212,11 @@ class Command(enum.IntEnum):
         return self is not Command.SYNC
 
     @property
+    def stops(self) -> bool:
+        """It halts the vehicle (abort, hold): the shore sends it before every other command."""
+        return self in (Command.HOLD, Command.ABORT_MISSION)
+
+    @property
     def sets_course(self) -> bool:
         """The vehicle steers by it from now on: a course an older command set is abandoned."""
         return self in _COURSE
