@@ -16,9 +16,10 @@ from server.core.config import Settings
 from server.link.state import IncomingFrame
 from tacit import auth
 from tacit.codec import PacketEncoder
-from tacit.packets import NEWEST, CheckpointPacket, MissionState, with_seq
+from tacit.packets import COVER_BITS, NEWEST, CheckpointPacket, MissionState, with_seq
 from tacit.streams import default_streams
 from vehicle_agent.agent import Agent, AgentConfig
+from vehicle_agent.state import Uncovered
 
 KEYS = {2: bytes(range(32)), 3: bytes(range(1, 33))}
 OP = {"Authorization": "Bearer op"}
@@ -93,3 +94,18 @@ def test_a_version_4_agent_says_the_silence_in_its_checkpoints_and_sends_no_pack
     old.compressor.silence_said(config.checkpoint_interval)  # version 3 cannot say it
     assert old.compressor.encoder.policy.max_silence == config.max_silence
     assert old.checkpoint().version == 3
+
+
+def test_the_agent_numbers_no_packet_a_checkpoint_could_not_cover(tmp_path: Path) -> None:
+    """A check-point covers 16 seqs back: the agent makes no priority packet that would put a delivered
+    packet not yet covered, or one in flight, out of its reach (one seq kept for the check-point)."""
+    config = AgentConfig(
+        key=KEYS[2].hex(), state_file=str(tmp_path / "agent-state.json"), modem_url="/dev/null"
+    )
+    agent = Agent(config, config.plans(tmp_path))
+    assert agent._room() == COVER_BITS - 2  # nothing outstanding: a whole window
+    agent.state.packet_seq = 10
+    agent.state.uncovered = [Uncovered(0, bytes(32))]  # delivered at seq 0, not yet covered
+    assert agent._room() == COVER_BITS - 2 - 10
+    agent.state.packet_seq = 20
+    assert agent._room() == 0
