@@ -4,11 +4,13 @@ refused with the reason, logged once and counted."""
 
 from __future__ import annotations
 
+import io
 import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pyarrow.parquet as pq
 from fastapi.testclient import TestClient
 
 from server.app import create_app
@@ -63,12 +65,19 @@ def test_a_mixed_fleet_decodes_each_vehicle_in_its_own_version(tmp_path: Path, c
         says = CheckpointPacket(seq=200, time=int(now), state=MissionState.HOLDING, quiet=20, version=NEWEST)
         ingest.handle(IncomingFrame(2, 1, auth.sign_checkpoint(says, KEYS[2], 1, 2, []), at=now + 41))
         link = client.get("/api/v1/link", headers=OP).json()
+        parquet = client.get(
+            "/api/v1/telemetry.parquet", params={"vehicle_id": 1, "stream": "imu"}, headers=OP
+        )
+        older = client.get("/api/v1/telemetry.parquet", params={"vehicle_id": 2, "stream": "imu"}, headers=OP)
         samples = {
             vid: client.get("/api/v1/telemetry", params={"vehicle_id": vid}, headers=OP).json()["items"]
             for vid in (1, 2)
         }
     assert link["vehicles"]["rov2"]["old_protocol"] == 0
     assert link["vehicles"]["rov1"]["checkpoint"]["predictable_until"] == int(now) - 20  # the silence said
+    said = pq.read_metadata(io.BytesIO(parquet.content)).metadata  # and the exports say it
+    assert float(said[b"predictable_until"]) == int(now) - 20
+    assert b"predictable_until" not in pq.read_metadata(io.BytesIO(older.content)).metadata  # none said
     assert link["vehicles"]["rov1"]["old_protocol"] == 3
     assert caplog.text.count("rov1 is registered as speaking version 4") == 1
     for vid, rows in samples.items():  # each decoded in its own version: the 40 ticks of both streams
