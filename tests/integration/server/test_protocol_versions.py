@@ -69,6 +69,7 @@ def test_a_mixed_fleet_decodes_each_vehicle_in_its_own_version(tmp_path: Path, c
             "/api/v1/telemetry.parquet", params={"vehicle_id": 1, "stream": "imu"}, headers=OP
         )
         older = client.get("/api/v1/telemetry.parquet", params={"vehicle_id": 2, "stream": "imu"}, headers=OP)
+        csv = client.get("/api/v1/telemetry.csv", params={"vehicle_id": 1, "stream": "imu"}, headers=OP)
         samples = {
             vid: client.get("/api/v1/telemetry", params={"vehicle_id": vid}, headers=OP).json()["items"]
             for vid in (1, 2)
@@ -77,6 +78,7 @@ def test_a_mixed_fleet_decodes_each_vehicle_in_its_own_version(tmp_path: Path, c
     assert link["vehicles"]["rov1"]["checkpoint"]["predictable_until"] == int(now) - 20  # the silence said
     said = pq.read_metadata(io.BytesIO(parquet.content)).metadata  # and the exports say it
     assert float(said[b"predictable_until"]) == int(now) - 20
+    assert float(csv.headers["Tacit-Predictable-Until"]) == int(now) - 20
     assert b"predictable_until" not in pq.read_metadata(io.BytesIO(older.content)).metadata  # none said
     assert link["vehicles"]["rov1"]["old_protocol"] == 3
     assert caplog.text.count("rov1 is registered as speaking version 4") == 1
