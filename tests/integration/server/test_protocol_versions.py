@@ -109,7 +109,8 @@ def test_a_version_4_agent_says_the_silence_in_its_checkpoints_and_sends_no_pack
 
 def test_the_agent_numbers_no_packet_a_checkpoint_could_not_cover(tmp_path: Path) -> None:
     """A check-point covers 16 seqs back: the agent makes no priority packet that would put a delivered
-    packet not yet covered, or one in flight, out of its reach (one seq kept for the check-point)."""
+    packet not yet covered, or one in flight, out of its reach (one seq kept for the check-point); one a
+    check-point on its way covers no longer holds the window back."""
     config = AgentConfig(
         key=KEYS[2].hex(), state_file=str(tmp_path / "agent-state.json"), modem_url="/dev/null"
     )
@@ -120,3 +121,8 @@ def test_the_agent_numbers_no_packet_a_checkpoint_could_not_cover(tmp_path: Path
     assert agent._room() == COVER_BITS - 2 - 10
     agent.state.packet_seq = 20
     assert agent._room() == 0
+    agent.state.packet_seq = 12
+    agent._send_checkpoint()  # it covers seq 0: the window opens while it is on its way
+    assert agent._room() == COVER_BITS - 2
+    agent.link.queue[-1].on_result(False)  # lost for good: seq 0 needs the next check-point again
+    assert agent._room() == COVER_BITS - 2 - 13
