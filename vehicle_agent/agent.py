@@ -57,6 +57,7 @@ from tacit.packets import (
     quiet_of,
     with_seq,
 )
+from tacit.params import CHECKPOINT_INTERVAL
 from tacit.private import private_dir
 from tacit.sampletime import SampleClock, boot_seconds
 from tacit.streams import WATER_CHANNELS, default_streams
@@ -88,7 +89,7 @@ class AgentConfig:
     time_scale: float = 1.0  # only for simulations that run faster than real time
     link_lost_timeout: float = 300.0
     lost_action: str = "hold"
-    checkpoint_interval: float = 60.0
+    checkpoint_interval: float = CHECKPOINT_INTERVAL
     plume_threshold: float = 0.5
     explore_distance: float = 10.0
     max_latency: float = 10.0

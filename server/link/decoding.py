@@ -123,8 +123,9 @@ def _samples(batch: Batch, v: VehicleState, span: DecodedSpan, packet_id: int) -
             "values": row,
             "packet_id": packet_id,
             "verified": False,
+            "part": i == 0 and span.continues,
         }
-        for k, t, row in zip(span.ticks, times, rows, strict=True)
+        for i, (k, t, row) in enumerate(zip(span.ticks, times, rows, strict=True))
     )
     v.bytes_saved += max(0, int((span.values == span.values).sum()) * 2 - packets.PACKET_SIZE)
     return TelemetryDecoded(

@@ -302,14 +302,18 @@ class Ingest:
     def _apply(
         self, s: Tx, batch: Batch, v: VehicleState, frame: IncomingFrame, frame_id: int
     ) -> list[Event]:
-        """A stored frame from a known vehicle: its packets, in order."""
+        """A stored frame from a known vehicle: its packets, in order. Only a frame that carried a packet
+        heard for the first time whose tag or check-point MAC held moves when the vehicle was last heard
+        and its shown SNRs (random bytes or a replay at a claimed SNR move nothing)."""
         v.frames += 1
         v.link.frame = frame_id
-        v.last_heard = frame.at if v.last_heard is None else max(v.last_heard, frame.at)  # late: not back
-        v.snr_in, v.snr_out = _finite(frame.snr_in), _finite(frame.snr_out)
         events: list[Event] = []
         for chunk in from_frame(frame.data):
             events += self._packet(s, batch, v, frame_id, chunk, frame.at, frame.gateway)
+        if frame_id not in batch.verified:  # not the vehicle's word: nothing says it was heard
+            return events
+        v.last_heard = frame.at if v.last_heard is None else max(v.last_heard, frame.at)  # late: not back
+        v.snr_in, v.snr_out = _finite(frame.snr_in), _finite(frame.snr_out)
         heard = {"address": v.address, "snr_in": frame.snr_in, "snr_out": frame.snr_out}
         return [*events, LinkNotice(event="heard", vehicle=v.name, detail=heard)]
 
@@ -366,6 +370,8 @@ class Ingest:
         else:
             trust, (packet_id, events) = PacketTrust.PENDING, self._priority(s, batch, v, packet, chunk, row)
             v.urgent = v.urgent or priority == Priority.TIME_SENSITIVE  # the MAC polls it sooner
+        if trust in (PacketTrust.VERIFIED, PacketTrust.PENDING):  # its MAC, or its tag, held
+            batch.verified.add(frame_id)
         log.info("vehicle %s: %s packet seq %d stored (%s)", v.name, kind, packet.seq, trust.value)
         heard = PacketHeard(
             id=packet_id,
