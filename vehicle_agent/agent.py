@@ -34,6 +34,7 @@ from pathlib import Path
 
 from tacit import auth, modem
 from tacit.codec import EncodedPacket
+from tacit.codec.format import MAX_WINDOW
 from tacit.config import check_keys
 from tacit.limits import Limits
 from tacit.navigation import Pose, Target
@@ -286,7 +287,8 @@ class Agent:
             )
         if packet.param_id & SYNC_RESTART_CHAINS:
             log.warning("shore asked to restart the sample chains (it lost their state)")
-            self.compressor.restart_chains()
+            forgotten = self.compressor.restart_chains()  # they continue from states the shore lost
+            self.link.withdraw([self._flying.pop(q) for q in forgotten if q in self._flying])
         self._persist()
 
     def _on_delivered(self, packet: bytes) -> Callable[[bool], None]:
@@ -353,7 +355,7 @@ class Agent:
         flight (a check-point lost for good leaves those it covered out of reach: unverifiable)."""
         outstanding = self._unvouched() + self.compressor.in_flight()
         used = max(((self.state.packet_seq - q) % 256 for q in outstanding), default=0)
-        return max(0, COVER_BITS - 2 - used)
+        return max(0, MAX_WINDOW - used)
 
     def _send_packets(self) -> None:
         self.compressor.follow(self.link.capacity)

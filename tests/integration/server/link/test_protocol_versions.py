@@ -16,9 +16,19 @@ from fastapi.testclient import TestClient
 from server.app import create_app
 from server.core.config import Settings
 from server.link.state import IncomingFrame
-from tacit import auth
+from tacit import auth, nmea
 from tacit.codec import PacketEncoder
-from tacit.packets import COVER_BITS, NEWEST, CheckpointPacket, MissionState, with_seq
+from tacit.codec.format import MAX_WINDOW
+from tacit.packets import (
+    NEWEST,
+    SYNC_RESTART_CHAINS,
+    CheckpointPacket,
+    Command,
+    ControlPacket,
+    MissionState,
+    Stream,
+    with_seq,
+)
 from tacit.streams import default_streams
 from vehicle_agent.agent import Agent, AgentConfig
 from vehicle_agent.state import Uncovered
@@ -115,14 +125,36 @@ def test_the_agent_numbers_no_packet_a_checkpoint_could_not_cover(tmp_path: Path
         key=KEYS[2].hex(), state_file=str(tmp_path / "agent-state.json"), modem_url="/dev/null"
     )
     agent = Agent(config, config.plans(tmp_path))
-    assert agent._room() == COVER_BITS - 2  # nothing outstanding: a whole window
+    assert agent._room() == MAX_WINDOW  # nothing outstanding: a whole window
     agent.state.packet_seq = 10
     agent.state.uncovered = [Uncovered(0, bytes(32))]  # delivered at seq 0, not yet covered
-    assert agent._room() == COVER_BITS - 2 - 10
+    assert agent._room() == MAX_WINDOW - 10
     agent.state.packet_seq = 20
     assert agent._room() == 0
     agent.state.packet_seq = 12
     agent._send_checkpoint()  # it covers seq 0: the window opens while it is on its way
-    assert agent._room() == COVER_BITS - 2
+    assert agent._room() == MAX_WINDOW
     agent.link.queue[-1].on_result(False)  # lost for good: seq 0 needs the next check-point again
-    assert agent._room() == COVER_BITS - 2 - 13
+    assert agent._room() == MAX_WINDOW - 13
+
+
+def test_a_restart_request_withdraws_the_packets_in_flight_and_codes_their_samples_again(
+    tmp_path: Path,
+) -> None:
+    config = AgentConfig(
+        key=KEYS[2].hex(), state_file=str(tmp_path / "agent-state.json"), modem_url="/dev/null"
+    )
+    agent = Agent(config, config.plans(tmp_path))
+    agent.link._answer_poll(nmea.DataRequest("000000", 2, 1, True, 256, 1))  # a rate-5 poll's frame
+    rng, now = np.random.default_rng(2), agent.now()
+    for k in range(40):  # an IMU the shore cannot predict: full packets
+        agent.compressor.add(Stream.KINEMATIC, now - 20 + 0.25 * k, list(rng.normal(0, 500, 9)))
+    agent._send_packets()
+    queued = [item.data for item in agent.link.queue]
+    assert len(queued) == 8 and len(agent.compressor.encoder.pending) < 40  # a window of 8 in flight
+    sync = ControlPacket(Command.SYNC, seq=1, time=int(now), param_id=SYNC_RESTART_CHAINS)
+    agent._on_sync(sync)
+    assert not any(data in queued for data in (item.data for item in agent.link.queue))
+    assert {x.serial for x in agent.compressor.encoder.pending} == set(
+        range(40)
+    )  # coded from the start again
