@@ -1,5 +1,5 @@
-"""The screens' gateways (issue 24, item 6), integration tier: the center's app on PostgreSQL with a real
-nats-server and two gateways on the routing tests' stand-in modems (``test_routing``'s rig), each told
+"""The screens' gateways, integration tier: the center's app on PostgreSQL with a real
+nats-server and two gateways on the routing tests' stand-in modems (``routing/test_choice``'s rig), each told
 where its modem is. ``GET /api/v1/gateways`` (what the dashboard and the map both show) says each
 gateway's place, modem, outbox, backhaul state and since when, its last outage with the backlog it came
 back with, its frames and vehicles; ``GET /fleet`` each vehicle's gateway and pin; ``GET /packets`` which
