@@ -173,11 +173,6 @@ class OldVersion(PacketError):
     """A packet of the protocol version before this one: its sender needs updating, not a closer look."""
 
 
-class OtherVersion(OldVersion):
-    """A packet in a version this end speaks but its sender is not registered for (its samples are coded
-    as that version codes them): the agent's configuration and the registration must agree."""
-
-
 class FieldRangeError(PacketError):
     """A value outside the documented range of its field."""
 
