@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from bench_fleet import recorded_dive
 
-from tacit.codec import PacketDecoder
+from tacit.codec import EncodedPacket, PacketDecoder
 from tacit.link import capacity
 from tacit.packets import Stream
 from tacit.streams import default_streams
@@ -57,7 +57,7 @@ def run(rate: int, protocol: int, interval: float, minutes: float) -> Run:
         Stream.ENVIRONMENTAL: itertools.cycle(env),
     }
     out, seq, t, next_poll = Run(), 0, T0, T0 + interval
-    in_flight: list[tuple[int, list[tuple[str, int, float]]]] = []
+    in_flight: list[tuple[int, EncodedPacket]] = []
     held: set[tuple[str, int]] = set()
     step = min(period.values())
     while t < T0 + 60 * minutes:
@@ -71,7 +71,7 @@ def run(rate: int, protocol: int, interval: float, minutes: float) -> Run:
                 out.samples += 1
         for _, encoded in compressor.ready(t, seq):
             seq += 1
-            in_flight.append((encoded.packet.seq, encoded))  # type: ignore[arg-type]
+            in_flight.append((encoded.packet.seq, encoded))
         if t >= next_poll:
             next_poll += interval
             brought = in_flight[: capacity(rate)]
@@ -80,7 +80,7 @@ def run(rate: int, protocol: int, interval: float, minutes: float) -> Run:
             compressor.follow(capacity(rate))  # the vehicle learns what a poll carries from the poll
             for packet_seq, encoded in brought:
                 compressor.resolve(packet_seq, True)
-                for span in decoder.decode(encoded.packet.payload, t, packet_seq):  # type: ignore[attr-defined]
+                for span in decoder.decode(encoded.packet.payload, t, packet_seq):
                     every = 1.0 if span.spec.name == streams[Stream.ENVIRONMENTAL].name else step
                     for at, values in zip(span.times, span.values, strict=True):
                         key = (span.spec.name, round((float(at) - T0) / every))
