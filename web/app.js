@@ -734,8 +734,9 @@ $("commands").addEventListener("click", async (e) => {
   try {
     const c = await api(`/commands/${id}/cancel`, { method: "POST" });
     state.commands.set(id, c);
-    $("command-result").className = "status-cancelled";
-    $("command-result").textContent = `#${id} ${describe(c)} to ${nameOf(c.vehicle_id)}: cancelled, never sent`;
+    $("command-result").className = `status-${c.status}`;
+    $("command-result").textContent = `#${id} ${describe(c)} to ${nameOf(c.vehicle_id)}: ` + (c.status === "cancelling"
+      ? "withdrawing it from the gateway that holds it: cancelled unless that gateway sent it first" : "cancelled, never sent");
   } catch (error) {
     $("command-result").className = "status-refused";
     $("command-result").textContent = `Not cancelled: ${error.message}`;

@@ -73,7 +73,11 @@ from tacit.packets import Command
 log = logging.getLogger("tacit.backhaul.dispatch")
 
 Kept = Callable[[], Awaitable[list[ScheduleMessage]]]  # the last schedule the stream keeps per gateway
-FINAL = {"acked": DispatchState.ACKED, "failed": DispatchState.FAILED, "expired": DispatchState.EXPIRED}
+FINAL = {
+    "acked": DispatchState.ACKED, "failed": DispatchState.FAILED, "expired": DispatchState.EXPIRED,
+    "withdrawn": DispatchState.WITHDRAWN,
+}  # fmt: skip
+UNSENT = ("withdrawn", "expired")  # a gateway's final word of a frame it never sent
 STEP = {"stored": DispatchState.STORED, "sent": DispatchState.SENT, "acked": DispatchState.SENT}
 SYNC_LEAD = 1.0  # s: a SYNC published now reaches its gateway before a slot opening this much later
 OWN_SHARE = 4.0  # a vehicle's own gateway polls it this many times as often as each other gateway
@@ -111,6 +115,7 @@ class Dispatcher:
         self.kept = kept
         self.inherited: tuple[float, set[str], float] | None = None  # (read at, gateways, slot) of kept plans
         self._published: set[str] = set()  # dispatches published by this process
+        self._withdrawn: set[str] = set()  # dispatches this process withdrew (their commands cancelled)
         self.slots = Schedule()  # the TDMA frames handed out: when each gateway transmits next
         self._last_sync: dict[int, tuple[str, Sync]] = {}  # by address: the last SYNC sent, its message id
         self._answer_at: dict[int, float] = {}  # by address: the stamp of the last SYNC answering a challenge
@@ -150,6 +155,7 @@ class Dispatcher:
         now = time.time() if now is None else now
         coordinating = self.coordinating()
         if coordinating:
+            await self._withdraw(now)
             for refuted in await asyncio.to_thread(self.routing.audit, now):
                 await asyncio.to_thread(self._refuted, refuted)
             await asyncio.to_thread(self.routing.update, now)
@@ -388,10 +394,19 @@ class Dispatcher:
         command, _ = self.desk.get(report.dispatch.command_id)
         said = Origin(StepSource.GATEWAY, event.gateway)
         if report.fresh_attempt:
+            lost = (
+                ": on the air before its withdrawal, the cancel lost"
+                if command.status == CommandState.CANCELLING
+                else ""
+            )
             self.desk.said(
-                said, command, CommandState.SENT, f"attempt {command.attempts + 1} via {event.gateway}",
+                said, command, CommandState.SENT, f"attempt {command.attempts + 1} via {event.gateway}{lost}",
                 at=event.at, attempts=command.attempts + 1,
             )  # fmt: skip
+        elif final and outcome in UNSENT and command.status == CommandState.CANCELLING:
+            self.desk.said(
+                said, command, CommandState.CANCELLED, f"withdrawn from {event.gateway}: never sent"
+            )
         if final and outcome == "acked":
             self.desk.said(said, command, CommandState.ACKNOWLEDGED, f"via {event.gateway}", at=event.at)
             return self._others(report.dispatch)
@@ -404,6 +419,28 @@ class Dispatcher:
         for other in others:
             self.routing.set_dispatch(other.id, DispatchState.SUPERSEDED)
         return others
+
+    async def _withdraw(self, now: float) -> None:
+        """The frames of the commands being cancelled taken back from the gateways that hold them (a
+        ``WithdrawMessage`` each, once; their words end the cancels, ``_attempt``); one a gateway never
+        stored before its ``start_by`` it never sends: cancelled at once."""
+        for command in await asyncio.to_thread(self.desk.cancelling):
+            for dispatch in await asyncio.to_thread(self.routing.dispatches, saved_id(command)):
+                if dispatch.state == DispatchState.PUBLISHED and now > dispatch.start_by:
+                    detail = f"{dispatch.gateway} never had it in time: never sent"
+                    shore = Origin(StepSource.SHORE)
+                    await asyncio.to_thread(self.desk.said, shore, command, CommandState.CANCELLED, detail)
+                elif not dispatch.final and dispatch.id not in self._withdrawn:
+                    message = WithdrawMessage(subjects.withdraw_id(dispatch.id), dispatch.gateway, dispatch.id,
+                                              WithdrawReason.CANCELLED)  # fmt: skip
+                    await self.publish(subjects.commands(dispatch.gateway), message.encode(), message.id)
+                    self._withdrawn.add(dispatch.id)
+                    log.info(
+                        "command %d: %s withdrawn from %s (cancelled)",
+                        command.id,
+                        dispatch.id,
+                        dispatch.gateway,
+                    )
 
     def _refuted(self, dispatch: Dispatch) -> None:
         """A gateway's ACK the vehicle's check-points refute: the command is the link's again (sent, not

@@ -239,9 +239,9 @@ def layout(broker: NatsServer, tmp_path: Path) -> Iterator[tuple[TestClient, dic
 def test_a_budget_moves_with_its_vehicle(layout: tuple[TestClient, dict[str, Outbox]]) -> None:
     client, outboxes = layout
     vehicle_id = register(client)
-    heard = CheckpointPacket(seq=1, time=int(time.time()), state=MissionState.PREPROGRAMMED)
-    frame = auth.sign_checkpoint(heard, KEY, 1, ADDRESS, [])  # verified: routing counts it
-    outboxes["ship"].add_frame(ADDRESS, 0, frame, snr_in=20.0)
+    checkpoint = CheckpointPacket(seq=1, time=int(time.time()), state=MissionState.PREPROGRAMMED)
+    heard = auth.sign_checkpoint(checkpoint, KEY, 1, ADDRESS, [])  # the vehicle's own word: routing counts it
+    outboxes["ship"].add_frame(ADDRESS, 0, heard, snr_in=20.0)
     until(lambda: outboxes["ship"].budget_left(ADDRESS)[0], what="the ship's budget")
     count, last = outboxes["ship"].budget_left(ADDRESS)
     assert (
