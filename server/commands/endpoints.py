@@ -15,6 +15,8 @@ from server.commands.schemas import (
     FleetCommandIn,
     FleetCommandsOut,
 )
+from server.core import errors
+from server.core.errors import Conflict
 
 router = APIRouter(prefix="/api/v1", tags=["commands"])
 
@@ -69,8 +71,7 @@ def get_command(command_id: Id, desk: CommandsDep) -> CommandDetail:
     responses={
         202: {"model": CommandDetail, "description": "cancelling: withdrawn from the gateway that holds it; "
               "its word ends it, cancelled (it had not sent it) or sent (the cancel lost)"},
-        409: {"description": "too late: on the air, or past queued; the detail says which, and the command "
-              "goes on as sent"},
+        **errors.responses(Conflict),
     },
 )  # fmt: skip
 def cancel_command(command_id: Id, desk: CommandsDep, actor: Writer, response: Response) -> CommandDetail:

@@ -99,6 +99,7 @@ class Routing:
                 row.beating_since = at
             place, outage = beat.place, beat.outage
             row.last_seen, row.address, row.modem, row.outbox = at, beat.address, beat.modem, beat.outbox
+            row.mac = beat.link
             row.north, row.east, row.depth = (
                 (place.north, place.east, place.depth) if place else (None, None, None)
             )
