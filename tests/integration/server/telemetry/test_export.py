@@ -393,7 +393,10 @@ def test_a_sample_sent_in_parts_is_one_row(client: TestClient, tmp_path: Path, s
     """A stream's first sample leaves in parts (its first values coded finer): the rest comes in the next
     packet, stored as a part of the row before. The export joins them: one row per sample time, as
     certain and as trusted as its least, and a second sample of the same tick stays its own row."""
-    vehicle = client.post("/api/v1/vehicles", json={"name": "rov3", "address": 4}, headers=OP).json()
+    body = {"name": f"parts-{suffix}", "address": 10 + ["csv", "parquet", "nc"].index(suffix)}
+    answer = client.post("/api/v1/vehicles", json=body, headers=OP)
+    assert answer.status_code == 201, answer.text
+    vehicle = answer.json()
     with writing(client.app.state.shore.db) as s:  # type: ignore[attr-defined]
         ids = add_packets(s, vehicle["id"])
         first = env(1, [20.0, None, None], vehicle_id=vehicle["id"], ids=ids)
