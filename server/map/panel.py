@@ -22,6 +22,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from server.commands.models import CommandState
 from server.commands.schemas import FLEET_COMMANDS, CommandIn
 from server.commands.service import CommandDesk
 from server.core.config import Settings
@@ -423,6 +424,11 @@ class OperatorPanel:
             command = self.map.desk.cancel(command_id, actor.name)
         except ApiError as exc:
             return self._status(f"**Not cancelled**: {exc.detail}")
+        if command.status == CommandState.CANCELLING:
+            return self._status(
+                f"Command #{command.id} seq {command.seq}: **cancelling**: withdrawn from the gateway that holds "
+                "it, cancelled unless that gateway sent it first"
+            )
         return self._status(f"Command #{command.id} seq {command.seq}: **cancelled**, never sent")
 
     def send_fleet(self, command: str) -> str:

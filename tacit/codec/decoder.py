@@ -217,6 +217,8 @@ class PacketDecoder:
                 predictor.skip(index - cursor - 1)
                 prediction = predictor.predict()
             before, same_tick = presence_before(coder), token.kind == SAME and phase == last_phase
+            if rows:  # a row merged from parts has the channels of each
+                before = (~np.isnan(rows[-1])).tolist()
             row = _reconstruct(predictor, prediction, read_sample(coder, decoder))
             if continues(before, (~np.isnan(row)).tolist(), same_tick) and (rows or lost is None):
                 if rows:  # a part of the row before: one row

@@ -813,3 +813,12 @@ def test_wire_bytes_of_version_4_are_pinned_and_decode_back() -> None:
     pending = {(s, x.serial) for s, queue in enumerate(enc._queues) for x in queue}
     flying = {(s, x.serial) for f in enc.in_flight for s, xs in enumerate(f.taken) for x in xs}
     assert held | pending | flying == {(s, k) for s in range(2) for k in range(len(truth[s]))}
+
+
+def test_samples_of_one_tick_merge_into_a_row_only_where_the_row_lacks_their_channels() -> None:
+    """Three samples of one tick, channels alternating: the first two are one row; the third has a
+    channel that row has, so it is a row of its own (merged, its value would be lost)."""
+    nan = float("nan")
+    run = Run(spec(2, 1.0)).feed(np.full(3, T0), np.array([[nan, 2.0], [0.0, nan], [nan, 0.0]]))
+    assert run.packets[0].rows[0] == [0, 0, 1] and len(run.spans[0].ticks) == 2
+    run.check()
