@@ -71,7 +71,7 @@ class PacketDecoder:
         self.specs = list(specs)
         self.coding = coding(protocol)
         self.predictors = [Dual(s, self.coding) for s in self.specs]
-        self._initial = Chain.initial(self.specs, self.predictors)
+        self._initial = Chain.initial(self.specs, self.predictors, self.coding)
         self.snapshots: dict[int, Chain] = {}
 
     def decode(self, payload: bytes, received_at: float) -> list[DecodedSpan]:
@@ -128,7 +128,7 @@ class PacketDecoder:
         """Take the state ``to_bytes`` saved (replacing what this decoder holds); ``CodecError`` if
         ``data`` is not such a state or was saved for other streams (the decoder is then unchanged: start
         empty, and the vehicle will be asked to restart)."""
-        self.snapshots = restore(self.specs, data)
+        self.snapshots = restore(self.specs, data, self.coding)
 
     @classmethod
     def from_bytes(cls, specs: list[StreamSpec], data: bytes, protocol: int = 3) -> PacketDecoder:

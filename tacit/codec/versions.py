@@ -12,6 +12,11 @@ Version 4 adds:
   sampler whose intervals wander about its period (a glider's CTD reporting every one, two or three of its
   own cycles) then costs a STEP per sample instead of SAME and JUMP tokens; a gap longer than the
   tolerance stays a gap. Nothing changes on the shore: any tick is decoded as before.
+- **timing** (``tacit.codec.models.Timing``): JUMP's count is coded as the stream's last one, the one
+  before, or a new one, and the token after a sample is modelled by how long its run of equal tick deltas
+  is (against that delta's run before); the tolerance above then prefers the tick the last delta (or,
+  after a lone one, the one before) leads to. A glider's depth-binned schedule (5, 10, 20 s on a 5 s
+  grid) and its gaps between dives cost about 40 % fewer bits beyond a regular clock's than in version 3.
 - **the line** (``tacit.codec.prediction``): each channel may also predict by extending the line through
   its last two values (a profile's steady change with depth or time, which the Kalman filter fed
   reconstructions lags and hold follows a step at a time); both ends use it while it has lately missed
@@ -33,6 +38,7 @@ class Coding:
     version: int
     tolerance: bool = False  # date a sample on the next tick when within the stream's time tolerance
     trend: bool = False  # a channel may predict by extending the line through its last two values
+    timing: bool = False  # a sample's tick delta is coded against the stream's last ones
 
 
 def coding(protocol: int) -> Coding:
@@ -40,5 +46,5 @@ def coding(protocol: int) -> Coding:
     if protocol == 3:
         return Coding(3)
     if protocol == 4:
-        return Coding(4, tolerance=True, trend=True)
+        return Coding(4, tolerance=True, trend=True, timing=True)
     raise ValueError(f"protocol {protocol}: this codec codes versions {', '.join(map(str, VERSIONS))}")

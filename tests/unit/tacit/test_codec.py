@@ -750,3 +750,63 @@ def test_version_4_extends_a_profile_s_line_on_both_ends() -> None:
         run.check()
         bits[version] = sum(p.code_bits for p in run.packets)
     assert bits[4] < 0.9 * bits[3]  # 4785 code bits against 8371
+
+
+def glider_clock(dives: int = 4, seed: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """A glider's CTD on a depth-binned schedule (5 s above 50 m, 10 s to 150 m, 20 s below; each interval
+    jittered by +-0.4 s), dives to 200 m and climbs at 0.2 m/s, 15 minutes at the surface between dives:
+    (times, rows of temperature and depth)."""
+    rng = np.random.default_rng(seed)
+    times, depths, t = [], [], T0
+    for _ in range(dives):
+        depth, down = 0.0, True
+        while down or depth > 0:
+            times.append(t)
+            depths.append(depth)
+            interval = 5.0 if depth < 50 else 10.0 if depth < 150 else 20.0
+            t += interval + rng.uniform(-0.4, 0.4)
+            depth += (0.2 if down else -0.2) * interval
+            down = down and depth < 200
+        t += 900.0
+    depth = np.array(depths)
+    temperature = 4 + 16 * np.exp(-depth / 40) + rng.normal(0, 0.002, len(depth))
+    return np.array(times), np.column_stack([temperature, depth])
+
+
+def test_a_glider_s_schedule_and_gaps_cost_version_4_less_than_version_3() -> None:
+    """The same samples on their irregular clock (5, 10 and 20 s intervals on a 5 s grid, gaps between
+    dives) and one tick apart: what the irregular clock adds, version 4 codes in 40 % fewer bits than
+    version 3 (JUMP's count is the last one; a run's length says when the interval changes); every value within
+    eps, every time within half a tick, gaps exact, through lost packets."""
+    s = spec(2, [0.01, 0.1], period=5.0)
+    times, rows = glider_clock()
+    added = {}
+    for version in (3, 4):
+        Run(s, lose={3, 11}, max_latency=600.0, protocol=version).feed(times, rows).check()
+        irregular = Run(s, max_latency=600.0, protocol=version).feed(times, rows)
+        regular = Run(s, max_latency=600.0, protocol=version).feed(T0 + 5.0 * np.arange(len(times)), rows)
+        irregular.check()
+        added[version] = sum(p.code_bits for p in irregular.packets) - sum(
+            p.code_bits for p in regular.packets
+        )
+    assert 0 < added[4] < 0.7 * added[3], added  # 386 bits against 643
+
+
+def test_version_4_s_saved_state_continues_and_another_version_s_is_refused() -> None:
+    """The shore saves its version 4 chain (the timing models and runs with it) and continues from it
+    after a restart; a state saved by a decoder of another version is refused, not misread."""
+    s = spec(2, [0.01, 0.1], period=5.0)
+    times, rows = glider_clock(dives=1)
+    enc, dec = StreamEncoder(s, 600.0, protocol=4), StreamDecoder(s, 4)
+    decoded = 0
+    for t, x in zip(times, rows, strict=True):
+        enc.push(t, x)
+        while enc.ready(t):
+            payload = enc.take().packet.payload
+            enc.resolve(True)
+            decoded += len(dec.decode(payload, t).ticks)
+            saved, dec = dec.to_bytes(), StreamDecoder(s, 4)
+            dec.load(saved)  # a restart after every packet
+    with pytest.raises(CodecError, match="another payload version"):
+        StreamDecoder(s, 3).load(dec.to_bytes())
+    assert decoded > 0.9 * len(times)
