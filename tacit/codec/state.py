@@ -91,6 +91,7 @@ def _fingerprint(specs: Sequence[StreamSpec]) -> list:
             s.method,
             None if s.initial is None else list(s.initial),
             s.cross,
+            *([] if s.depth is None else [s.depth]),
         ]
         for s in specs
     ]

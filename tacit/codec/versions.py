@@ -21,6 +21,9 @@ Version 4 adds:
   its last two values (a profile's steady change with depth or time, which the Kalman filter fed
   reconstructions lags and hold follows a step at a time); both ends use it while it has lately missed
   and erred 20 % less than the prediction it replaces, so the choice costs no bits.
+- **the profile** (``tacit.codec.profile``): in a stream with a depth channel (``StreamSpec.depth``),
+  each other channel may predict from the vehicle's last pass (dive or climb): its last value plus how
+  much the last pass changed between the last sample's depth and this one's, chosen the same way.
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ class Coding:
     tolerance: bool = False  # date a sample on the next tick when within the stream's time tolerance
     trend: bool = False  # a channel may predict by extending the line through its last two values
     timing: bool = False  # a sample's tick delta is coded against the stream's last ones
+    profile: bool = False  # a channel may predict from its last profile (a stream with a depth channel)
 
 
 def coding(protocol: int) -> Coding:
@@ -46,5 +50,5 @@ def coding(protocol: int) -> Coding:
     if protocol == 3:
         return Coding(3)
     if protocol == 4:
-        return Coding(4, tolerance=True, trend=True, timing=True)
+        return Coding(4, tolerance=True, trend=True, timing=True, profile=True)
     raise ValueError(f"protocol {protocol}: this codec codes versions {', '.join(map(str, VERSIONS))}")
