@@ -95,7 +95,11 @@ def run_codec(
     max_silence: float | None = 60.0,
     progress: bool = False,
     protocol: int = NEWEST,
+    checkpoints: float | None = None,
 ) -> tuple[Result, Reconstruction]:
+    """``checkpoints``: a version-4 vehicle's check-point interval; each says up to when its streams were
+    predictable (``PacketEncoder.predictable_until``), which confirms the samples before that
+    (``max_confirmation_s``: by a packet or a check-point, whichever came first)."""
     encoder = StreamEncoder(spec, max_latency, urgent_threshold, max_silence, protocol)
     decoder = StreamDecoder(spec, protocol)
     rng = random.Random(seed)
@@ -109,6 +113,9 @@ def run_codec(
     packets, cpu = 0, 0.0
     latencies: list[float] = []
     confirmations: list[float] = []
+    confirmed_at = np.full(len(series.times), np.inf)  # per row: when a packet or a check-point vouched
+    marks: list[tuple[float, float]] = []  # (check-point time, predictable until)
+    next_checkpoint = float(series.times[0]) + checkpoints if checkpoints and len(series.times) else np.inf
     code_bits: list[int] = []
 
     def send(now: float) -> None:
@@ -120,9 +127,11 @@ def run_codec(
         encoder.resolve(delivered)
         if not delivered:
             return
-        span = decoder.decode(encoded.packet.payload, now)
+        span = decoder.decode(encoded.packet.payload, now, encoded.packet.seq)
         latencies.extend(now - t for t in encoded.surprise_times)
         confirmations.extend(now - t for t in encoded.sample_times)
+        for serial in encoded.serials[0]:
+            confirmed_at[row_of[serial]] = min(confirmed_at[row_of[serial]], now)
         for serial, r in zip(encoded.serials[0], encoded.rows[0], strict=True):
             at, row = span.times[r], span.values[r]
             held = shore[row_of[serial]]  # a sample too large for one packet arrives in parts (channels)
@@ -139,6 +148,9 @@ def run_codec(
         # that has waited exactly the bound)
         while (due := encoder.deadline()) is not None and due < t and encoder.ready(due):
             send(due)
+        while next_checkpoint <= t:
+            marks.append((next_checkpoint, encoder.predictable_until(next_checkpoint)))
+            next_checkpoint += checkpoints or np.inf
         start = time.perf_counter()
         if encoder.push(t, x):
             row_of.append(i)
@@ -174,7 +186,11 @@ def run_codec(
         float(ratios.max()) if ratios.size else 0.0,
         float(np.sqrt(np.mean(ratios**2))) if ratios.size else 0.0,
         float(max(latencies)) if latencies else 0.0,
-        float(max(confirmations)) if confirmations else 0.0,
+        _confirmation(series.times[row_of], confirmed_at[row_of], marks)
+        if checkpoints
+        else float(max(confirmations))
+        if confirmations
+        else 0.0,
         int((present & ~held).sum()),
         us_per_tick=cpu / max(1, len(row_of)) * 1e6,
         samples_absent=int((~present).sum()),
@@ -185,6 +201,17 @@ def run_codec(
         code_bits_per_sample=sum(code_bits) / max(1, samples),
     )
     return result, Reconstruction(series.times, truth, shore, sent)
+
+
+def _confirmation(times: np.ndarray, by_packet: np.ndarray, marks: list[tuple[float, float]]) -> float:
+    """The longest a sample waited to be vouched for: by its packet, or by the first check-point that
+    said its stream predictable past it (their marks never go back)."""
+    if not len(times):
+        return 0.0
+    at = np.array([c for c, _ in marks] + [np.inf])
+    until = np.maximum.accumulate(np.array([u for _, u in marks] + [np.inf]))
+    by_checkpoint = at[np.searchsorted(until, times, side="left")]
+    return float(np.max(np.minimum(by_packet, by_checkpoint) - times))
 
 
 def pack(items: list[tuple[float, int]], capacity_bits: int, max_latency: float) -> tuple[int, float]:

@@ -117,7 +117,9 @@ class Craft:
             id=index + 1, name=f"rov{index + 1}", address=index + 2,
             decoder=PacketDecoder(list(default_streams().values())), range_m=self.range_m,
         )  # fmt: skip
-        self.compressor = Compressor(default_streams(), config.max_latency, config.max_silence)
+        # version 3: one packet in flight, as this model of the link sends them
+        self.compressor = Compressor(default_streams(), config.max_latency, config.max_silence, protocol=3)
+        self.seq = 0  # the vehicle's packet counter
         self.checkpoint_every = config.checkpoint_interval
         self.command_every = command_every
         self.outbox: list[Outgoing] = []
@@ -167,7 +169,8 @@ class Craft:
     def _queue_ready(self, now: float) -> None:
         if self.in_flight is not None:
             return
-        for _, encoded in self.compressor.ready(now):
+        for _, encoded in self.compressor.ready(now, self.seq):
+            self.seq += 1
             urgent = encoded.packet.priority is Priority.TIME_SENSITIVE
             packet = Outgoing(urgent, now, encoded.sample_times, encoded.surprise_times, urgent)
             self.in_flight = packet
@@ -184,7 +187,7 @@ class Craft:
                 self.tally.to_report.append(at - self.command_acked)
                 self.command_acked = None
             return
-        self.compressor.resolve(Stream.KINEMATIC, True)
+        self.compressor.resolve(self.seq - 1, True)
         self.in_flight = None
         self.tally.samples_delivered += len(packet.sample_times)
         self.tally.sample_latency.extend(at - t for t in packet.sample_times)

@@ -12,7 +12,7 @@ Every row has a test in the suite at a small budget (named in the last column); 
   backups   a backup with a byte flipped or cut anywhere (restored, or files left behind)
             (each row counts only the cases that reached the check: otherwise NOT MEASURED)
   api       schemathesis over the server's OpenAPI (every operation, --api-examples each): 5xx = failure
-  rest      non-finite numbers, oversized keys and names, partial updates (tests/integration/server/test_bad_input.py)
+  rest      non-finite numbers, oversized keys and names, partial updates (tests/integration/server/api/test_bad_input.py)
   faults    the running system (sim, serve, agent as processes): 50 % frame loss, the server SIGKILLed
             mid-mission, the agent SIGKILLed mid-mission: stored packets lost, commands executed twice,
             priority packets decoded after the restart
@@ -321,7 +321,7 @@ def shore_attacks(cases: int) -> None:
                 )
         else:
             accepted = ingest.stats["verified"] - before
-        row("attacks", name, f"{cases:,}", f"{accepted} accepted", "test_trust: forged_*")
+        row("attacks", name, f"{cases:,}", f"{accepted} accepted", "test_verify: forged_*")
     late_checkpoints(ingest, cases, lambda i: checkpoint(i, key, t0 - 1 - i))
     db.dispose()
 
@@ -342,7 +342,7 @@ def late_checkpoints(ingest: Any, cases: int, make: Callable[[int], bytes]) -> N
         "check-point late (never heard, older than the last)",
         f"{cases:,}",
         f"{moved} set the state back ({ingest.stats['late'] - late} verified late)",
-        "test_trust: forged_checkpoints_change_nothing; test_backhaul_order",
+        "test_verify: forged_checkpoints_change_nothing; test_outages_and_restarts",
     )
 
 
@@ -465,7 +465,7 @@ def token_attacks(c: Any, op: dict[str, str], cases: int) -> None:
         if reached == streams
         else f"NOT MEASURED ({reached} of {streams})"
     )
-    row("tokens", "a revoked token's open event stream", f"{streams:,}", outcome, "test_operators")
+    row("tokens", "a revoked token's open event stream", f"{streams:,}", outcome, "test_tokens")
     minted = reached = 0
     for i in range(cases):
         short = c.post(
@@ -477,7 +477,7 @@ def token_attacks(c: Any, op: dict[str, str], cases: int) -> None:
         reached += answer in (201, 422)
         minted += answer == 201
     outcome = f"{minted} minted" if reached == cases else f"NOT MEASURED ({reached} of {cases})"
-    row("tokens", "an expiring operator mints a longer-lived token", f"{cases:,}", outcome, "test_operators")
+    row("tokens", "an expiring operator mints a longer-lived token", f"{cases:,}", outcome, "test_tokens")
 
 
 def backup_attacks(database: Path, cases: int) -> None:
@@ -517,12 +517,12 @@ def backup_attacks(database: Path, cases: int) -> None:
         "a backup flipped or truncated anywhere",
         f"{cases:,}",
         outcome,
-        "test_ops: corrupt_truncated",
+        "test_operations: corrupt_truncated",
     )
 
 
 def api(examples: int) -> None:
-    passed, failed = pytest_counts("test_schemathesis.py", {"TACIT_API_EXAMPLES": str(examples)})
+    passed, failed = pytest_counts("api/test_schemathesis.py", {"TACIT_API_EXAMPLES": str(examples)})
     row(
         "api",
         "schemathesis, every operation",
@@ -530,7 +530,7 @@ def api(examples: int) -> None:
         f"{failed} failed",
         "test_schemathesis",
     )
-    passed, failed = pytest_counts("test_bad_input.py")
+    passed, failed = pytest_counts("api/test_bad_input.py")
     row(
         "api",
         "NaN/Infinity/1e999 in every float, 100 kB keys, partial PUT",

@@ -36,7 +36,7 @@ from server.core.db import make_engine, migrate
 from server.core.events import Bus
 from tacit.streams import default_streams
 
-TEST = "test_broker_access: no_request_of_a_gateway"
+TEST = "test_access: no_request_of_a_gateway"
 NEXT = f"{access.GATEWAY_API}.CONSUMER.MSG.NEXT.{subjects.COMMANDS_STREAM}.gateway-ship"
 
 

@@ -201,7 +201,7 @@ def lost_state() -> Row:
             f"commands executed by the attack: {executed}; resynchronised {resynced:.0f} s after the "
             f"restart, {exchanges} SYNC(s) sent",
             f"{refused} replayed frames refused by the agent",
-            "test_protocol_v3: attack_1_a_lost_state",
+            "test_freshness: attack_1_a_lost_state",
         )
     finally:
         recorder.close()
@@ -270,7 +270,7 @@ def forged_twins() -> Row:
             f"{sent} twins in {TWINS_S:.0f} s",
             f"genuine check-points refused: {refused} (verified: {delta['verified']})",
             f"{delta['forged']} twins heard by the shore (refused: tag)",
-            "test_trust: forged_priority_packet_with_a_genuine_seq",
+            "test_verify: forged_priority_packet_with_a_genuine_seq",
         )
     finally:
         recorder.close()
@@ -313,7 +313,7 @@ def clock_step(rig: Rig, side: str, step: float) -> Row:
         "1",
         outcome,
         "a command answered and a check-point stamped right accepted after",
-        "test_protocol_v3: attack_4_*",
+        "test_freshness: attack_4_*",
     )
 
 
@@ -466,7 +466,7 @@ def replayed_checkpoint() -> Row:
             f"{sent} copies",
             f"accepted: {applied - 1}; shown pose went back: {back}",
             f"{copies} copies heard by the shore (duplicate or replay)",
-            "test_hygiene: checkpoint_replayed_after_the_duplicate_window",
+            "test_replays_and_strangers: checkpoint_replayed_after_the_duplicate_window",
         )
     finally:
         recorder.close()
@@ -505,7 +505,7 @@ def strangers_junk(frames: int = 30, kept: int = 10) -> Row:
             f"{sent} frames",
             f"kept {strangers['kept']} (limit {kept}), dropped {strangers['dropped']}",
             f"{heard} heard by the shore",
-            "test_hygiene: frames_from_unknown_addresses",
+            "test_replays_and_strangers: frames_from_unknown_addresses",
         )
     finally:
         rig.close()

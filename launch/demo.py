@@ -47,6 +47,7 @@ PLUME_RIVER = {
     "plume_excess": 3.0,
     "patches": [[0.05, 0.05, -0.03, 0.4]],
 }
+DEMO_CHECKPOINT_INTERVAL = 20.0  # s (vehicle clock) between the demo agents' check-points
 LAPS = 5  # one lap of the 20 m square takes about 90 s: five give a newcomer time to look around
 SQUARE = {
     "name": "square",
@@ -280,7 +281,7 @@ async def _run(
         plan = "travel.json" if plans[member.index] is split.TRAVEL else "mission.json"
         stack.write_agent_config(
             member.index,
-            checkpoint_interval=split.CHECKPOINT_INTERVAL if args.gateways else 20,
+            checkpoint_interval=_checkpoint_interval(args),
             missions=[{"file": f"missions/{plan}"}],
             **({"link_lost_timeout": split.LINK_LOST_TIMEOUT} if args.gateways else {}),
             **({"plume_threshold": 1e6} if plans[member.index] is split.TRAVEL else {}),  # no detours
@@ -305,7 +306,10 @@ async def _run(
         async with httpx.AsyncClient(
             base_url=api, headers={"Authorization": f"Bearer {secret['token']}"}
         ) as http:
-            missions = [await _mission(http, member, plans[member.index]) for member in stack.members]
+            missions = [
+                await _mission(http, member, plans[member.index], _checkpoint_interval(args))
+                for member in stack.members
+            ]
             info = {
                 "api_url": api + "/api/v1",
                 "dashboard_url": api + "/",
@@ -444,10 +448,18 @@ async def shutdown(stack: Stack, server: Any, serving: asyncio.Task | None) -> N
         pass
 
 
-async def _register(http: Any, member: Member) -> int:
-    """A vehicle of the demo: created, or found from an earlier run by its address (and given its key and
-    its home)."""
-    created = await http.post("/api/v1/vehicles", json={**member.registration(), "max_depth": 20.0})
+def _checkpoint_interval(args: argparse.Namespace) -> float:
+    """The demo's agents' check-point interval (s, vehicle clock): registered with each vehicle too."""
+    return split.CHECKPOINT_INTERVAL if args.gateways else DEMO_CHECKPOINT_INTERVAL
+
+
+async def _register(http: Any, member: Member, report_interval: float | None = None) -> int:
+    """A vehicle of the demo: created (with its agent's check-point interval, when given), or found from
+    an earlier run by its address (and given its key and its home)."""
+    body = {**member.registration(), "max_depth": 20.0}
+    if report_interval is not None:
+        body["report_interval"] = report_interval
+    created = await http.post("/api/v1/vehicles", json=body)
     if created.status_code == 201:
         return created.json()["id"]
     existing = next(
@@ -462,11 +474,11 @@ async def _register(http: Any, member: Member) -> int:
     return existing["id"]
 
 
-async def _mission(http: Any, member: Member, mission: dict[str, Any]) -> int:
+async def _mission(http: Any, member: Member, mission: dict[str, Any], report_interval: float) -> int:
     """Register the vehicle and queue the mission for it; the mission's id. The plan's waypoints are
     relative to each vehicle's home (``vehicle_agent.navigator``): every vehicle flies its plan (the
     square) around its own start."""
-    vehicle_id = await _register(http, member)
+    vehicle_id = await _register(http, member, report_interval)
     queued = await http.post(f"/api/v1/vehicles/{vehicle_id}/missions", json=mission)
     return int(queued.json()["id"])
 

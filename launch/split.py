@@ -160,7 +160,7 @@ def audit(stack: Stack, database_url: str) -> list[str]:
 def center_settings(stack: Stack, database_url: str, time_scale: float) -> dict[str, Any]:
     """The center's settings: no modem of its own; slots, guards and routing times at the simulation's
     pace (a 1 km guard of travel and 50 ms of clock error: these gateways share this machine's clock)."""
-    from server.backhaul.slots import guard_for
+    from gateway.slots import guard_for
 
     return stack.server_settings(
         database_url=database_url,

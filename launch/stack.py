@@ -295,6 +295,7 @@ class Stack:
              "--name", name, "--outbox", str(self.dir / f"gateway-{name}.db"),
              "--modem-url", str(self.pty(name)), "--modem-address", str(gateway_address(index)),
              "--modem-log", str(self.dir / f"gateway-{name}-modem.log"),
+             "--time-scale", str(self.config.time_scale),
              "--position=" + ",".join(f"{x:g}" for x in self.gateway_place(index))],
             f"gateway-{name}.log",
         )  # fmt: skip

@@ -9,11 +9,13 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import re
 import socket
 import sys
 from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 from contextlib import asynccontextmanager
 from pathlib import Path
+from urllib.parse import urlsplit
 
 from fastapi import FastAPI, Request, Response
 from fastapi.middleware.cors import CORSMiddleware
@@ -46,14 +48,18 @@ Tacit's shore control center. Writes (vehicles, commands, missions) need an oper
 reads an observer's or an operator's: click **Authorize** and paste the token, or send
 `Authorization: Bearer <token>`. Errors are JSON: `{"detail": ..., "field": ...}` names the field at fault.
 """
-#: Every page: never framed by another site, no guessed content types, nothing loaded from elsewhere.
+#: Every page: never framed by another site, no guessed content types, nothing loaded from elsewhere but
+#: the 3D map in its frame (``frame-src``: ``map_origin``).
 SECURITY_HEADERS = {
     "X-Frame-Options": "DENY",
     "X-Content-Type-Options": "nosniff",
     "Referrer-Policy": "no-referrer",
-    "Content-Security-Policy": "default-src 'self'; script-src 'self'; style-src 'self' 'unsafe-inline'; "
-    "img-src 'self' data:; connect-src 'self'; frame-ancestors 'none'; base-uri 'none'; form-action 'self'",
 }
+CSP = (
+    "default-src 'self'; script-src 'self'; style-src 'self' 'unsafe-inline'; img-src 'self' data:; "
+    "connect-src 'self'; frame-src {frame}; frame-ancestors 'none'; base-uri 'none'; form-action 'self'"
+)
+HOST = re.compile(r"^[A-Za-z0-9.\-]+$|^\[[0-9A-Fa-f:.]+\]$")  # a name, an IPv4 or a bracketed IPv6 address
 DOCS_CSP = "default-src 'self'; script-src 'self' 'unsafe-inline'; style-src 'self' 'unsafe-inline'; img-src 'self' data:; frame-ancestors 'none'"  # Swagger UI starts from an inline script
 
 
@@ -72,7 +78,15 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         from server.map.scene import OperatorMap  # viser is heavy: imported only when the map runs
 
         quiet_given_up_connections()
-        operator_map = OperatorMap(shore.screens, shore.commands, shore.bus, settings, shore.operators.actor)
+        operator_map = OperatorMap(
+            shore.screens,
+            shore.commands,
+            shore.bus,
+            settings,
+            shore.operators.actor,
+            shore.safety.paths,
+            shore.teams.every,
+        )
         operator_map.start()
         shore.screens.map_port = lambda: operator_map.port if operator_map else None
         app.state.map = operator_map
@@ -128,8 +142,9 @@ def create_app(
     ) -> Response:
         response: Response = await call_next(request)
         response.headers.update(SECURITY_HEADERS)
-        if request.url.path == "/docs":
-            response.headers["Content-Security-Policy"] = DOCS_CSP
+        frame = map_origin(settings, request, app.state.shore.screens.map_port())
+        csp = DOCS_CSP if request.url.path == "/docs" else CSP.format(frame=frame or "'none'")
+        response.headers["Content-Security-Policy"] = csp
         return response
 
     for module in (
@@ -150,6 +165,19 @@ def create_app(
     if WEB.is_dir():
         app.mount("/", Pages(directory=WEB, html=True), name="web")
     return app
+
+
+def map_origin(settings: Settings, request: Request, port: int | None) -> str | None:
+    """Where the dashboard's frame may load the 3D map from: ``map_url``'s origin when set (the map
+    behind a proxy), else the host the browser asked for on the map's port; None while no map runs (or
+    the host is not one: nothing from a request header reaches the header unchecked)."""
+    if port is None:
+        return None
+    if settings.map_url:
+        url = urlsplit(settings.map_url)
+        return f"{url.scheme}://{url.netloc}"
+    host = request.url.netloc.rsplit(":", 1)[0] if request.url.port else request.url.netloc
+    return f"{request.url.scheme}://{host}:{port}" if HOST.match(host) else None
 
 
 def shore_app(settings: Settings) -> FastAPI:

@@ -3,11 +3,22 @@
 Every packet is exactly one rate-0 Micro-Modem frame (32 bytes). Integers are big-endian.
 Byte 0 is a header common to all packets::
 
-    bit 7-6  version (3; version 2 had no check-point state flags and ordered SYNCs by time, version 1
-             had no key epoch in control packets and no MAC in check-points)
+    bit 7-6  version code: 3 = version 3, 1 = version 4, 0 = a later version, named by byte 1 (its
+             layout after that byte is its own), 2 = version 2 (refused: ``OldVersion``). Version 2 had
+             no check-point state flags and ordered SYNCs by time; version 1 had no key epoch in control
+             packets and no MAC in check-points
     bit 5-4  type: 0 control (shore -> vehicle), 1 check-point, 2 priority (vehicle -> shore)
     bit 3-0  type-specific: control flags; check-point flags and key parity; priority: priority
              level (bits 3-2) and stream (bits 1-0)
+
+Each vehicle speaks one version (``VERSIONS``), registered with it on the shore and set in its agent's
+configuration, so a fleet moves to a new version one vehicle at a time. What version 4 changes:
+
+- the check-point says the silence (``quiet``, below) and carries oxygen on one byte;
+- the priority payload names states by packet seq, so a vehicle keeps a window of packets in flight
+  (``tacit.codec.format``);
+- control packets are unchanged: the shore sends them with the version 3 code to every vehicle, and a
+  version 4 agent takes both codes.
 
 Both directions are authenticated with the vehicle's key (``tacit.auth``): a control packet carries a
 64-bit MAC; a check-point carries a 32-bit MAC that also covers the priority packets it lists, so a
@@ -97,6 +108,18 @@ mac             28    4 B   HMAC-SHA256 truncated to 32 bits over bytes 0-27, th
                             the SHA-256 of each covered priority packet, oldest first
 ==============  ====  ====  ==========================  ============  ==========
 
+Version 4's check-point differs in two bytes (the rest, and the MAC, as above):
+
+==============  ====  ====  ==========================  ============  ==========
+oxygen          24    u8    0 .. 25.4 (25.5 = none)     0.1           mg/L (the stream's eps is 0.05)
+quiet           25    u8    0 .. 254 (255 = not known)  1             s before ``time``
+==============  ====  ====  ==========================  ============  ==========
+
+``quiet`` is the silence the check-point says: every stream of the vehicle was predictable within its
+eps up to ``time - quiet``, which is never later than the oldest sample the vehicle has not delivered
+(``tacit.codec.PacketEncoder.predictable_until``); 255: the mark is more than 254 s back. The MAC covers
+it as it covers every field.
+
 Priority packet (vehicle -> shore), the paper's "two bytes of priority/type, thirty bytes of
 samples" less one: byte 0 header (priority level 0-3, stream 0-3), byte 1 seq (u8, shared counter with
 check-points), byte 2 tag (a one-byte MAC of the other 31 bytes, ``tacit.auth.priority_tag``: a forged
@@ -113,11 +136,19 @@ import enum
 import math
 import struct
 from dataclasses import dataclass, fields, replace
+from dataclasses import field as dataclass_field
 from enum import IntEnum
 from typing import Any, ClassVar, TypeVar
 
 PACKET_SIZE = 32
-VERSION = 3
+VERSION = 3  # the version a packet is made in unless told otherwise (control packets: always)
+VERSIONS = (3, 4)  # what this end speaks; each vehicle speaks one of them
+NEWEST = VERSIONS[-1]  # what a vehicle registered or configured today speaks unless told otherwise
+_CODES = {3: 3, 4: 1}  # version -> the header's 2-bit code
+_EXTENDED = 0  # the code of a version named by byte 1
+_OLD = 2  # version 2's code
+OXYGEN_NONE_V4 = 25.5  # version 4's "no oxygen reading" on its one-byte field
+QUIET_UNKNOWN = 255  # a check-point's ``quiet``: no silence to say
 MAC_SIZE = 8
 CHECKPOINT_MAC_SIZE = 4
 ECHO = slice(18, 22)  # a SYNC's echo: where other commands carry param_value
@@ -131,8 +162,20 @@ class PacketError(ValueError):
     """A frame that is not a valid Tacit packet."""
 
 
+def check_version(version: int) -> int:
+    """``version`` if this end speaks it; ValueError naming the versions it speaks if not."""
+    if version not in VERSIONS:
+        raise ValueError(f"protocol version {version}: this end speaks {', '.join(map(str, VERSIONS))}")
+    return version
+
+
 class OldVersion(PacketError):
     """A packet of the protocol version before this one: its sender needs updating, not a closer look."""
+
+
+class OtherVersion(OldVersion):
+    """A packet in a version this end speaks but its sender is not registered for (its samples are coded
+    as that version codes them): the agent's configuration and the registration must agree."""
 
 
 class FieldRangeError(PacketError):
@@ -350,38 +393,53 @@ class _Packet:
     FIELDS: ClassVar[tuple[Field, ...]]
     TAIL: ClassVar[int]  # bytes after the fields (reserved zero, MAC or payload)
 
+    version: int = dataclass_field(default=VERSION, kw_only=True)  # the protocol version (``VERSIONS``)
+
     def _header_low(self) -> int:
         return 0
 
+    @classmethod
+    def fields_of(cls, version: int) -> tuple[Field, ...]:
+        """The field table of this kind of packet in ``version``."""
+        return cls.FIELDS
+
+    def _wire_value(self, name: str) -> float:
+        return getattr(self, name)
+
     def _body(self) -> bytes:
-        values = [f.encode(getattr(self, f.name)) for f in self.FIELDS]
-        fmt = ">" + "".join(f.fmt for f in self.FIELDS)
-        header = (VERSION << 6) | (int(self.TYPE) << 4) | self._header_low()
+        if self.version not in _CODES:
+            raise FieldRangeError("version", self.version, min(VERSIONS), max(VERSIONS), "")
+        table = self.fields_of(self.version)
+        values = [f.encode(self._wire_value(f.name)) for f in table]
+        fmt = ">" + "".join(f.fmt for f in table)
+        header = (_CODES[self.version] << 6) | (int(self.TYPE) << 4) | self._header_low()
         return bytes([header]) + struct.pack(fmt, *values)
 
     @classmethod
-    def _unpack_fields(cls, frame: bytes) -> dict[str, Any]:
+    def _unpack_fields(cls, frame: bytes, version: int = VERSION) -> dict[str, Any]:
         # Any: each value's type is its field's (int, float or the field's enum), known from the table.
-        fmt = ">" + "".join(f.fmt for f in cls.FIELDS)
+        table = cls.fields_of(version)
+        fmt = ">" + "".join(f.fmt for f in table)
         size = struct.calcsize(fmt)
         raws = struct.unpack(fmt, frame[1 : 1 + size])
-        return {f.name: f.decode(raw) for f, raw in zip(cls.FIELDS, raws, strict=True)}
+        return {f.name: f.decode(raw) for f, raw in zip(table, raws, strict=True)}
 
     @classmethod
-    def body_size(cls) -> int:
-        return 1 + struct.calcsize(">" + "".join(f.fmt for f in cls.FIELDS))
+    def body_size(cls, version: int = VERSION) -> int:
+        return 1 + struct.calcsize(">" + "".join(f.fmt for f in cls.fields_of(version)))
 
     @classmethod
-    def field(cls, name: str) -> Field:
+    def field(cls, name: str, version: int = VERSION) -> Field:
         """The field table's entry for ``name``: its range, resolution and unit (one source for the API's
         bounds, the screens' inputs and the agent's clamps)."""
-        return next(f for f in cls.FIELDS if f.name == name)
+        return next(f for f in cls.fields_of(version) if f.name == name)
 
     @classmethod
-    def clamped(cls, **values: float) -> dict[str, float]:
-        """Measured values brought inside their fields' ranges (a sensor reading past what the packet
-        can say is sent as the nearest value it can say, instead of refusing the whole packet)."""
-        ranges = {f.name: (f.lo, f.hi) for f in cls.FIELDS}
+    def clamped(cls, version: int = VERSION, **values: float) -> dict[str, float]:
+        """Measured values brought inside their fields' ranges in ``version`` (a sensor reading past what
+        the packet can say is sent as the nearest value it can say, instead of refusing the whole
+        packet)."""
+        ranges = {f.name: (f.lo, f.hi) for f in cls.fields_of(version)}
         return {name: min(max(value, ranges[name][0]), ranges[name][1]) for name, value in values.items()}
 
 
@@ -464,6 +522,7 @@ class CheckpointPacket(_Packet):
     unsynced: bool = False
     holds_next_key: bool = False
     mac: bytes = bytes(CHECKPOINT_MAC_SIZE)
+    quiet: int = QUIET_UNKNOWN  # version 4: predictable up to ``time - quiet`` (s); see the table above
 
     TYPE: ClassVar = PacketType.CHECKPOINT
     FIELDS: ClassVar = (
@@ -484,7 +543,27 @@ class CheckpointPacket(_Packet):
         _u("oxygen", "H", 0.01, "mg/L"),
         _u("covered", "H"),
     )
+    FIELDS_V4: ClassVar = (
+        *FIELDS[:-2],
+        _u("oxygen", "B", 0.1, "mg/L"),
+        _u("quiet", "B"),
+        FIELDS[-1],
+    )
     TAIL: ClassVar = CHECKPOINT_MAC_SIZE
+
+    @classmethod
+    def fields_of(cls, version: int) -> tuple[Field, ...]:
+        return cls.FIELDS_V4 if version >= 4 else cls.FIELDS
+
+    def _wire_value(self, name: str) -> float:
+        """Version 4's oxygen says "none" with its own value; version 3 has no ``quiet`` to say."""
+        if name == "oxygen" and self.version >= 4 and self.oxygen == OXYGEN_NONE:
+            return OXYGEN_NONE_V4
+        if name == "oxygen" and self.version >= 4 and self.oxygen >= OXYGEN_NONE_V4 - 0.05:
+            raise FieldRangeError("oxygen", self.oxygen, 0, OXYGEN_NONE_V4 - 0.1, "mg/L")
+        if self.version < 4 and self.quiet != QUIET_UNKNOWN:
+            raise FieldRangeError("quiet", self.quiet, QUIET_UNKNOWN, QUIET_UNKNOWN, "(version 3 has none)")
+        return super()._wire_value(name)
 
     @property
     def outcome(self) -> int:
@@ -513,6 +592,15 @@ class CheckpointPacket(_Packet):
     def covered_seqs(self) -> list[int]:
         """The seqs of the priority packets the MAC covers, oldest first."""
         return [(self.seq - 1 - i) % 256 for i in reversed(range(COVER_BITS)) if self.covered >> i & 1]
+
+
+def quiet_of(time: int, until: float | None) -> int:
+    """A version-4 check-point's ``quiet`` byte: the check-point made at ``time`` says its streams were
+    predictable up to ``until`` (``tacit.codec.PacketEncoder.predictable_until``), rounded down to whole
+    seconds so it never says more; ``QUIET_UNKNOWN`` for None or further back than 254 s."""
+    if until is None or time - until > QUIET_UNKNOWN - 1:
+        return QUIET_UNKNOWN
+    return max(0, math.ceil(time - until))
 
 
 def cover_bitmap(checkpoint_seq: int, seqs: list[int]) -> int:
@@ -556,17 +644,25 @@ _V = TypeVar("_V", CheckpointPacket, PriorityPacket)
 Packet = ControlPacket | CheckpointPacket | PriorityPacket
 
 
-def packet_type(frame: bytes) -> PacketType:
-    """The type of a frame, after checking its length and version."""
+def packet_version(frame: bytes) -> int:
+    """The protocol version of a frame, after checking its length; ``PacketError`` (``OldVersion`` for
+    version 2) for a version this end does not speak."""
     if not isinstance(frame, (bytes, bytearray)):
         raise PacketError(f"a packet is bytes, not {type(frame).__name__}")
     if len(frame) != PACKET_SIZE:
         raise PacketError(f"a packet is {PACKET_SIZE} bytes, got {len(frame)}")
-    version = frame[0] >> 6
-    if version == VERSION - 1:
-        raise OldVersion(f"protocol version {version} (this end speaks {VERSION}): update its agent")
-    if version != VERSION:
-        raise PacketError(f"unknown packet version {version}")
+    code = frame[0] >> 6
+    if code == _OLD:
+        raise OldVersion(f"protocol version 2 (this end speaks {VERSION} and later): update its agent")
+    if code == _EXTENDED:
+        speaks = ", ".join(map(str, VERSIONS))
+        raise PacketError(f"unknown packet version {frame[1]} (byte 1; this end speaks {speaks})")
+    return next(v for v, c in _CODES.items() if c == code)
+
+
+def packet_type(frame: bytes) -> PacketType:
+    """The type of a frame, after checking its length and version."""
+    packet_version(frame)
     try:
         return PacketType((frame[0] >> 4) & 0x03)
     except ValueError:
@@ -581,6 +677,7 @@ def _check_zero(frame: bytes, start: int, end: int) -> None:
 def decode_control(frame: bytes) -> ControlPacket:
     """Decode a control packet's fields. The MAC is checked by ``tacit.auth``, not here."""
     values = ControlPacket._unpack_fields(frame)
+    values["version"] = packet_version(frame)
     flags = frame[0] & 0x0F
     if flags & ~int(ControlFlag.ABSOLUTE_ANGLE | ControlFlag.DELAY_SENSITIVE | ControlFlag.SCHEDULED):
         raise PacketError(f"unknown control flags {flags:#x}")
@@ -607,12 +704,14 @@ def _state_flags(byte: int) -> dict[str, Any]:
 
 def decode(frame: bytes) -> Packet:
     """Decode any 32-byte frame; raises ``PacketError`` for anything that is not a valid packet."""
-    kind = packet_type(frame)
+    kind, version = packet_type(frame), packet_version(frame)
     frame = bytes(frame)
     if kind is PacketType.CONTROL:
         return decode_control(frame)
     if kind is PacketType.CHECKPOINT:
-        values = CheckpointPacket._unpack_fields(frame)
+        values = CheckpointPacket._unpack_fields(frame, version)
+        if version >= 4 and values["oxygen"] == OXYGEN_NONE_V4:
+            values["oxygen"] = OXYGEN_NONE
         values.update(_state_flags(values.pop("state_byte")))
         outcome = values.pop("outcome")
         try:
@@ -626,6 +725,7 @@ def decode(frame: bytes) -> Packet:
             flags=frame[0] & 0x07,
             key_parity=frame[0] >> 3 & 1,
             mac=frame[28:32],
+            version=version,
         )
     return PriorityPacket(
         seq=frame[1],
@@ -633,6 +733,7 @@ def decode(frame: bytes) -> Packet:
         stream=Stream(frame[0] & 0x03),
         payload=frame[3:],
         tag=frame[2],
+        version=version,
     )
 
 
@@ -651,9 +752,11 @@ def as_dict(packet: Packet) -> dict[str, object]:
         elif isinstance(value, bytes):
             value = value.hex()
         out[f.name] = value
+    if isinstance(packet, CheckpointPacket) and packet.version >= 4:  # the silence it says, as a time
+        out["predictable_until"] = None if packet.quiet == QUIET_UNKNOWN else packet.time - packet.quiet
     return out
 
 
 assert ControlPacket.body_size() == 23 and ControlPacket.body_size() + ControlPacket.TAIL == PACKET_SIZE
-assert CheckpointPacket.body_size() + CheckpointPacket.TAIL == PACKET_SIZE
+assert all(CheckpointPacket.body_size(v) + CheckpointPacket.TAIL == PACKET_SIZE for v in VERSIONS)
 assert PriorityPacket.body_size() + PriorityPacket.TAIL == PACKET_SIZE

@@ -6,6 +6,8 @@ from __future__ import annotations
 import enum
 import math
 
+CHECKPOINT_INTERVAL = 60.0  # s between a vehicle's check-points unless its agent is told otherwise
+
 
 class Param(enum.IntEnum):
     """A parameter's ``param_id``; its name in lower case is the agent's setting it overrides."""

@@ -40,7 +40,9 @@ from tacit.navigation import Pose, Target
 from tacit.packets import (
     CHECKPOINT_MAC_SIZE,
     COVER_BITS,
+    NEWEST,
     OXYGEN_NONE,
+    QUIET_UNKNOWN,
     SYNC_RESTART_CHAINS,
     CheckpointPacket,
     Command,
@@ -52,8 +54,10 @@ from tacit.packets import (
     Stream,
     cover_bitmap,
     pack_settled,
+    quiet_of,
     with_seq,
 )
+from tacit.params import CHECKPOINT_INTERVAL
 from tacit.private import private_dir
 from tacit.sampletime import SampleClock, boot_seconds
 from tacit.streams import WATER_CHANNELS, default_streams
@@ -85,11 +89,12 @@ class AgentConfig:
     time_scale: float = 1.0  # only for simulations that run faster than real time
     link_lost_timeout: float = 300.0
     lost_action: str = "hold"
-    checkpoint_interval: float = 60.0
+    checkpoint_interval: float = CHECKPOINT_INTERVAL
     plume_threshold: float = 0.5
     explore_distance: float = 10.0
     max_latency: float = 10.0
     max_silence: float = 60.0
+    protocol: int = NEWEST  # the protocol version it speaks: the shore's registration of it must agree
     limits: Limits = field(default_factory=Limits)
     nav: NavConfig = field(default_factory=NavConfig)
     missions: list[dict] = field(default_factory=lambda: [{"builtin": "square", "number": 1}])
@@ -167,7 +172,9 @@ class Agent:
             config.checkpoint_interval,
         )
         self.streams = default_streams()
-        self.compressor = Compressor(self.streams, config.max_latency, config.max_silence)
+        self.compressor = Compressor(
+            self.streams, config.max_latency, config.max_silence, protocol=config.protocol
+        )
         self.plume = PlumeDetector(self.fsm.status.params.get("plume_threshold", config.plume_threshold))
         window = auth.ReplayWindow.from_dict(self.state.replay)
         sync = auth.SyncWindow(config.max_clock_correction, self.state.sync_counter)
@@ -191,6 +198,7 @@ class Agent:
         self._repeat_answered = -1e9
         self._challenged = -1e9  # vehicle time of the last check-point sent unsynced
         self._report: CheckpointPacket | None = None  # the check-point of the last status change, until sent
+        self._flying: dict[int, bytes] = {}  # priority packets in flight, by seq (to withdraw them)
         self.samples: deque[tuple[str, float, tuple]] = deque(maxlen=10_000)
         self._clocks = {"RAW_IMU": SampleClock(), "SCALED_PRESSURE2": SampleClock()}  # MAVLink thread's
         self.mav.listeners.append(self._on_mavlink)
@@ -334,17 +342,31 @@ class Agent:
 
     # --- outputs --------------------------------------------------------------------------------
 
+    def _room(self) -> int:
+        """How many priority packets may be numbered now: a check-point numbered after them must still
+        reach (``COVER_BITS`` back) every delivered one it has not covered and every one in flight."""
+        outstanding = [u.seq for u in self.state.uncovered] + self.compressor.in_flight()
+        used = max(((self.state.packet_seq - q) % 256 for q in outstanding), default=0)
+        return max(0, COVER_BITS - 2 - used)
+
     def _send_packets(self) -> None:
-        for stream, encoded in self.compressor.ready(self.now()):
+        self.compressor.follow(self.link.capacity)
+        self.compressor.silence_said(self.fsm.status.params["checkpoint_interval"])
+        for stream, encoded in self.compressor.ready(self.now(), self.state.packet_seq, self._room()):
             urgent = encoded.packet.priority is Priority.TIME_SENSITIVE
-            packet = with_seq(encoded.packet, self.state.packet_seq)
+            packet = encoded.packet  # numbered with the vehicle's counter: version 4 names states by it
             self.state.packet_seq += 1
             frame = auth.tag_priority(packet, self.keys[self.state.key_epoch], self.config.address)
             covered = self._on_delivered(frame)
+            self._flying[packet.seq] = frame
 
-            def resolved(ok: bool, s: Stream = stream, covered: Callable[[bool], None] = covered) -> None:
-                self.compressor.resolve(s, ok)
+            def resolved(ok: bool, seq: int = packet.seq, covered: Callable[[bool], None] = covered) -> None:
+                self._flying.pop(seq, None)
+                again = self.compressor.resolve(seq, ok)
                 covered(ok)
+                if again:  # coded again after a loss in the window: the old packets go no more
+                    self.link.withdraw([self._flying.pop(q) for q in again if q in self._flying])
+                    log.info("packets seq %s withdrawn: coded again after packet %d was lost", again, seq)
 
             self.link.send(frame, urgent, resolved)
             self.state.priority_count += 1
@@ -379,17 +401,25 @@ class Agent:
             | (2 if tel.armed else 0)
             | (4 if s.state is MissionState.LINK_LOST else 0)
         )
+        version = self.config.protocol
+        oxygen = CheckpointPacket.field("oxygen", version)  # its top value says "none"
         measured = CheckpointPacket.clamped(
+            version,
             north=pose.north,
             east=pose.east,
             depth=pose.depth,
             battery=tel.battery,
             temperature=tel.temperature or 0.0,
-            oxygen=min(tel.oxygen, OXYGEN_NONE - 0.01) if tel.oxygen is not None else OXYGEN_NONE,
+            oxygen=min(tel.oxygen, oxygen.hi - oxygen.resolution) if tel.oxygen is not None else oxygen.hi,
+        )
+        now = int(self.now())
+        quiet = (
+            quiet_of(now, self.compressor.predictable_until(self.now())) if version >= 4 else QUIET_UNKNOWN
         )
         return CheckpointPacket(
             seq=self.state.packet_seq % 256,
-            time=int(self.now()),
+            time=now,
+            quiet=quiet,
             state=s.state,
             mission_id=s.mission or 0,
             waypoint=min(s.waypoint, 255),
@@ -404,7 +434,8 @@ class Agent:
             depth=measured["depth"],
             battery=measured["battery"],
             temperature=measured["temperature"],
-            oxygen=measured["oxygen"],
+            oxygen=measured["oxygen"] if tel.oxygen is not None else OXYGEN_NONE,
+            version=version,
         )
 
     def _reachable(self, seq: int) -> list[Uncovered]:
@@ -499,7 +530,7 @@ class Agent:
             and tel.time - self._challenged >= self.fsm.status.params["checkpoint_interval"]
         ):
             self.fsm.checkpoint_due = True  # even while waiting: a new challenge until one is answered
-        if self.fsm.checkpoint_due and self.link.backlog < 4:
+        if self.fsm.checkpoint_due and self.link.backlog < 4 + self.compressor.window:
             self._send_checkpoint()
         if self._dirty or self.fsm.status.to_dict() != before or tel.time - self._persisted_at >= 1.0:
             self._persist()  # dead-reckoned position is state too: at least once a second of vehicle time

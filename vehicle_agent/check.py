@@ -26,6 +26,7 @@ from typing import Any
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from tacit import auth
+from tacit.packets import VERSIONS
 from tacit.params import LostAction
 from vehicle_agent.agent import AgentConfig
 from vehicle_agent.mavlink_io import GCS_SYSTEM_ID
@@ -143,6 +144,11 @@ def _values(config: AgentConfig) -> list[Problem]:
         )
     if config.address == config.shore_address or config.address in config.gateways:
         problems.append(Problem("address", f"{config.address} is also the shore's modem address"))
+    if config.protocol not in VERSIONS:
+        speaks = " or ".join(map(str, VERSIONS))
+        problems.append(
+            Problem("protocol", f"is {speaks} (what the shore registered it as), not {config.protocol}")
+        )
     if config.max_clock_correction < 0:
         problems.append(
             Problem("max_clock_correction", f"must be 0 or more, not {config.max_clock_correction}")

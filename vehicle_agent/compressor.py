@@ -16,7 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from tacit.codec import EncodedPacket, PacketEncoder, StreamSpec
-from tacit.packets import Stream
+from tacit.codec.format import MAX_WINDOW
+from tacit.packets import NEWEST, Stream
 
 
 @dataclass
@@ -88,9 +89,14 @@ class Compressor:
         max_latency: float = 10.0,
         max_silence: float = 60.0,
         urgent_threshold: float | None = 20.0,
+        protocol: int = NEWEST,
     ) -> None:
+        """``protocol``: the version the vehicle speaks (``tacit.packets.VERSIONS``)."""
         self.order = list(streams)
-        self.encoder = PacketEncoder(list(streams.values()), max_latency, urgent_threshold, max_silence)
+        self.max_silence = max_silence
+        self.encoder = PacketEncoder(
+            list(streams.values()), max_latency, urgent_threshold, max_silence, protocol
+        )
         self.samples = 0
 
     def add(self, stream: Stream, time: float, values: list[float | None], urgent: bool = False) -> None:
@@ -98,15 +104,45 @@ class Compressor:
         if self.encoder.push(self.order.index(stream), time, row, urgent=urgent):
             self.samples += 1
 
-    def ready(self, now: float) -> list[tuple[Stream, EncodedPacket]]:
-        """Packets to send now (each stays in flight until ``resolve``), with the stream its header names."""
-        if not self.encoder.ready(now):
-            return []
-        encoded = self.encoder.take()
-        return [(Stream(encoded.packet.stream), encoded)]
+    def ready(self, now: float, seq: int, room: int = MAX_WINDOW) -> list[tuple[Stream, EncodedPacket]]:
+        """Packets to send now, numbered from ``seq`` (the vehicle's packet counter), at most ``room`` and
+        as many as the window has room for (each stays in flight until ``resolve``), with the stream
+        each header names."""
+        out: list[tuple[Stream, EncodedPacket]] = []
+        while len(out) < room and self.encoder.ready(now):
+            encoded = self.encoder.take(seq + len(out))
+            out.append((Stream(encoded.packet.stream), encoded))
+        return out
 
-    def resolve(self, stream: Stream, delivered: bool) -> None:
-        self.encoder.resolve(delivered)
+    def resolve(self, seq: int, delivered: bool) -> list[int]:
+        """The packet numbered ``seq`` was delivered or lost for good: the seqs of the packets after it
+        that are coded again (``PacketEncoder.resolve``; the caller withdraws them)."""
+        return self.encoder.resolve(delivered, seq)
+
+    @property
+    def window(self) -> int:
+        return self.encoder.window
+
+    def follow(self, packets: int) -> None:
+        """Keep as many packets in flight as the shore's last poll could carry (version 4; version 3
+        keeps one), so a poll at a fast rate brings as much as its rate carries."""
+        if self.encoder.coding.window:
+            self.encoder.set_window(packets)
+
+    def silence_said(self, checkpoint_interval: float) -> None:
+        """Version 4: check-points say the silence (``predictable_until``), so when they come at least as
+        often as ``max_silence`` no packet leaves only to confirm a quiet stream."""
+        said = self.encoder.coding.window and checkpoint_interval <= self.max_silence
+        self.encoder.policy.max_silence = (
+            None if said else max(self.max_silence, self.encoder.policy.max_latency)
+        )
+
+    def predictable_until(self, now: float) -> float:
+        return self.encoder.predictable_until(now)
+
+    def in_flight(self) -> list[int]:
+        """The seqs of the packets in flight."""
+        return [f.seq for f in self.encoder.in_flight]
 
     def restart_chains(self) -> None:
         """The shore lost its decoder states (its SYNC asked): the streams start again from the initial

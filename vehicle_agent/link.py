@@ -13,6 +13,8 @@ against the local clock plus ``offset`` (the correction the shore's authenticate
 A poll ($CADRQ) is answered whoever sent it (the Micro-Modem's poll carries no data to authenticate),
 but it is only counted, never taken as a sign of the shore: only authentic control packets are.
 ``pending()`` lists what is queued or unacknowledged, for the agent to persist across a SIGKILL.
+``capacity`` is how many packets the shore's last poll could carry (its frames' size, and how many
+frames its modem asked for): the compressor keeps that many in flight.
 """
 
 from __future__ import annotations
@@ -69,6 +71,7 @@ class VehicleLink:
         self.on_control: Callable[[ControlPacket], None] = lambda packet: None
         self.on_repeat: Callable[[int], None] = lambda seq: None  # a genuine command seen before
         self._order = itertools.count()
+        self._poll = (1, 1)  # the last poll: packets per frame, frames asked for
         self.counters = {
             "polls": 0,
             "sent": 0,
@@ -96,6 +99,20 @@ class VehicleLink:
         return [(item.urgency == 0, item.data) for item in items]
 
     @property
+    def capacity(self) -> int:
+        """How many packets the shore's last poll could carry (at least as many frames as its modem
+        asked for: one more than were filled, unless all were)."""
+        return self._poll[0] * self._poll[1]
+
+    def withdraw(self, packets: Collection[bytes]) -> None:
+        """Take these packets back, queued or awaiting their ACK, without reporting them (their sender
+        replaced them)."""
+        gone = set(packets)
+        self.queue = [item for item in self.queue if item.data not in gone]
+        for frame, items in list(self.in_flight.items()):
+            self.in_flight[frame] = [item for item in items if item.data not in gone]
+
+    @property
     def backlog(self) -> int:
         return len(self.queue) + sum(len(v) for v in self.in_flight.values())
 
@@ -106,6 +123,7 @@ class VehicleLink:
             self.counters["polls"] += 1
             self._requeue_unacknowledged()
         room = max(1, drq.maxbytes // PACKET_SIZE)
+        self._poll = (room, drq.frame)
         chosen, self.queue = self.queue[:room], self.queue[room:]
         if not chosen:
             return None

@@ -33,7 +33,7 @@ from tacit import navigation
 from tacit.limits import Limits
 from tacit.navigation import Pose, Target
 from tacit.packets import Command, CommandStatus, ControlFlag, ControlPacket, MissionState, Reason
-from tacit.params import LostAction, Param
+from tacit.params import CHECKPOINT_INTERVAL, LostAction, Param
 
 log = logging.getLogger("tacit.agent.mission")
 
@@ -137,7 +137,7 @@ class MissionFSM:
         status: MissionProgress | None = None,
         link_lost_timeout: float = 300.0,
         lost_action: str = "hold",
-        checkpoint_interval: float = 60.0,
+        checkpoint_interval: float = CHECKPOINT_INTERVAL,
     ) -> None:
         self.configured_lost_action = LostAction.named(lost_action)  # until a SET_PARAM changes it
         self.plans = plans

@@ -105,7 +105,7 @@ async function load() {
     $("scale-badge").hidden = false;
   }
   if (config.map_port) {
-    const url = `${location.protocol}//${location.hostname}:${config.map_port}`;
+    const url = config.map_url || `${location.protocol}//${location.hostname}:${config.map_port}`;
     $("map").src = url;
     $("map-link").href = url;
   }
@@ -126,7 +126,8 @@ async function load() {
   state.packets = page.items.map(packetRow).reverse();
   for (const p of state.packets) state.timeline.push({ at: p.at, kind: p.type === "checkpoint" ? "cp" : `p${p.priority}`, vehicle: p.vehicle });
   renderAll();
-  await Promise.all([refreshLink(), refreshGateways()]);
+  await refreshGateways();  // first: a center's link card asks how its gateways hear the vehicle
+  await refreshLink();
   connect();
 }
 
@@ -140,7 +141,7 @@ async function selectVehicle(id) {
   state.estimate = null;
   renderVehicle();
   renderFleet();
-  await Promise.all([refreshEstimate(), loadSeries().then(renderPlot)]);
+  await Promise.all([refreshEstimate(), refreshLink(), loadSeries().then(renderPlot)]);
 }
 
 function buildVehicleSelect() {
@@ -328,6 +329,12 @@ function renderGateways() {
 
 let fleetTimer = null;
 /** Many check-points can arrive at once: one fetch of the fleet for them. */
+/** The selected vehicle's queue against its cap (GET /fleet: queued, queue_cap). */
+function renderQueue() {
+  const v = state.fleet.find((f) => f.id === state.vehicleId);
+  $("queue-cap").textContent = v ? `${v.name}: ${v.queued} / ${v.queue_cap} commands waiting for the link${v.queued >= v.queue_cap ? " (full: more are refused until some are sent, fail or are cancelled)" : ""}` : "";
+}
+
 function soonRefreshFleet() {
   if (fleetTimer === null) fleetTimer = setTimeout(() => { fleetTimer = null; refreshFleet(); }, 500);
 }
@@ -336,25 +343,40 @@ function latlon([lat, lon]) {
   return `${Math.abs(lat).toFixed(5)}° ${lat >= 0 ? "N" : "S"}, ${Math.abs(lon).toFixed(5)}° ${lon >= 0 ? "E" : "W"}`;
 }
 
-/** The vehicle's clock against the shore's (at least this far ahead, from its check-points). */
+const CLOCK_HINT = "How the vehicle's clock stands against the shore's, from its recent check-points: each is stamped " +
+  "by the vehicle when made and heard by the shore later (after waiting for its slot and its airtime), so the " +
+  "stamp minus the time heard is at most the vehicle's clock minus the shore's. The largest over its last check-points " +
+  "is shown; report times on the shore's clock are corrected by it. A SYNC from the shore sets a clock that is far off.";
+
+/** The vehicle's clock against the shore's, in words (a lower bound of vehicle minus shore, from its check-points). */
 function clockOffset(v) {
   if (v.clock_offset_s === null) return "";
   const s = v.clock_offset_s;
-  return `<span class="sub" title="The vehicle's clock minus the shore's, at least (from its recent check-points); report times on the shore's clock are corrected by it">clock ≥ ${s >= 0 ? "+" : "−"}${Math.abs(s).toFixed(1)} s</span>`;
+  const words = s >= 0 ? `vehicle clock at least ${s.toFixed(1)} s ahead of the shore's` : `vehicle clock at most ${(-s).toFixed(1)} s behind the shore's`;
+  return `<span class="sub clock-offset" title="${CLOCK_HINT}">${words}</span>`;
+}
+
+/** Its state's label; before its first check-point, whether that is due yet. */
+function stateText(v) {
+  if (v.state_label) return esc(v.state_label);
+  if (v.awaited) return `waiting for its first report <span class="sub">(due by ${utc(v.first_report_due)} UTC)</span>`;
+  return "no report yet";
 }
 
 function fleetRow(v, since) {
   const cp = v.reported, p = v.predicted, silent = v.last_heard === null ? null : Date.now() / 1000 - v.last_heard;
-  const why = v.last_heard === null ? "never heard" : `heard nothing for ${silent.toFixed(0)} s` +
-    (v.overdue_after_s === null ? "" : ` (its schedule allows ${v.overdue_after_s.toFixed(0)} s)`);
+  const allows = v.overdue_after_s === null ? "" : ` (its schedule allows ${v.overdue_after_s.toFixed(0)} s)`;
+  const why = v.awaited ? `starting: its first report is due by ${utc(v.first_report_due)} UTC${allows}`
+    : v.last_heard === null ? `not heard since the shore started${allows}` : `heard nothing for ${silent.toFixed(0)} s${allows}`;
   const report = cp ? `${ago(v.age_s + since)}<br><span class="sub" title="vehicle clock ${utc(cp.time)} UTC">at ${utc(v.reported_shore_time)} UTC</span> ${clockOffset(v)}`
     : "none yet";
   const predicted = p ? `N ${p.north.toFixed(1)}, E ${p.east.toFixed(1)} m, ${p.depth.toFixed(1)} m deep <strong>± ${p.radius_m.toFixed(1)} m</strong>` +
     (v.predicted_latlon ? `<br><span class="sub">${latlon(v.predicted_latlon)}</span>` : "") : "-";
   const snr = (x) => (x === null ? "-" : x.toFixed(1));
-  return `<tr data-id="${v.id}" data-name="${esc(v.name)}" class="${v.overdue ? "overdue" : ""} ${v.id === state.vehicleId ? "selected" : ""}" title="${v.overdue ? `Overdue: ${esc(why)}` : esc(why)}">
+  const kind = v.overdue ? "overdue" : v.awaited ? "awaited" : "";
+  return `<tr data-id="${v.id}" data-name="${esc(v.name)}" class="${kind} ${v.id === state.vehicleId ? "selected" : ""}" title="${v.overdue ? `Overdue: ${esc(why)}` : esc(why)}">
     <td>${swatch(v.name)}<strong>${esc(v.name)}</strong> <span class="sub">modem ${v.address}</span></td>
-    <td title="${esc(v.state_hint ?? "")}">${esc(v.state_label ?? "no check-point yet")}${v.overdue ? " <span class=\"sub\">(overdue)</span>" : ""}</td>
+    <td class="state" title="${esc(v.state_hint ?? why)}">${stateText(v)}${v.overdue ? " <span class=\"sub\">(overdue)</span>" : ""}</td>
     <td>${report}</td><td>${predicted}</td><td>${cp ? `${cp.battery.toFixed(1)} V` : "-"}</td>
     <td>SNR ${snr(v.snr_in)} / ${snr(v.snr_out)} dB<br><span class="sub">${v.range_m === null ? "range -" : `${v.range_m.toFixed(0)} m`}</span></td>
     <td class="gw-col">${v.gateway ? `${gatewaySwatch(v.gateway)}${esc(v.gateway)}${v.gateway_pinned ? " <span class=\"sub\">(pinned)</span>" : ""}` : "-"}</td>
@@ -364,6 +386,7 @@ function fleetRow(v, since) {
 function renderFleet() {
   const since = Date.now() / 1000 - state.fleetAt;
   $("fleet").tBodies[0].innerHTML = state.fleet.map((v) => fleetRow(v, since)).join("");
+  renderQueue();
 }
 
 /** Abort all, return all home, hold all: asked, then confirmed; one command per vehicle, each followed. */
@@ -430,25 +453,43 @@ function renderVehicle() {
       <strong>&plusmn; ${grown.toFixed(1)} m</strong><br><span class="note">dead reckoning ${toward}</span></div>`;
 }
 
+/** How each gateway hears the vehicle (a center's ``GET /routing``): SNR and frames in the routing window, and
+ * its range and rate where the gateway knows them; its gateway (the one its commands go through) first. */
+function gatewayRows(route) {
+  if (!route) return [];
+  const hearings = [...route.heard].sort((a, b) => (b.gateway === route.gateway) - (a.gateway === route.gateway));
+  return hearings.map((h) => {
+    const known = [`SNR ${h.snr.toFixed(1)} dB`, `${h.frames} frames (${(h.share * 100).toFixed(0)} %)`];
+    if (h.range_m !== undefined && h.range_m !== null) known.push(`range ${h.range_m.toFixed(0)} m`);
+    if (h.rate !== undefined && h.rate !== null) known.push(`rate ${h.rate}`);
+    const mark = h.gateway === route.gateway ? ` <span class="sub">(its gateway${route.pinned ? ", pinned" : ""})</span>` : "";
+    return [`${gatewaySwatch(h.gateway)}via ${esc(h.gateway)}`, `${known.join(", ")}${h.alive ? "" : " <span class=\"sub\">(silent)</span>"}${mark}`];
+  });
+}
+
 async function refreshLink() {
   try {
-    const [link, shares, vehicles] = await Promise.all([api("/link"), api("/link/shares"), api("/vehicles")]);
-    if (!state.gateways.length) setBadge(`modem: ${link.modem}`, link.modem === "ready" ? "ready" : "down");  // a center: its gateways
-    const rows = [];
-    for (const [name, v] of Object.entries(link.vehicles)) {
-      const heard = v.last_heard ? `${ago(Date.now() / 1000 - v.last_heard)} (${utc(v.last_heard)} UTC)` : "never";
-      rows.push([`${esc(name)} last heard`, heard], ["SNR in / out (dB)", `${v.snr_in ?? "-"} / ${v.snr_out ?? "-"}`],
+    const center = state.gateways.length > 0;
+    const [link, shares, vehicles, routes] = await Promise.all([api("/link"), api("/link/shares"), api("/vehicles"), center ? api("/routing") : []]);
+    if (!center) setBadge(`modem: ${link.modem}`, link.modem === "ready" ? "ready" : "down");  // a center: its gateways
+    const rows = [], name = nameOf(state.vehicleId), v = link.vehicles[name];
+    if (v) {
+      const heard = v.last_heard ? `${ago(Date.now() / 1000 - v.last_heard)} (${utc(v.last_heard)} UTC)` : "not since the shore started";
+      rows.push(["last heard", heard], ["SNR in / out (dB)", `${v.snr_in ?? "-"} / ${v.snr_out ?? "-"}`],
         ["range (m)", v.range_m?.toFixed(0) ?? "-"]);
     }
-    for (const v of vehicles) rows.push([`${esc(v.name)} key`, keyState(v)]);
-    for (const v of state.fleet) {
-      const share = v.airtime_share * 100, a = v.airtime_s;
-      rows.push([`${swatch(v.name)}airtime: ${esc(v.name)}`, `<span class="bar" style="width:${(share * 0.08).toFixed(2)}rem;background:${esc(v.colour)}"></span> ${share.toFixed(0)} % <span class="sub">(${a.total} s: commands ${a.commands}, polls ${a.polls}, check-points ${a.checkpoints}, data ${a.priority})</span>`]);
+    rows.push(...gatewayRows(routes.find((r) => r.vehicle_id === state.vehicleId)));
+    const mine = vehicles.find((x) => x.id === state.vehicleId);
+    if (mine) rows.push(["key", keyState(mine)]);
+    const own = state.fleet.find((x) => x.id === state.vehicleId);
+    if (own) {
+      const share = own.airtime_share * 100, a = own.airtime_s;
+      rows.push([`${swatch(own.name)}its airtime`, `<span class="bar" style="width:${(share * 0.08).toFixed(2)}rem;background:${esc(own.colour)}"></span> ${share.toFixed(0)} % of the fleet's <span class="sub">(${a.total} s: commands ${a.commands}, polls ${a.polls}, check-points ${a.checkpoints}, data ${a.priority})</span>`]);
     }
     const names = { commands: "commands", polls: "polls", checkpoints: "check-points", priority: "priority data" };
     for (const [k, label] of Object.entries(names)) {
       const share = shares.shares[k] * 100;
-      rows.push([`airtime: ${label}`, `<span class="bar" style="width:${(share * 0.08).toFixed(2)}rem"></span> ${share.toFixed(0)} % <span class="sub">(${shares.counts[k]}, ${shares.airtime_s[k]} s)</span>`]);
+      rows.push([`channel airtime: ${label}`, `<span class="bar" style="width:${(share * 0.08).toFixed(2)}rem"></span> ${share.toFixed(0)} % <span class="sub">(${shares.counts[k]}, ${shares.airtime_s[k]} s)</span>`]);
     }
     const saved = shares.bits.saved_share;
     rows.push(["bits saved by compression", saved === null ? "-" : `${(saved * 100).toFixed(0)} % <span class="sub">of ${shares.bits.every_sample} bits for every sample</span>`]);
@@ -549,8 +590,12 @@ function showResult(c) {
  * shore heard it; server.telemetry.clock), so it never shows before the command was sent. */
 function stepTime(h) { return h.report?.shore_time ?? h.at; }
 
+/** Who said a step (server.commands.models.StepSource): only the vehicle's verified check-points say it ran. */
+const SOURCES = { operator: "an operator", shore: "the shore", modem: "the shore's modem", gateway: "gateway", vehicle: "the vehicle's verified check-point" };
+
 function stepTitle(h) {
-  const said = h.detail ? `${h.detail}; ` : "";
+  const from = h.source ? `from ${SOURCES[h.source] ?? h.source}${h.via ? ` ${h.via}` : ""}; ` : "";
+  const said = from + (h.detail ? `${h.detail}; ` : "");
   return h.report ? `${said}reported by the vehicle: ${h.report.state} at ${utc(h.report.time)} UTC on its clock, on the shore's clock by ${utc(stepTime(h))}; the shore heard it at ${utc(h.at)}`
     : said + "shore clock";
 }
@@ -584,7 +629,8 @@ function renderCommands() {
   const rows = [...state.commands.values()].sort((a, b) => b.id - a.id).slice(0, 10).map((c) => {
     const history = (c.history || []).map((h) => `<span class="step status-${h.status}" data-status="${h.status}" data-at="${stepTime(h)}" title="${esc(stepTitle(h))}">${h.status} ${utc(stepTime(h))}${h.report ? ' <span class="on-board">on board</span>' : ""}</span>`).join(" → ");
     const name = nameOf(c.vehicle_id);
-    return `<tr data-id="${c.id}"><td>${c.id}</td><td>${swatch(name)}${esc(name)}</td><td>${esc(describe(c))}<br><span class="sub">seq ${c.seq}${c.issued_by ? ` · by ${esc(c.issued_by)}` : ""}</span></td><td class="status-${c.status}">${c.status}</td>
+    const cancel = c.status === "queued" ? `<button type="button" class="write cancel-command" data-cancel="${c.id}" title="Take it back: it ends cancelled and is never sent (too late once it is signed for transmission)"${state.role === "write" ? "" : " disabled"}>cancel</button>` : "";
+    return `<tr data-id="${c.id}"><td>${c.id}</td><td>${swatch(name)}${esc(name)}</td><td>${esc(describe(c))}<br><span class="sub">seq ${c.seq}${c.issued_by ? ` · by ${esc(c.issued_by)}` : ""}</span></td><td class="status-${c.status}">${c.status}${cancel ? `<br>${cancel}` : ""}</td>
       <td class="history">${history}</td><td>${c.attempts}</td><td>${esc(c.reason || "")}</td></tr>`;
   });
   $("commands").tBodies[0].innerHTML = rows.join("");
@@ -680,6 +726,24 @@ for (const button of document.querySelectorAll("#fleet-actions [data-command]"))
 $("fleet-confirm").addEventListener("click", sendFleet);
 $("fleet-cancel").addEventListener("click", cancelFleet);
 $("stream-channel").addEventListener("change", async (e) => { state.channel = e.target.value; await loadSeries(); renderPlot(); });
+$("commands").addEventListener("click", async (e) => {
+  const button = e.target.closest("button[data-cancel]");
+  if (!button) return;
+  const id = Number(button.dataset.cancel);
+  button.disabled = true;
+  try {
+    const c = await api(`/commands/${id}/cancel`, { method: "POST" });
+    state.commands.set(id, c);
+    $("command-result").className = "status-cancelled";
+    $("command-result").textContent = `#${id} ${describe(c)} to ${nameOf(c.vehicle_id)}: cancelled, never sent`;
+  } catch (error) {
+    $("command-result").className = "status-refused";
+    $("command-result").textContent = `Not cancelled: ${error.message}`;
+    try { await loadCommand(id); } catch (ignored) { /* the row keeps what it showed */ }
+  }
+  renderCommands();
+  soonRefreshFleet();
+});
 $("command-form").addEventListener("submit", async (e) => {
   e.preventDefault();
   if (state.vehicleId === null) { $("command-result").textContent = "no vehicle registered"; return; }

@@ -416,8 +416,9 @@ class Center:
             await _pause(exc)
             return 0
         batch: list[tuple[RelayedIncoming, Msg]] = []
+        now = time.time()
         for msg in msgs:
-            frame = self.guard.frame(self.deployment.local(msg.subject), msg.data)
+            frame = self.guard.frame(self.deployment.local(msg.subject), msg.data, now)
             if frame is None:
                 self.counters["malformed"] += 1
                 await msg.term()

@@ -29,7 +29,7 @@ the frame's stamp, so that dispatch is superseded and the command dispatched aga
 SYNCs stop coming (the backhaul cut, the center down), the vehicle's gateway holds a budget of SYNCs
 signed ahead (``server.backhaul.budget``), which the dispatcher keeps after the routes.
 
-The dispatcher also hands the gateways their TDMA slots (``server.backhaul.slots``) whenever the set of
+The dispatcher also hands the gateways their TDMA slots (``gateway.slots``) whenever the set of
 live gateways or of vehicles to poll changes. A center that starts finds the plans the stream kept from
 the one before it (``kept``): gateways may still follow them, heard from or not, so for its first
 ``gateway_timeout`` s every gateway they name keeps a slot in its plans (a dead one is dropped after),
@@ -46,11 +46,12 @@ import math
 import time
 from collections.abc import Awaitable, Callable
 
+from gateway.queue import FrameKind
+from gateway.slots import ATTEMPT_AIRTIME, SYNC_WINDOW, Schedule, SlotPlan
 from server.backhaul import subjects
 from server.backhaul.budget import Publish, SyncBudgets
-from server.backhaul.slots import ATTEMPT_AIRTIME, SYNC_WINDOW, Schedule, SlotPlan
 from server.backhaul.subjects import CommandMessage, EventMessage, GatewayState, ScheduleMessage
-from server.commands.models import CommandRecord, CommandState
+from server.commands.models import CommandRecord, CommandState, Origin, StepSource
 from server.commands.service import CommandDesk
 from server.core.config import Settings
 from server.core.db import saved_id
@@ -135,6 +136,8 @@ class Dispatcher:
         now = time.time() if now is None else now
         coordinating = self.coordinating()
         if coordinating:
+            for refuted in await asyncio.to_thread(self.routing.audit, now):
+                await asyncio.to_thread(self._refuted, refuted)
             await asyncio.to_thread(self.routing.update, now)
         routes = await asyncio.to_thread(self.routing.routes, now)
         if coordinating:
@@ -168,7 +171,7 @@ class Dispatcher:
             message = CommandMessage(
                 subjects.sync_id(state.address, sync.seq), gateway, state.address, sync.frame, attempts=1,
                 ack_timeout=self.ack_timeout(), expires_at=at + SYNC_WINDOW,
-                start_by=time.time() + self.settings.dispatch_receipt,
+                start_by=time.time() + self.settings.dispatch_receipt, kind=FrameKind.SYNC, stamp=at,
             )  # fmt: skip
             await self.publish(subjects.commands(gateway), message.encode(), message.id)
             self.heartbeat.sent(state, sync, acked=False)
@@ -240,7 +243,10 @@ class Dispatcher:
             await self._dispatch(command, vehicle, options[0], len(tries) + 1, now)
         elif round_:
             detail = f"no gateway reached it (tried {', '.join(sorted(tried))})"
-            await asyncio.to_thread(self.desk.record, command, CommandState.FAILED, detail, "unreachable")
+            shore = Origin(StepSource.SHORE)
+            await asyncio.to_thread(
+                self.desk.said, shore, command, CommandState.FAILED, detail, "unreachable"
+            )
 
     async def _in_flight(
         self, latest: Dispatch, command: CommandRecord, vehicle: Vehicle, tries: int, now: float
@@ -269,14 +275,15 @@ class Dispatcher:
         return answered is not None and dispatch.created_at < answered - auth.FLOOR_SLACK
 
     async def _overdue(self, dispatch: Dispatch, now: float) -> bool:
-        """A dispatch whose receipt is late, whose gateway fell silent (no heartbeat), or that outlived
+        """A dispatch whose receipt is late, whose gateway fell silent (no heartbeat) or was found faulty
+        (``Routing.audit``), or that outlived
         its frame's age (the gateway would have said ``expired``): its gateway is taken for down. A
         gateway that stored it and beats is waited for: its attempts share its slots with its polls
         and its other vehicles' commands, so no fixed time bounds them."""
         late = (
             (dispatch.state == DispatchState.PUBLISHED and now > dispatch.start_by)
             or now > dispatch.deadline
-            or dispatch.gateway not in await asyncio.to_thread(self.routing.alive, now)
+            or dispatch.gateway not in await asyncio.to_thread(self.routing.usable, now)
         )
         if late:
             log.warning("dispatch %s: %s did not answer in time; next gateway", dispatch.id, dispatch.gateway)
@@ -299,6 +306,9 @@ class Dispatcher:
 
     async def _publish(self, row: Dispatch, command: CommandRecord, vehicle: Vehicle) -> None:
         frame = await asyncio.to_thread(self.desk.frame, command)  # signed now: a fresh stamp
+        if frame is None:  # cancelled by an operator since it was chosen: never published
+            await asyncio.to_thread(self.routing.set_dispatch, row.id, DispatchState.WITHDRAWN)
+            return
         message = CommandMessage(
             row.id,
             row.gateway,
@@ -342,20 +352,27 @@ class Dispatcher:
             if final and outcome in ("expired", "failed"):
                 self._sync_lost(str(detail["command"]), expired=outcome == "expired")
             return  # sent: the next check-point says whether it arrived
-        report = self.routing.report(str(detail.get("command", "")), state, attempt)
-        if report is None:
-            log.warning("gateway %s reported an unknown command %s", event.gateway, detail.get("command"))
-            return
+        report = self.routing.report(str(detail.get("command", "")), state, attempt, event.gateway)
+        if report is None or report.foreign:
+            return  # unknown, or another gateway's dispatch (logged and counted by the routing)
         if report.dispatch.state == DispatchState.SUPERSEDED:
             return  # its frame, refused by the vehicle, says nothing of the command
         command, _ = self.desk.get(report.dispatch.command_id)
+        said = Origin(StepSource.GATEWAY, event.gateway)
         if report.fresh_attempt:
-            self.desk.record(
-                command, CommandState.SENT, f"attempt {command.attempts + 1} via {event.gateway}",
+            self.desk.said(
+                said, command, CommandState.SENT, f"attempt {command.attempts + 1} via {event.gateway}",
                 at=event.at, attempts=command.attempts + 1,
             )  # fmt: skip
         if final and outcome == "acked":
-            self.desk.record(command, CommandState.ACKNOWLEDGED, f"via {event.gateway}", at=event.at)
+            self.desk.said(said, command, CommandState.ACKNOWLEDGED, f"via {event.gateway}", at=event.at)
+
+    def _refuted(self, dispatch: Dispatch) -> None:
+        """A gateway's ACK the vehicle's check-points refute: the command is the link's again (sent, not
+        acknowledged), for another gateway to send."""
+        command, _ = self.desk.get(dispatch.command_id)
+        detail = f"{dispatch.gateway}'s acknowledgement refuted by the vehicle's check-points: sent again"
+        self.desk.said(Origin(StepSource.VEHICLE), command, CommandState.SENT, detail)
 
     # --- slots -----------------------------------------------------------------------------------
 

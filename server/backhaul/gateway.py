@@ -3,16 +3,14 @@ committed to the local outbox first (``server.backhaul.outbox``), then published
 backhaul in order; commands the center signed come down, are kept in the outbox file, and their attempt
 outcomes go up as events. It holds no vehicle key (docs/protocol.md).
 
-The MAC: one exchange per slot of the TDMA frame the center hands the gateways sharing the band
-(``server.backhaul.slots``): a command's next attempt (SYNCs are commands here) or a poll of the next
-vehicle of the center's poll list (its answer, heard by this gateway's modem, goes up as frames; the
-center scores the gateways by them), taking turns when both wait. The center's SYNCs come first, each in
-the slot it was stamped for: a SYNC's time sets the vehicle's clock, so it goes only within
-``SYNC_WINDOW`` of its stamp (one waits for it; one past it is reported expired, and the center signs
-another), and the vehicle's newest replaces one still waiting. Without a plan a gateway alone on its
-band sends its commands at will and polls nobody. A command that reaches the gateway after its ``start_by`` is not sent: the center has sent it
-through another gateway by then. A gateway transmits nothing before it has read the last schedule the
-stream keeps for it (a restart resumes its stored commands in its slots).
+Its medium access is the shore's one MAC (``gateway.mac`` with ``gateway.queue``): the frames the center
+signed (SYNCs at their stamp, stops, commands) and polls of the vehicles the center's plan names, at the
+rate the SNR allows, in its own slots of the TDMA frame the center hands the gateways sharing the band
+(``gateway.slots``), each exchange only if it ends inside its slot. A ``WithdrawMessage`` takes a frame
+back. Without a plan a gateway alone on its band sends at will and polls nobody. A command that reaches
+the gateway after its ``start_by`` is not sent: the center has sent it through another gateway by then.
+A gateway transmits nothing before it has read the last schedule the stream keeps for it (a restart
+resumes its stored commands in its slots).
 
 The SYNC budget: for each vehicle the center assigns to it, the gateway keeps the SYNCs the center
 pre-signed for the coming hours (in its outbox file: a restart keeps them), and when the center's own
@@ -20,8 +18,9 @@ SYNCs for that vehicle have not come for two intervals (a backhaul outage, a cen
 newest whose time has come, one per interval, in its slots before the commands; a vehicle that moves to
 another gateway has its budget here withdrawn. It cannot make one: it holds no key (docs/protocol.md).
 
-Imports the standard library, the core (``tacit.modem``, ``tacit.packets``) and nats-py only: ``tacit[gateway]`` has no web
-stack (tests/integration/server/test_backhaul.py checks that fastapi, sqlmodel and sqlalchemy are not loaded).
+Imports the standard library, the core (``tacit.modem``, ``tacit.packets``), the gateway wing and nats-py
+only: ``tacit[gateway]`` has no web stack (tests/integration/server/test_backhaul.py checks that fastapi,
+sqlmodel and sqlalchemy are not loaded).
 """
 
 from __future__ import annotations
@@ -34,7 +33,6 @@ import math
 import os
 import sys
 import time
-from collections import deque
 from collections.abc import Awaitable, Callable
 from pathlib import Path
 
@@ -44,10 +42,13 @@ from nats.errors import Error as NatsError
 from nats.js import JetStreamContext
 from nats.js.errors import NotFoundError
 
+from gateway.mac import Mac
+from gateway.queue import FrameKind, Held, Outcome, Queue, Report
+from gateway.slots import Schedule, SlotPlan
+from gateway.timing import Timing
 from server.backhaul import access, broker, subjects
 from server.backhaul.access import BrokerAuth
 from server.backhaul.outbox import PUBLISH_TIMEOUT, Outbox, Publisher
-from server.backhaul.slots import ATTEMPT_AIRTIME, SYNC_WINDOW, Schedule, SlotPlan
 from server.backhaul.subjects import (
     UNNAMED,
     CommandMessage,
@@ -59,6 +60,7 @@ from server.backhaul.subjects import (
     Place,
     ScheduleMessage,
     SyncBudgetMessage,
+    WithdrawMessage,
 )
 from tacit import modem as mm
 from tacit.packets import Command, ControlFlag, PacketError, decode_control
@@ -78,9 +80,10 @@ class Gateway:
         place: Place | None = None,
         address: int | None = None,
         deployment: Deployment = UNNAMED,
+        timing: Timing | None = None,
     ) -> None:
         """``place``: where its modem is (the screens show it); ``address``: its modem's; ``deployment``:
-        the split shore it belongs to on its broker."""
+        the split shore it belongs to on its broker; ``timing``: its MAC's exchange durations."""
         self.outbox = outbox
         self.auth = auth or BrokerAuth()
         self.deployment = deployment
@@ -99,20 +102,27 @@ class Gateway:
         self.outage: Outage | None = None  # the last outage, said in every heartbeat after it
         self._beat_now = asyncio.Event()  # a heartbeat at once: the backhaul came back
         self.schedule = Schedule()  # the center's TDMA frames; none: transmit at will
-        self.polls: tuple[int, ...] = ()  # the vehicles' addresses the center asks this gateway to poll
-        self.queue: deque[tuple[CommandMessage, int]] = deque()  # commands to send, attempts made
-        self.syncs: dict[int, CommandMessage] = {}  # the center's SYNC waiting for its time, by address
-        self._polled = 0
-        self._commanded = False  # the last slot carried a command
-        self._work = asyncio.Event()
+        self.queue = Queue(timing or Timing(), self._report)
+        self.mac = (
+            None if driver is None else Mac(self.name, driver, self.queue, self.schedule, self.queue.timing)
+        )
         self._planned = asyncio.Event()  # the schedule the stream keeps for it was read, or there is none
-        self.transmissions: list[tuple[float, float]] = []  # (start, end) of each attempt, UNIX s
         self._center_synced: dict[int, float] = {}  # by vehicle address: when the center's last SYNC came
         self._budget_used: dict[int, float] = {}  # by vehicle address: when its last pre-signed one left
         self._started = time.monotonic()  # these three on the monotonic clock
         self._tasks: list[asyncio.Task[None]] = []
         if driver is not None:
             driver.add_listener(self.on_modem)
+
+    @property
+    def polls(self) -> tuple[int, ...]:
+        """The vehicles' addresses the center asks this gateway to poll."""
+        return self.queue.polled
+
+    @property
+    def transmissions(self) -> list[tuple[float, float]]:
+        """Each exchange's (start, end) on the air, UNIX s."""
+        return [] if self.mac is None else self.mac.transmissions
 
     # --- the modem: store first ------------------------------------------------------------------
 
@@ -140,10 +150,10 @@ class Gateway:
             asyncio.create_task(self._budgets(js)),
             asyncio.create_task(self._beat()),
         ]
-        if self.driver is not None:
+        if self.mac is not None:
             for stored in self.outbox.commands("stored"):  # a restart resumes them
-                self._keep(stored)
-            self._tasks.append(asyncio.create_task(self._mac()))
+                self.queue.hold(_held(stored))
+            self._tasks.append(asyncio.create_task(self._run_mac(self.mac)))
 
     async def stop(self) -> None:
         for task in self._tasks:
@@ -189,123 +199,58 @@ class Gateway:
         await _consume(await self._bind(js, 0), self._command)
 
     async def _command(self, msg: Msg) -> None:
-        """Keep a command (once, whatever the redeliveries), ack it, report it, send it if a modem is here."""
+        """Keep a command (once, whatever the redeliveries), ack it, report it, send it if a modem is here;
+        or take back one held (a withdrawal)."""
         try:
-            command = CommandMessage.decode(msg.data)
+            command = subjects.down(msg.data)
         except PayloadError as exc:
             log.error("command dropped: %s", exc)
             await msg.term()
+            return
+        if isinstance(command, WithdrawMessage):
+            await msg.ack()
+            self._withdraw(command)
             return
         fresh = self.outbox.add_command(command, msg.data)
         await msg.ack()
         if not fresh:
             return
-        if subjects.is_sync(command.id):  # the center's SYNCs come: its pre-signed ones wait
+        if command.kind is FrameKind.SYNC:  # the center's SYNCs come: its pre-signed ones wait
             self._center_synced[command.address] = time.monotonic()
         if command.start_by and time.time() > command.start_by:  # the center went through another
-            self._final(command, "expired")
+            self._final(command.id, Outcome.EXPIRED)
             return
         self.outbox.add_event("attempt", {"command": command.id, "outcome": "stored", "attempt": 0})
-        if self.driver is not None:
-            self._keep(command)
-            self._work.set()
+        if self.mac is not None:
+            self.queue.hold(_held(command))
+            self.mac.wake()
 
-    def _keep(self, command: CommandMessage) -> None:
-        """Queue a command; a center's SYNC waits for its time apart (its vehicle's newest only)."""
-        if not subjects.is_sync(command.id):
-            self.queue.append((command, 0))
-            return
-        older = self.syncs.get(command.address)
-        if older is not None:
-            self._final(older, "expired")
-        self.syncs[command.address] = command
+    def _withdraw(self, withdrawal: WithdrawMessage) -> None:
+        """The center took a frame back: not sent again (its end reported ``withdrawn`` if it was held)."""
+        log.info("gateway %s: %s withdrawn (%s)", self.name, withdrawal.command, withdrawal.reason)
+        if not self.queue.withdraw(withdrawal.command):
+            self.outbox.set_command(withdrawal.command, Outcome.WITHDRAWN)
 
-    def _sync_due(self, now: float) -> CommandMessage | None:
-        """A center's SYNC whose time is within ``SYNC_WINDOW`` of ``now`` (taken); those past it are
-        reported expired."""
-        for address, command in list(self.syncs.items()):
-            stamp = decode_control(command.data).time
-            if now > stamp + SYNC_WINDOW:
-                log.info("vehicle %d: SYNC %s missed its slot (stamped %.0f s ago)", address, command.id,
-                         now - stamp)  # fmt: skip
-                self._final(self.syncs.pop(address), "expired")
-            elif now >= stamp - SYNC_WINDOW:
-                return self.syncs.pop(address)
-        return None
-
-    # --- the MAC: one exchange per slot ------------------------------------------------------------
-
-    async def _mac(self) -> None:
+    async def _run_mac(self, mac: Mac) -> None:
         await self._planned.wait()  # not a transmission at will before the slots it may already have
-        while True:
-            self._budget_syncs()
-            plan = self.schedule.plan(time.time())
-            usable = plan.usable if plan is not None and self.name in plan.order else 0.0
-            polling = bool(self.polls) and usable > 0  # polls only in slots: never at will
-            if not self.queue and not self.syncs and not polling:
-                self._work.clear()
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(self._work.wait(), 1.0)
-                continue
-            start = self.schedule.start(self.name, time.time(), usable or ATTEMPT_AIRTIME)
-            await asyncio.sleep(max(0.0, start - time.time()))
-            sync = self._sync_due(time.time())
-            if sync is not None:  # in the slot it was stamped for: before the commands and polls
-                self._final(sync, "acked" if await self._attempt(sync, 1) == "acked" else "failed")
-            elif self.queue and not (polling and self._commanded):
-                await self._next_attempt()
-                self._commanded = True
-            elif polling:  # polls and commands take turns: a vehicle's answers come while commands wait
-                await self._poll()
-                self._commanded = False
-            else:  # only a SYNC waiting for its time
-                await asyncio.sleep(SYNC_WINDOW / 2)
-            await asyncio.sleep(max(0.0, start + usable - time.time()))  # the slot's answers still come
+        budgets = asyncio.create_task(self._budget_loop(mac))
+        try:
+            await mac.run()
+        finally:
+            budgets.cancel()
 
-    async def _next_attempt(self) -> None:
-        """The first waiting command's next attempt; it leaves the queue when acked, out of attempts or
-        expired (each outcome goes up as an event, through the outbox: none is lost)."""
-        command, made = self.queue.popleft()
-        if command.expires_at and time.time() > command.expires_at:
-            self._final(command, "expired")
-            return
-        outcome = await self._attempt(command, made + 1)
-        if outcome == "acked" or made + 1 >= command.attempts:
-            self._final(command, "acked" if outcome == "acked" else "failed")
+    def _report(self, report: Report) -> None:
+        """An attempt of a held frame, or its end, into the outbox (it goes up as an event: none is lost)."""
+        if report.final:
+            self._final(report.frame.id, report.outcome)
         else:
-            self.queue.appendleft((command, made + 1))
-
-    async def _poll(self) -> None:
-        """Ask the next vehicle of the poll list for its data (with ACK: its link counts on them)."""
-        assert self.driver is not None
-        address = self.polls[self._polled % len(self.polls)]
-        self._polled += 1
-        try:
-            await self.driver.poll(address, rate=0, ack=True)
-        except mm.ModemError as exc:
-            log.warning("poll of %d failed: %s", address, exc)
-
-    async def _attempt(self, command: CommandMessage, attempt: int) -> str:
-        """One data cycle with ACK: ``acked``, ``sent`` (no ACK) or ``failed`` (not transmitted)."""
-        assert self.driver is not None
-        started = time.time()
-        try:
-            result = await self.driver.send(
-                command.address, [command.data], ack=True, ack_timeout=command.ack_timeout
-            )
-        except mm.ModemError as exc:
             self.outbox.add_event(
-                "attempt", {"command": command.id, "outcome": "failed", "attempt": attempt, "error": str(exc)}
+                "attempt", {"command": report.frame.id, "outcome": report.outcome, "attempt": report.attempt}
             )
-            return "failed"
-        self.transmissions.append((started, time.time()))
-        outcome = "acked" if result.all_acked else "sent" if result.transmitted else "failed"
-        self.outbox.add_event("attempt", {"command": command.id, "outcome": outcome, "attempt": attempt})
-        return outcome
 
-    def _final(self, command: CommandMessage, outcome: str) -> None:
-        self.outbox.set_command(command.id, outcome)
-        self.outbox.add_event("attempt", {"command": command.id, "outcome": outcome, "final": True})
+    def _final(self, command_id: str, outcome: Outcome) -> None:
+        self.outbox.set_command(command_id, outcome)
+        self.outbox.add_event("attempt", {"command": command_id, "outcome": outcome, "final": True})
 
     async def _schedules(self, js: JetStreamContext) -> None:
         """Its schedule: the last the stream keeps for it (a restart resumes its slots, center or not),
@@ -348,8 +293,9 @@ class Gateway:
             self.schedule.receive(
                 SlotPlan(schedule.epoch, schedule.slot, schedule.guard, schedule.order), time.time()
             )
-            self.polls = schedule.poll
-            self._work.set()
+            self.queue.poll(schedule.poll)
+            if self.mac is not None:
+                self.mac.wake()
         except (PayloadError, ValueError) as exc:
             log.error("schedule refused: %s", exc)
             return
@@ -393,11 +339,16 @@ class Gateway:
             log.info("vehicle %d: its pre-signed SYNCs withdrawn (%s)", budget.address, budget.id)
         return True
 
-    def _budget_syncs(self) -> None:
-        """Queue first a pre-signed SYNC for each vehicle the center's SYNCs have not reached for two
-        intervals (its backhaul or the center is down) and that had none from here for one."""
-        if self.driver is None:
-            return
+    async def _budget_loop(self, mac: Mac) -> None:
+        while True:
+            if self._budget_syncs():
+                mac.wake()
+            await asyncio.sleep(1.0)
+
+    def _budget_syncs(self) -> bool:
+        """Hold a pre-signed SYNC for each vehicle the center's SYNCs have not reached for two intervals
+        (its backhaul or the center is down) and that had none from here for one; whether one was."""
+        held = False
         now = time.monotonic()
         for budget in self.outbox.budgets():
             quiet = now - self._center_synced.get(budget.address, self._started)
@@ -411,15 +362,16 @@ class Gateway:
                 continue
             at, frame = taken
             self._budget_used[budget.address] = now
-            command = CommandMessage(
-                subjects.sync_id(budget.address, at), self.name, budget.address, frame, attempts=1,
-                ack_timeout=budget.ack_timeout, expires_at=at + budget.step,
+            sync = Held(
+                subjects.sync_id(budget.address, at), budget.address, frame, FrameKind.SYNC, attempts=1,
+                expires_at=at + budget.step,
             )  # fmt: skip
-            self.queue.appendleft((command, 0))
+            held = self.queue.hold(sync) or held
             log.info(
                 "vehicle %d: pre-signed SYNC %d (due %.0f s ago); none from the center for %.0f s",
                 budget.address, at, time.time() - at, quiet,
             )  # fmt: skip
+        return held
 
     # --- heartbeat -------------------------------------------------------------------------------
 
@@ -439,7 +391,7 @@ class Gateway:
                 await asyncio.wait_for(self._beat_now.wait(), self.heartbeat)
 
     def state(self) -> GatewayState:
-        """What its heartbeat says: its outbox, modem, place and last outage."""
+        """What its heartbeat says: its outbox, modem, place, last outage and MAC."""
         return GatewayState(
             self.outbox.incarnation,
             self.outbox.depth(),
@@ -447,7 +399,21 @@ class Gateway:
             self.address,
             self.place,
             self.outage,
+            link=None if self.mac is None else self.mac.status.detail(),
         )
+
+
+def _held(command: CommandMessage) -> Held:
+    """A command message as the MAC's queue holds it (a SYNC of a center that did not stamp the message
+    goes at the time its frame carries)."""
+    stamp = command.stamp
+    if command.kind is FrameKind.SYNC and not stamp:
+        with contextlib.suppress(PacketError):
+            stamp = decode_control(command.data).time
+    return Held(
+        command.id, command.address, command.data, command.kind, command.rank, stamp, command.attempts,
+        command.expires_at,
+    )  # fmt: skip
 
 
 async def _consume(sub: JetStreamContext.PullSubscription, handle: Callable[[Msg], Awaitable[None]]) -> None:
@@ -484,6 +450,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--modem-address", type=int, default=0, help="the shore modem's address (default 0)")
     parser.add_argument("--modem-log", default=None, help="append the modem's sentences to this file")
+    parser.add_argument(
+        "--time-scale",
+        type=float,
+        default=1.0,
+        help="simulated seconds per wall second of a simulated sea: the MAC's exchanges shorten by it",
+    )
     parser.add_argument(
         "--position",
         type=_place,
@@ -526,6 +498,7 @@ def run(args: argparse.Namespace) -> int:
         gateway = Gateway(
             outbox, args.nats, driver, auth=auth, place=args.position,
             address=args.modem_address if driver else None, deployment=deployment,
+            timing=Timing(time_scale=args.time_scale),
         )  # fmt: skip
         await gateway.start()
         log.info(

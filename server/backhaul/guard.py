@@ -15,6 +15,9 @@ gateways' table, and a message that fails is a logged, counted refusal, never an
 * A stale heartbeat (sent ``STALE_BEATS`` heartbeats ago or more, by its own time: a backlog a center
   consumes after it was away) is passed on but says nothing of now: it neither makes its gateway up nor
   holds its name against another incarnation.
+* A frame stamped more than ``FUTURE`` s ahead of the center's clock is refused (``future``): a
+  gateway's clock is NTP/GPS-disciplined, and a frame from the future would make a vehicle heard then.
+  A late frame is not: after an outage a gateway's backlog is as old as the stream keeps (7 days).
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ log = logging.getLogger("tacit.backhaul.guard")
 
 STALE_BEATS = 3  # heartbeats missed before another incarnation may take a gateway's name
 MAX_ID = 128  # characters: the store's column
+FUTURE = 120.0  # s a frame may be stamped ahead of the center's clock (clocks apart, a slow center)
 
 
 @dataclass
@@ -45,11 +49,11 @@ class Announced:
 class Guard:
     def __init__(self, heartbeat: float = subjects.HEARTBEAT) -> None:
         self.heartbeat = heartbeat
-        self.refused: Counter[str] = Counter()  # by reason: malformed, foreign, partition, twice
+        self.refused: Counter[str] = Counter()  # by reason: malformed, foreign, partition, future, twice
         self.announced: dict[str, Announced] = {}  # by gateway name
 
-    def frame(self, subject: str, data: bytes) -> FrameMessage | None:
-        """The frame in a message from ``subject``, or None (refused, logged)."""
+    def frame(self, subject: str, data: bytes, now: float) -> FrameMessage | None:
+        """The frame in a message from ``subject`` consumed at ``now``, or None (refused, logged)."""
         try:
             frame = FrameMessage.decode(data)
             subjects.gateway_name(frame.gateway)
@@ -72,6 +76,13 @@ class Guard:
             return None
         if not math.isfinite(frame.at) or not isinstance(frame.stats, dict | None):
             self._refuse("malformed", f"frame {frame.id} on {subject} dropped: bad time or statistics")
+            return None
+        if frame.at > now + FUTURE:
+            self._refuse(
+                "future",
+                f"frame {frame.id} from address {frame.src} on {subject} dropped: stamped {frame.at - now:.0f} s "
+                f"ahead of the center's clock (more than {FUTURE:.0f} s)",
+            )
             return None
         return frame
 

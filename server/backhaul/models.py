@@ -27,3 +27,6 @@ class RelayedFrame(SQLModel, table=True):
     at: float  # when the gateway heard it (its clock)
     received_at: float = Field(default_factory=now)  # when the center stored it
     kept: bool = False  # this copy's receive statistics are the frame row's (the best SNR heard)
+    # the frame carried a packet heard for the first time whose tag or MAC verified: only such copies
+    # score their gateway (``server.routing``); a gateway's claims of what it heard are no evidence
+    verified: bool = Field(default=False, sa_column_kwargs={"server_default": "0"})

@@ -97,26 +97,27 @@ class RelayIngest(Ingest):
         digest = hashlib.sha256(frame.data).hexdigest()
         twin = batch.twin(s, frame.src, digest, frame.at, self.window)
         if twin is not None:
-            frame_id, snr_in = twin
-            return self._copy(s, batch, frame, frame_id, digest, better=_snr(frame.snr_in) > _snr(snr_in))
+            return self._copy(s, batch, frame, twin, digest)
         events = super()._frame(s, batch, frame)  # stores the frame: ``_stored`` records it
         if frame.id not in batch.taken:  # refused before storing: its id is still taken
             batch.record(self._row(frame, digest, None, kept=False))
+        elif batch.mine and batch.mine[-1]["id"] == frame.id:  # stored and decoded: did it verify?
+            batch.mine[-1]["verified"] = batch.mine[-1]["frame_id"] in batch.verified
         return events
 
     def _stored(self, s: Tx, batch: Batch, frame: IncomingFrame, frame_id: int) -> None:
         if isinstance(frame, RelayedIncoming) and isinstance(batch, RelayBatch):
             batch.record(self._row(frame, hashlib.sha256(frame.data).hexdigest(), frame_id, kept=True))
 
-    def _copy(
-        self, s: Tx, batch: RelayBatch, frame: RelayedIncoming, frame_id: int, digest: str, better: bool
-    ) -> list[Event]:
-        """Another gateway's copy of a stored frame: counted, and kept if its SNR is the best."""
+    def _copy(self, s: Tx, batch: RelayBatch, frame: RelayedIncoming, twin: Twin, digest: str) -> list[Event]:
+        """Another gateway's copy of a stored frame: counted, and kept if its SNR is the best; it verified
+        if the frame did."""
         self.stats["diversity_copies"] += 1
+        frame_id, better = twin.frame_id, _snr(frame.snr_in) > _snr(twin.snr_in)
         if better:
             batch.keep(s, frame_id, {"snr_in": frame.snr_in, "snr_out": frame.snr_out, "stats": frame.stats,
                                      "rate": frame.rate})  # fmt: skip
-        batch.record(self._row(frame, digest, frame_id, kept=better))
+        batch.record(self._row(frame, digest, frame_id, kept=better, verified=twin.verified))
         detail = {
             "address": frame.src,
             "frame_id": frame_id,
@@ -128,7 +129,9 @@ class RelayIngest(Ingest):
         return [LinkNotice(event="heard_again", detail=detail)]
 
     @staticmethod
-    def _row(frame: RelayedIncoming, digest: str, frame_id: int | None, kept: bool) -> dict[str, Any]:
+    def _row(
+        frame: RelayedIncoming, digest: str, frame_id: int | None, kept: bool, verified: bool = False
+    ) -> dict[str, Any]:
         return {
             "id": frame.id,
             "frame_id": frame_id,
@@ -139,7 +142,17 @@ class RelayIngest(Ingest):
             "at": frame.at,
             "received_at": now(),
             "kept": kept,
+            "verified": verified,
         }
+
+
+@dataclass(frozen=True)
+class Twin:
+    """The stored copy of a frame another gateway heard too: its frame row, SNR, and whether it verified."""
+
+    frame_id: int
+    snr_in: float | None
+    verified: bool
 
 
 @dataclass
@@ -164,15 +177,15 @@ class RelayBatch(Batch):
     def mine(self) -> list[dict[str, Any]]:
         return self.relayed[len(self.relayed) - self.added :]
 
-    def twin(self, s: Tx, src: int, digest: str, at: float, window: float) -> tuple[int, float | None] | None:
-        """The kept copy of the same frame heard within ``window`` s of ``at``: its frame id and SNR."""
+    def twin(self, s: Tx, src: int, digest: str, at: float, window: float) -> Twin | None:
+        """The kept copy of the same frame heard within ``window`` s of ``at``."""
         copies = [
             r for r in self.relayed
             if r["kept"] and r["frame_id"] is not None and r["src"] == src and r["digest"] == digest
             and abs(r["at"] - at) <= window
         ]  # fmt: skip
         best = max(copies, key=lambda r: r["at"], default=None)
-        return None if best is None else (best["frame_id"], best["snr_in"])
+        return None if best is None else Twin(best["frame_id"], best["snr_in"], bool(best.get("verified")))
 
     def keep(self, s: Tx, frame_id: int, stats: dict[str, Any]) -> None:
         """The copy recorded next is the frame's best: its receive statistics become the frame row's."""

@@ -55,7 +55,7 @@ def add_rows(s: Session, rows: list[dict[str, Any]]) -> None:
 
 def kept_copies(s: Session, frames: Sequence[tuple[int, str]]) -> list[dict[str, Any]]:
     """The kept copies of frames (source, SHA-256 of their bytes) that became frame rows: their ``src``,
-    ``digest``, ``at``, ``frame_id``, ``snr_in`` and ``kept``."""
+    ``digest``, ``at``, ``frame_id``, ``snr_in``, ``kept`` and ``verified``."""
     if not frames:
         return []
     query = select(RelayedFrame).where(
@@ -71,6 +71,7 @@ def kept_copies(s: Session, frames: Sequence[tuple[int, str]]) -> list[dict[str,
             "frame_id": r.frame_id,
             "snr_in": r.snr_in,
             "kept": True,
+            "verified": r.verified,
         }
         for r in s.exec(query).all()
     ]

@@ -6,7 +6,8 @@ Subjects (docs/backhaul.md has the table other tools subscribe by):
   ``<partition>`` is its source modem address modulo ``PARTITIONS`` (``partition``), so that the
   center's processes can share the vehicles, each partition decoded by one of them at a time
   (``server.backhaul.leases``);
-* ``tacit.v1.commands.<gateway>``: down, a signed command frame for the gateway to send (``CommandMessage``);
+* ``tacit.v1.commands.<gateway>``: down, a signed command frame for the gateway to send (``CommandMessage``),
+  or the withdrawal of one it holds (``WithdrawMessage``; ``down`` reads either);
 * ``tacit.v1.events.<gateway>``: up, what the gateway reports: attempt outcomes, modem states, its
   heartbeat (``EventMessage``);
 * ``tacit.v1.schedule.<gateway>``: down, the gateway's transmit slots in the TDMA frame the center
@@ -21,16 +22,19 @@ Every message carries an ``id`` unique across the system, which is also its ``Na
 (JetStream's de-duplication within the stream's ``duplicate_window``). Payloads are JSON objects with
 ``"v": 1``; a reader ignores fields it does not know and refuses another major version.
 
-Standard library only: the gateway imports it.
+Standard library and the gateway wing's queue (``FrameKind``): the gateway imports it.
 """
 
 from __future__ import annotations
 
+import enum
 import json
 import math
 import re
 from dataclasses import asdict, dataclass, field
 from typing import Any
+
+from gateway.queue import FrameKind
 
 VERSION = 1
 PREFIX = f"tacit.v{VERSION}"
@@ -135,6 +139,14 @@ def is_sync(command_id: str) -> bool:
     return command_id.startswith("sync-")
 
 
+class WithdrawReason(enum.StrEnum):
+    """Why the center takes back a frame a gateway holds."""
+
+    SUPERSEDED = "superseded"  # the center signed the command anew (or the vehicle would refuse the frame)
+    ACKNOWLEDGED = "acknowledged"  # the vehicle's modem acknowledged it through another gateway
+    CANCELLED = "cancelled"  # an operator cancelled the command
+
+
 def _load(data: bytes) -> dict[str, Any]:
     try:
         body = json.loads(data)
@@ -202,9 +214,12 @@ class CommandMessage:
     ack_timeout: float = 20.0
     expires_at: float = 0.0
     start_by: float = 0.0
+    kind: FrameKind = FrameKind.COMMAND  # a stop goes before every other command; a SYNC at its stamp
+    rank: int = 0  # among one vehicle's commands of a kind, the lower first (the center's queue order)
+    stamp: float = 0.0  # UNIX s the frame is signed for (a SYNC: its slot's opening; 0: none)
 
     def encode(self) -> bytes:
-        return _dump({**asdict(self), "data": self.data.hex()})
+        return _dump({**asdict(self), "data": self.data.hex(), "kind": self.kind.value})
 
     @classmethod
     def decode(cls, data: bytes) -> CommandMessage:
@@ -219,14 +234,62 @@ class CommandMessage:
                 ack_timeout=float(body.get("ack_timeout", 20.0)),
                 expires_at=float(body.get("expires_at", 0.0)),
                 start_by=float(body.get("start_by", 0.0)),
+                kind=FrameKind(
+                    body.get("kind", FrameKind.SYNC if is_sync(str(body["id"])) else FrameKind.COMMAND)
+                ),
+                rank=int(body.get("rank", 0)),
+                stamp=float(body.get("stamp", 0.0)),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise PayloadError(f"a command without {exc}") from exc
 
 
 @dataclass(frozen=True)
+class WithdrawMessage:
+    """The center takes back the frame of command message ``command`` that ``gateway`` holds: the gateway
+    sends it no more (reported ``withdrawn``, final). It rides the gateway's commands subject, so it comes
+    after the frame it withdraws; one for a frame the gateway never held or already finished is kept as a
+    refusal of that frame should it come later (a redelivery)."""
+
+    id: str  # "withdraw-<command message id>"
+    gateway: str
+    command: str  # the ``CommandMessage.id`` taken back
+    reason: WithdrawReason
+
+    def encode(self) -> bytes:
+        return _dump({"type": "withdraw", **asdict(self), "reason": self.reason.value})
+
+    @classmethod
+    def decode(cls, data: bytes) -> WithdrawMessage:
+        body = _load(data)
+        try:
+            if body.get("type") != "withdraw":
+                raise ValueError("type")
+            return cls(
+                id=str(body["id"]),
+                gateway=str(body["gateway"]),
+                command=str(body["command"]),
+                reason=WithdrawReason(body["reason"]),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise PayloadError(f"a withdrawal without {exc}") from exc
+
+
+def withdraw_id(command_id: str) -> str:
+    """The id of the withdrawal of command message ``command_id`` (one per frame: the broker keeps one)."""
+    return f"withdraw-{command_id}"
+
+
+def down(data: bytes) -> CommandMessage | WithdrawMessage:
+    """A message of a gateway's commands subject: a frame to send, or the withdrawal of one."""
+    return (
+        WithdrawMessage.decode(data) if _load(data).get("type") == "withdraw" else CommandMessage.decode(data)
+    )
+
+
+@dataclass(frozen=True)
 class ScheduleMessage:
-    """The TDMA frame of the gateways sharing one band (``server.backhaul.slots.SlotPlan``): slot ``k``
+    """The TDMA frame of the gateways sharing one band (``gateway.slots.SlotPlan``): slot ``k``
     begins at ``epoch + k * slot`` (UNIX s) and belongs to ``order[k % len(order)]``; a gateway starts a
     transmission ``guard`` s after its slot begins at the earliest and has it answered ``guard`` s before
     the slot ends. ``poll``: the vehicles' modem addresses the gateway polls in its slots, in turn."""
@@ -364,7 +427,8 @@ class Outage:
 class GatewayState:
     """A heartbeat's detail, what a gateway says of itself: its outbox's incarnation, its backhaul (``up``:
     it is sent only while connected), the messages not yet published (``outbox``), its modem's address and
-    state, its place (None: not told) and its last outage (None: none since it started)."""
+    state, its place (None: not told), its last outage (None: none since it started) and its MAC's status
+    (None: no modem)."""
 
     incarnation: str
     outbox: int
@@ -373,6 +437,7 @@ class GatewayState:
     place: Place | None = None
     outage: Outage | None = None
     backhaul: str = "up"
+    link: dict[str, Any] | None = None  # its MAC's status (``gateway.mac.MacStatus.detail``)
 
     def detail(self) -> dict[str, Any]:
         return asdict(self)
@@ -393,6 +458,7 @@ class GatewayState:
                     _finite(outage["lasted"]), _finite(outage["ended"]), int(outage["backlog"])
                 ),
                 backhaul=str(detail.get("backhaul", "up")),
+                link=dict(detail["link"]) if isinstance(detail.get("link"), dict) else None,
             )  # fmt: skip
         except (KeyError, TypeError, ValueError) as exc:
             raise PayloadError(f"a heartbeat without {exc}") from exc

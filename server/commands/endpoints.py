@@ -63,6 +63,21 @@ def get_command(command_id: Id, desk: CommandsDep) -> CommandDetail:
     return CommandDetail(**_out(command).model_dump(), history=_steps(steps))
 
 
+@router.post(
+    "/commands/{command_id}/cancel",
+    response_model=CommandDetail,
+    responses={409: {"description": "too late: it was signed for transmission, or is past queued; the "
+                     "detail says which, and the command goes on as sent"}},
+)  # fmt: skip
+def cancel_command(command_id: Id, desk: CommandsDep, actor: Writer) -> CommandDetail:
+    """Take back a queued command: it ends ``cancelled`` (the history says by whom and when) and is never
+    sent. 409 with the reason when it lost the race with a transmission (signed for one already: on the
+    air, or handed to a gateway): it goes on as sent, and its status says how it went."""
+    desk.cancel(command_id, actor.name)
+    command, steps = desk.get(command_id)
+    return CommandDetail(**_out(command).model_dump(), history=_steps(steps))
+
+
 def _out(command: CommandRecord) -> CommandOut:
     return CommandOut.model_validate(command, from_attributes=True)
 

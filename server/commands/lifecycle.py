@@ -5,6 +5,7 @@ report means for them. Pure rules, no I/O.
            -> executing -> executed | refused   (from the vehicle's check-points)
     queued / sent -> failed (no ACK after the configured attempts); superseded (a newer command
     replaced it before it ran)
+    queued -> cancelled (an operator took it back before it was signed for transmission; final)
 
 The states from the vehicle win over the modem's: a check-point that says "executed" is final even if
 a late ACK arrives afterwards. A failed command that a check-point shows ran after all becomes what
@@ -23,13 +24,14 @@ NOT_STARTED = (*PENDING, CommandState.ACKNOWLEDGED)  # the vehicle has not said 
 FINAL = frozenset({CommandState.EXECUTED, CommandState.REFUSED, CommandState.SUPERSEDED})
 _FROM_VEHICLE = frozenset({CommandState.EXECUTING, *FINAL})
 NEXT: Mapping[CommandState, frozenset[CommandState]] = {
-    CommandState.QUEUED: frozenset({CommandState.SENT, CommandState.FAILED, *_FROM_VEHICLE}),
+    CommandState.QUEUED: frozenset({CommandState.SENT, CommandState.FAILED, CommandState.CANCELLED, *_FROM_VEHICLE}),
     CommandState.SENT: frozenset({CommandState.SENT, CommandState.ACKNOWLEDGED, CommandState.FAILED, *_FROM_VEHICLE}),
     # sent again when no check-point confirmed it (the modem ACKs even when the vehicle's host is down)
     CommandState.ACKNOWLEDGED: frozenset({CommandState.SENT, *_FROM_VEHICLE}),
     CommandState.EXECUTING: FINAL,
     CommandState.FAILED: _FROM_VEHICLE,  # the vehicle got it after all: its check-point says so
     **{final: frozenset() for final in FINAL},
+    CommandState.CANCELLED: frozenset(),  # never signed: no transmission, no report can follow
 }  # fmt: skip
 #: What the vehicle's check-point reports, as the shore's state of the command.
 FROM_CHECKPOINT = {

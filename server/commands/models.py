@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import enum
+from dataclasses import dataclass
 
 from sqlalchemy import JSON, Column, Index, LargeBinary
 from sqlmodel import AutoString, Field, SQLModel
@@ -21,6 +22,31 @@ class CommandState(enum.StrEnum):
     REFUSED = "refused"
     SUPERSEDED = "superseded"
     FAILED = "failed"
+    CANCELLED = "cancelled"  # by an operator while queued, never signed for transmission: never sent
+
+
+class StepSource(enum.StrEnum):
+    """Where a step of a command's history came from: what the shore decided itself, what a modem or a
+    gateway claims, or what the vehicle's authenticated check-point says (the only source of
+    ``executing``, ``executed`` and ``refused``)."""
+
+    OPERATOR = "operator"  # an operator's action: queued, cancelled (``via``: the operator's name)
+    SHORE = "shore"  # the shore's own decision: failed for want of a gateway, superseded by an abort
+    MODEM = "modem"  # the single shore's own modem: an attempt, its hardware ACK
+    GATEWAY = "gateway"  # a gateway's report of its attempt (``via``: the gateway), checked as the
+    # dispatch's gateway (``server.routing``)
+    VEHICLE = "vehicle"  # a check-point whose MAC verified
+
+
+@dataclass(frozen=True)
+class Origin:
+    """Who said a step: its source, and the operator or gateway it came by ("" when none)."""
+
+    source: StepSource
+    via: str = ""
+
+    def __str__(self) -> str:
+        return f"{self.source.value} {self.via}".strip()
 
 
 class CommandRecord(SQLModel, table=True):
@@ -65,3 +91,7 @@ class CommandStep(SQLModel, table=True):
     detail: str = Field(default="", max_length=256)
     at: float = Field(default_factory=now)
     report: dict | None = Field(default=None, sa_column=Column(JSON, nullable=True))
+    source: StepSource = Field(
+        default=StepSource.SHORE, sa_type=AutoString(16), sa_column_kwargs={"server_default": "shore"}
+    )
+    via: str = Field(default="", max_length=64, sa_column_kwargs={"server_default": ""})

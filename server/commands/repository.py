@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from sqlalchemy import insert, update
+from sqlalchemy import func, insert, update
 from sqlmodel import Session, col, select
 
 from server.commands.lifecycle import NOT_STARTED, PENDING
-from server.commands.models import CommandRecord, CommandState, CommandStep
+from server.commands.models import CommandRecord, CommandState, CommandStep, Origin, StepSource
 from server.core.db import now, saved_id
 
 
@@ -14,7 +14,12 @@ def add(s: Session, command: CommandRecord) -> CommandRecord:
     """Insert a queued command with its first history step."""
     s.add(command)
     s.flush()
-    s.add(CommandStep(command_id=saved_id(command), status=CommandState.QUEUED, detail=""))
+    s.add(
+        CommandStep(
+            command_id=saved_id(command), status=CommandState.QUEUED, detail="",
+            source=StepSource.OPERATOR, via=command.issued_by,
+        )
+    )  # fmt: skip
     return command
 
 
@@ -35,9 +40,11 @@ def move(
     detail: str,
     report: dict | None,
     values: dict[str, object],
+    origin: Origin,
     at: float | None = None,
 ) -> None:
-    """Set the command's status (and ``values``) and add the history step, dated ``at`` (default now)."""
+    """Set the command's status (and ``values``) and add the history step, dated ``at`` (default now),
+    saying who said it (``origin``)."""
     at = now() if at is None else at
     s.execute(
         update(CommandRecord)
@@ -46,9 +53,49 @@ def move(
     )
     s.execute(
         insert(CommandStep).values(
-            command_id=command_id, status=status.value, detail=detail, at=at, report=report
-        )
+            command_id=command_id,
+            status=status.value,
+            detail=detail,
+            at=at,
+            report=report,
+            source=origin.source.value,
+            via=origin.via,
+        )  # fmt: skip
     )
+
+
+def claim(s: Session, command_id: int | None, frame: bytes) -> bool:
+    """The command's frame, signed for a transmission, kept with it unless it was cancelled: whether it
+    may go. One conditional statement, so a cancel and a transmission cannot both win."""
+    query = (
+        update(CommandRecord)
+        .where(col(CommandRecord.id) == command_id, col(CommandRecord.status) != CommandState.CANCELLED.value)
+        .values(frame=frame)
+    )
+    return bool(s.execute(query).rowcount)  # type: ignore[attr-defined]
+
+
+def cancel(s: Session, command_id: int | None, by: str) -> bool:
+    """Cancel the command if it is queued and was never signed for a transmission (no frame kept):
+    whether it was. One conditional statement (see ``claim``); the caller commits."""
+    query = (
+        update(CommandRecord)
+        .where(
+            col(CommandRecord.id) == command_id,
+            col(CommandRecord.status) == CommandState.QUEUED.value,
+            func.length(col(CommandRecord.frame)) == 0,
+        )
+        .values(status=CommandState.CANCELLED.value, updated_at=now())
+    )
+    if not s.execute(query).rowcount:  # type: ignore[attr-defined]
+        return False
+    s.execute(
+        insert(CommandStep).values(
+            command_id=command_id, status=CommandState.CANCELLED.value, detail=f"by {by}", at=now(),
+            source=StepSource.OPERATOR.value, via=by,
+        )
+    )  # fmt: skip
+    return True
 
 
 def queued(s: Session, vehicle_id: int) -> list[CommandRecord]:

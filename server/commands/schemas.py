@@ -6,7 +6,7 @@ from typing import Annotated
 
 from pydantic import BaseModel, Field, JsonValue, ValidationInfo, field_validator
 
-from server.commands.models import CommandState
+from server.commands.models import CommandState, StepSource
 from server.core.schemas import DB_INT_MAX, STRICT
 from tacit.navigation import wrap180
 from tacit.packets import FLOAT32_MAX, Command
@@ -128,7 +128,8 @@ class CommandReport(BaseModel):
 class CommandStepOut(BaseModel):
     """One step of a command's life, oldest first: queued; sent (one row per attempt, detail
     "attempt N"); acknowledged (the vehicle's modem ACKed); executing, executed, refused (with the vehicle's
-    reason), superseded (from the vehicle's check-points, with ``report``); failed (detail: why)."""
+    reason), superseded (from the vehicle's check-points, with ``report``); failed (detail: why);
+    cancelled (detail "by <operator>", ``via`` the operator, ``at`` when)."""
 
     status: CommandState
     detail: str = Field(
@@ -138,6 +139,13 @@ class CommandStepOut(BaseModel):
     report: CommandReport | None = Field(
         None, description="for the steps a check-point reported: the vehicle's time and pose then"
     )
+    source: StepSource = Field(
+        description="who said it: operator (queued, cancelled), shore (the center's own decision), modem "
+        "(the single shore's modem), gateway (a gateway's report, from the gateway the command went "
+        "through), vehicle (a check-point whose MAC verified: the only source of executing, executed, "
+        "refused)"
+    )
+    via: str = Field(description="the operator or the gateway it came by; empty when none")
 
 
 class CommandDetail(CommandOut):

@@ -21,10 +21,10 @@ from sqlalchemy import Engine
 
 from server.commands import repository as repo
 from server.commands.lifecycle import FROM_CHECKPOINT, allowed, report_of
-from server.commands.models import CommandRecord, CommandState, CommandStep
+from server.commands.models import CommandRecord, CommandState, CommandStep, Origin, StepSource
 from server.commands.schemas import CommandIn
 from server.core.db import Tx, reading, saved_id, writing
-from server.core.errors import NotFound, Refused, TooMany
+from server.core.errors import Conflict, NotFound, Refused, TooMany
 from server.core.events import Bus, CommandChanged
 from server.telemetry import clock
 from server.telemetry import service as telemetry
@@ -53,7 +53,10 @@ IN_FLIGHT = (
     CommandState.EXECUTING,
 )  # a check-point will end it
 RETRY_AFTER_S = 10  # a full queue's answer: about two command attempts at the default range
-ABORTED = "by an abort before it was sent"  # what happens to the commands an abort overtakes
+ABORTED = "by an abort before it was sent"
+MODEM = Origin(
+    StepSource.MODEM
+)  # the single shore's link records what its own modem said  # what happens to the commands an abort overtakes
 
 
 class CommandRefused(Refused):
@@ -135,17 +138,19 @@ def advance(
     reason: str | None = None,
     report: dict | None = None,
     at: float | None = None,
+    *,
+    origin: Origin,
     **extra: object,
 ) -> bool:
     """Move ``command`` to ``status`` if the lifecycle allows it, with a history row dated ``at`` (default
-    now); False if not. ``reason`` replaces the stored reason (the vehicle's, or why it failed); ``report``
+    now) saying who said it (``origin``); False if not. ``reason`` replaces the stored reason (the vehicle's, or why it failed); ``report``
     is what the vehicle's check-point said with it (``lifecycle.report_of``). The caller commits."""
     if not allowed(command.status, status):
         return False
     values = dict(extra)
     if reason is not None:
         values["reason"] = reason
-    repo.move(s, command.id, status, detail, report, values, at)
+    repo.move(s, command.id, status, detail, report, values, origin, at)
     return True
 
 
@@ -155,7 +160,24 @@ def supersede_older(s: Tx, command: CommandRecord) -> list[CommandRecord]:
     if not Command[command.command.upper()].sets_course:
         return []
     detail = f"by command {command.seq} ({command.command})"
-    return [c for c in repo.executing_before(s, command) if advance(s, c, CommandState.SUPERSEDED, detail)]
+    said = Origin(StepSource.VEHICLE)
+    return [
+        c
+        for c in repo.executing_before(s, command)
+        if advance(s, c, CommandState.SUPERSEDED, detail, origin=said)
+    ]
+
+
+def _uncancellable(command: CommandRecord) -> str:
+    """Why ``command`` can no longer be cancelled, in one sentence."""
+    if command.status == CommandState.QUEUED:
+        return (
+            f"command {command.id} (seq {command.seq}) was already signed for transmission (on the air, or "
+            "handed to a gateway): too late to cancel, it goes on as sent"
+        )
+    if command.status in (CommandState.SENT, CommandState.ACKNOWLEDGED, CommandState.EXECUTING):
+        return f"command {command.id} (seq {command.seq}) is {command.status} already: it goes on as sent"
+    return f"command {command.id} (seq {command.seq}) is {command.status}: nothing left to cancel"
 
 
 def _caught_up(s: Tx, vehicle: Vehicle, reported: int) -> int:
@@ -207,6 +229,7 @@ def apply_checkpoint(s: Tx, vehicle: Vehicle, cp: CheckpointPacket, body: dict) 
     ]
     events: list[CommandChanged] = []
     newest: CommandRecord | None = None
+    said = Origin(StepSource.VEHICLE)  # the check-point's MAC verified (``server.link.verify``)
     for seq, reported, where in [*reversed(settled), (last, cp.command_status, report)]:
         status = FROM_CHECKPOINT.get(reported) if reported else None
         command = repo.by_seq(s, saved_id(vehicle), seq) if status is not None and seq > 0 else None
@@ -214,7 +237,7 @@ def apply_checkpoint(s: Tx, vehicle: Vehicle, cp: CheckpointPacket, body: dict) 
         if (
             command is None
             or status is None
-            or not advance(s, command, status, reason, reason=reason, report=where)
+            or not advance(s, command, status, reason, reason=reason, report=where, origin=said)
         ):
             continue
         events.append(
@@ -301,15 +324,20 @@ class CommandDesk:
                     saved_id(c), c.seq, CommandState.SUPERSEDED, vehicle=vehicle.name, detail=ABORTED
                 )
                 for c in repo.queued(s, saved_id(vehicle))
-                if advance(s, c, CommandState.SUPERSEDED, ABORTED)
+                if advance(
+                    s, c, CommandState.SUPERSEDED, ABORTED, origin=Origin(StepSource.OPERATOR, issued_by)
+                )
             ]
         waiting = repo.pending_count(s, saved_id(vehicle))
         if waiting >= self.max_queued:
             raise TooMany(
-                f"vehicle {vehicle.name} has {waiting} commands waiting for the link (the most it "
-                "may have); wait for them to be sent, or to fail if it cannot be reached, then "
-                "send again",
+                f"vehicle {vehicle.name} has {waiting} commands waiting for the link, its queue's cap "
+                f"({self.max_queued}, max_queued_commands: a longer queue would hold the link for minutes and "
+                "each command would run long after it was asked for); wait for them to be sent, cancel "
+                "queued ones (POST /api/v1/commands/{id}/cancel), or let them fail if it cannot be "
+                "reached, then send again",
                 RETRY_AFTER_S,
+                "vehicle_id",
             )
         command = queue(s, vehicle, body, issued_by, self.pose(vehicle.address))
         log.info("vehicle %s: command %s seq %d queued", vehicle.name, command.command, command.seq)
@@ -363,10 +391,32 @@ class CommandDesk:
                 s, vehicle_id
             ) is not None, latest is not None and latest.status in IN_FLIGHT
 
-    def frame(self, command: CommandRecord) -> bytes:
-        """The command signed now for its vehicle (``sign``)."""
-        with reading(self.db) as s:
-            return sign(command, vehicles.get(s, command.vehicle_id))
+    def frame(self, command: CommandRecord) -> bytes | None:
+        """The command signed now for its vehicle (``sign``) and kept with it, for a transmission; None if
+        an operator cancelled it meanwhile (it must not go). From here a cancel is refused."""
+        with writing(self.db) as s:
+            frame = sign(command, vehicles.get(s, command.vehicle_id))
+            if not repo.claim(s, command.id, frame):
+                return None
+            s.commit()
+        return frame
+
+    def cancel(self, command_id: int, by: str) -> CommandRecord:
+        """An operator (``by``) takes back a queued command: it ends ``cancelled`` and is never sent.
+        ``Conflict`` (409) when it lost the race with a transmission: it was signed for one already (on the
+        air, or handed to a gateway), or is past queued; it goes on as sent."""
+        with writing(self.db) as s:
+            command = repo.get(s, command_id)
+            if command is None:
+                raise NotFound(f"no command {command_id}", "command_id")
+            if not repo.cancel(s, command_id, by):
+                raise Conflict(_uncancellable(command), "command_id")
+            s.commit()
+            command = repo.get(s, command_id)
+        assert command is not None
+        log.info("command %d (seq %d) cancelled by %s", command_id, command.seq, by)
+        self.bus.publish(CommandChanged(command_id, command.seq, CommandState.CANCELLED, detail=f"by {by}"))
+        return command
 
     def unanswered(self, command_id: int | None) -> int:
         """Attempts since the command was last acknowledged: a command sent again because no check-point
@@ -386,12 +436,28 @@ class CommandDesk:
         at: float | None = None,
         **extra: int | bytes,
     ) -> bool:
-        """What the modem said of a command, if the lifecycle allows it (a check-point may already have
-        said executing / executed / refused, which a late ACK must not undo); published if it moved.
-        ``at``: when it happened (default now); ``extra``: column values (attempts, frame)."""
+        """What the single shore's own modem said of a command (``said``)."""
+        return self.said(MODEM, command, status, detail, reason, at, **extra)
+
+    def said(
+        self,
+        origin: Origin,
+        command: CommandRecord,
+        status: CommandState,
+        detail: str = "",
+        reason: str | None = None,
+        at: float | None = None,
+        **extra: int | bytes,
+    ) -> bool:
+        """What the link said of a command (``origin``: the shore's modem, a gateway, the shore itself),
+        if the lifecycle allows it (a check-point may already have said executing / executed / refused,
+        which a late ACK must not undo); published if it moved. ``at``: when it happened (default now);
+        ``extra``: column values (attempts, frame)."""
         with writing(self.db) as s:
             current = repo.get(s, command.id)
-            if current is None or not advance(s, current, status, detail, reason, None, at, **extra):
+            if current is None or not advance(
+                s, current, status, detail, reason, None, at, origin=origin, **extra
+            ):
                 return False
             s.commit()
         self.bus.publish(CommandChanged(saved_id(command), command.seq, status, detail=detail))

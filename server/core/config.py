@@ -37,6 +37,9 @@ class Settings(BaseSettings):
     port: int = Field(8000, ge=0, le=65535)
     map_port: int = Field(8080, ge=0, le=65535)
     map_enabled: bool = True
+    # the 3D map's address as browsers reach it (e.g. https://shore.example.org:8443 behind a proxy): the
+    # dashboard frames it and its Content-Security-Policy allows it; empty: the dashboard's host on map_port
+    map_url: str = Field("", pattern=r"^(https?://[A-Za-z0-9.\-]+(:[0-9]{1,5})?(/[A-Za-z0-9._~/\-]*)?)?$")
     write_tokens: Csv = []
     sign_in_failures: int = Field(10, ge=1)  # wrong tokens from one client within sign_in_window: then 429
     sign_in_window: float = Field(60.0, gt=0)  # s
@@ -110,6 +113,11 @@ class Settings(BaseSettings):
     routing_window: float = Field(120.0, gt=0)  # s of frames a gateway's score for a vehicle is made of
     routing_margin: float = Field(3.0, ge=0)  # dB another gateway must score better by to take a vehicle
     routing_dwell: float = Field(60.0, ge=0)  # s a vehicle stays on its gateway before it may move again
+    routing_snr_cap: float = Field(30.0)  # dB: the most a gateway's claimed SNR of a frame counts for
+    gateway_faulty_slots: int = Field(3, ge=1)  # N: a gateway holding a command for N of its slots, with
+    # nothing of its vehicle heard through it and no attempt reported, is faulty (also one whose ACK a
+    # check-point refutes): routed around for ``gateway_quarantine`` s
+    gateway_quarantine: float = Field(600.0, ge=0)  # s a faulty gateway is routed around after its fault
     gateway_timeout: float = Field(30.0, gt=0)  # s without a heartbeat or event: the gateway is down
     dispatch_receipt: float = Field(10.0, gt=0)  # s a gateway has to report a command stored, else the
     # center sends it through the next gateway (the first never sends it after that: ``start_by``)

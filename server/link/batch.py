@@ -43,6 +43,7 @@ class Batch:
     vehicles: dict[int, Vehicle] = field(default_factory=dict)  # the batch's vehicles, read once
     stored: dict[int, dict[str, Any]] = field(default_factory=dict)  # older packets' states as read
     redecoded: dict[int, dict[str, Any]] = field(default_factory=dict)  # older packets decoded now
+    verified: set[int] = field(default_factory=set)  # frames with a first-heard packet whose tag or MAC held
 
     @classmethod
     def open(cls, s: Tx, frames: int, packets: int) -> Self:

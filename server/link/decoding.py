@@ -11,6 +11,12 @@ outage) is decoded if its base state is still held, and leaves the states of the
 were: a late packet that restarted the chain (base 0) must not forget them, nor one whose state id the
 chain has reused since (ids cycle through 63) replace it. A late packet whose base is gone asks for no
 restart: the vehicle's chain has moved on and the newer packets decode.
+
+A version-4 vehicle keeps a window of packets in flight and names each state by the seq of the packet
+that left it (``tacit.codec.format``), so no id is ever reused by another branch. A packet whose base is
+newer than every state held (``PacketDecoder.ahead``: the packet before it in the window was lost, or
+comes later) waits without asking for a restart: it is decoded when its base comes (a retransmission),
+and never if the vehicle codes its samples again from an earlier state.
 """
 
 from __future__ import annotations
@@ -52,12 +58,13 @@ def decode(
     """Decode on the vehicle's chain; an unknown base asks for a chain restart (once per ``restart_every``
     s at most), unless the packet is ``late``. A packet whose base is unknown waits (``LinkRecord.wait``)
     for a late packet that may leave it."""
-    base, own = chain_ids(pp.payload)
+    base, own = chain_ids(pp.payload, pp.seq)
+    late = late and not v.decoder.coding.window  # version 4's states are named once: none is reused
     held = v.decoder.mark() if late else None
     try:
         if late and v.link.made.get(base, -math.inf) > at:  # its base id was left by a newer packet since
             raise UnknownBase(base)
-        spans = v.decoder.decode(pp.payload, at)
+        spans = v.decoder.decode(pp.payload, at, pp.seq)
     except CodecError as exc:
         return _undecodable(batch, v, pp, at, exc, restart_every, late, packet_id)
     v.decoder_saved = None
@@ -116,8 +123,9 @@ def _samples(batch: Batch, v: VehicleState, span: DecodedSpan, packet_id: int) -
             "values": row,
             "packet_id": packet_id,
             "verified": False,
+            "part": i == 0 and span.continues,
         }
-        for k, t, row in zip(span.ticks, times, rows, strict=True)
+        for i, (k, t, row) in enumerate(zip(span.ticks, times, rows, strict=True))
     )
     v.bytes_saved += max(0, int((span.values == span.values).sum()) * 2 - packets.PACKET_SIZE)
     return TelemetryDecoded(
@@ -146,9 +154,12 @@ def _undecodable(
     batch.events.append(
         {"vehicle_id": v.id, "kind": "undecodable", "at": at, "detail": {"stream": stream, "error": str(exc)}}
     )
+    behind = isinstance(exc, UnknownBase) and v.decoder.ahead(exc.base, pp.seq)  # in the window
     if isinstance(exc, UnknownBase) and not v.link.made.get(exc.base, -math.inf) > at:
         v.link.wait(packet_id, pp.encode(), at)  # a late packet may yet leave its base
-    if late:
+    if behind:
+        log.info("vehicle %s: priority packet seq %d waits for the packet it continues from", v.name, pp.seq)
+    elif late:
         log.warning("vehicle %s: late priority packet seq %d not decoded: %s", v.name, pp.seq, exc)
     elif isinstance(exc, UnknownBase) and not v.link.needs_restart and at - v.restart_raised >= restart_every:
         v.link.needs_restart = True  # the engine's next SYNCs ask the vehicle to restart its chains

@@ -47,6 +47,8 @@ class Delivery:
         """One attempt; whether it went on the air. If our own modem refused the cycle (busy acknowledging,
         say), the command waits for the next slot unchanged."""
         frame = await self.store.run(self.desk.frame, command)
+        if frame is None:  # cancelled by an operator since it was chosen: never sent
+            return False
         timeout = self.timing.ack_timeout(vehicle)
         started = time.time()  # "sent" is when it went on the air, not when the ACK came back after it
         result = await driver.send(vehicle.address, [frame], rate=0, ack=True, ack_timeout=timeout)

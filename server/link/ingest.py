@@ -135,9 +135,8 @@ class Ingest:
     def _resume(self, s: Tx, v: Vehicle) -> VehicleState:
         """A vehicle's state as the last run left it, and its last verified check-point (the pose the limits
         check against, and what the screens show with its age) instead of none until its next one."""
-        state = VehicleState(
-            v.id or 0, v.name, v.address, PacketDecoder(list(self.streams.values())), share=v.share
-        )
+        decoder = PacketDecoder(list(self.streams.values()), v.protocol)
+        state = VehicleState(v.id or 0, v.name, v.address, decoder, share=v.share, protocol=v.protocol)
         saved = link_repo.saved_state(s, state.id)
         if saved is not None:
             state.restore(saved)
@@ -303,14 +302,18 @@ class Ingest:
     def _apply(
         self, s: Tx, batch: Batch, v: VehicleState, frame: IncomingFrame, frame_id: int
     ) -> list[Event]:
-        """A stored frame from a known vehicle: its packets, in order."""
+        """A stored frame from a known vehicle: its packets, in order. Only a frame that carried a packet
+        heard for the first time whose tag or check-point MAC held moves when the vehicle was last heard
+        and its shown SNRs (random bytes or a replay at a claimed SNR move nothing)."""
         v.frames += 1
         v.link.frame = frame_id
-        v.last_heard = frame.at if v.last_heard is None else max(v.last_heard, frame.at)  # late: not back
-        v.snr_in, v.snr_out = _finite(frame.snr_in), _finite(frame.snr_out)
         events: list[Event] = []
         for chunk in from_frame(frame.data):
             events += self._packet(s, batch, v, frame_id, chunk, frame.at, frame.gateway)
+        if frame_id not in batch.verified:  # not the vehicle's word: nothing says it was heard
+            return events
+        v.last_heard = frame.at if v.last_heard is None else max(v.last_heard, frame.at)  # late: not back
+        v.snr_in, v.snr_out = _finite(frame.snr_in), _finite(frame.snr_out)
         heard = {"address": v.address, "snr_in": frame.snr_in, "snr_out": frame.snr_out}
         return [*events, LinkNotice(event="heard", vehicle=v.name, detail=heard)]
 
@@ -330,6 +333,11 @@ class Ingest:
             packet = packets.decode(chunk)
             if isinstance(packet, packets.ControlPacket):
                 raise PacketError("a control packet from a vehicle")
+            if isinstance(packet, PriorityPacket) and packet.version != v.protocol:
+                raise packets.OtherVersion(
+                    f"protocol version {packet.version}: {v.name} is registered as speaking version "
+                    f"{v.protocol} (its agent's protocol and its registration must agree)"
+                )
         except packets.OldVersion as exc:
             return self._old_version(batch, v, chunk, at, exc)
         except PacketError as exc:
@@ -367,6 +375,8 @@ class Ingest:
         else:
             trust, (packet_id, events) = PacketTrust.PENDING, self._priority(s, batch, v, packet, chunk, row)
             v.urgent = v.urgent or priority == Priority.TIME_SENSITIVE  # the MAC polls it sooner
+        if trust in (PacketTrust.VERIFIED, PacketTrust.PENDING):  # its MAC, or its tag, held
+            batch.verified.add(frame_id)
         log.info("vehicle %s: %s packet seq %d stored (%s)", v.name, kind, packet.seq, trust.value)
         heard = PacketHeard(
             id=packet_id,
@@ -387,8 +397,9 @@ class Ingest:
     def _old_version(
         self, batch: Batch, v: VehicleState, chunk: bytes, at: float, exc: packets.OldVersion
     ) -> list[Event]:
-        """A packet of the previous protocol version: refused and counted; logged (and a ``bad_packet``
-        event stored) once per vehicle, since an old agent sends nothing else until it is updated."""
+        """A packet of the previous protocol version, or samples in another version than the vehicle's
+        registered one: refused and counted; logged (and a ``bad_packet`` event stored) once per vehicle,
+        since such an agent sends nothing else until it or the registration is changed."""
         self.stats["rejected"] += 1
         self.stats["old_protocol"] += 1
         v.old_protocol += 1
@@ -495,7 +506,8 @@ class Ingest:
         decoded = decode(batch, v, pp, row["at"], packet_id, restart_every, late)
         row["body"].update(decoded.body)  # what decoding found (or why it could not)
         row["origin"] = decoded.origin
-        if late and v.link.waiting:
+        window = v.decoder.coding.window and "error" not in decoded.body  # it may be what others wait for
+        if (late or window) and v.link.waiting:
             return packet_id, decoded.events + self._unblocked(s, batch, v)
         return packet_id, decoded.events
 
@@ -518,8 +530,9 @@ class Ingest:
             return all(v.link.recent.get(q) for q in packet.covered_seqs())
         if not isinstance(packet, PriorityPacket):
             return False
-        base = chain_ids(packet.payload)[0]
-        return base in v.decoder.snapshots and v.link.made.get(base, -math.inf) <= at
+        base = chain_ids(packet.payload, packet.seq)[0]
+        named_once = v.decoder.coding.window  # version 4: a state held under its name is its packet's
+        return base in v.decoder.snapshots and (named_once or v.link.made.get(base, -math.inf) <= at)
 
     def _again(
         self, s: Tx, batch: Batch, v: VehicleState, packet_id: int, data: bytes, at: float

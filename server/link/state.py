@@ -18,6 +18,7 @@ from server.core.db import now
 from tacit.codec import CodecError, PacketDecoder
 from tacit.link import SeenWindow
 from tacit.navigation import Pose
+from tacit.packets import VERSION
 
 log = logging.getLogger("tacit.server.ingest")
 
@@ -25,8 +26,6 @@ RECENT_SEQS = 64  # priority packet hashes kept per vehicle for the check-points
 SAVED_SEEN = 64  # duplicate-window entries saved across a restart (retransmissions come within polls)
 ACCEPTED_MACS = 256  # MACs of the last verified check-points: one seen again is a replay, whatever its time
 WAITING = 32  # packets kept waiting per vehicle for late ones (their base state, the packets they cover)
-SAVED_CHAINS = 4  # decoder states saved per vehicle: the vehicle continues from its last delivered packet,
-# almost always the newest; one based on a state not kept raises UnknownBase and the vehicle restarts
 
 
 @dataclass
@@ -134,16 +133,19 @@ class VehicleState:
     bytes_saved: int = 0
     forged: int = 0
     verified: int = 0
-    old_protocol: int = 0  # packets refused for speaking the previous protocol version (logged once)
+    old_protocol: int = 0  # packets refused for another protocol version than its own (logged once)
     decoder_saved: str | None = None  # ``decoder``'s states as saved (base64); None: changed since
     share: float = 1.0  # its weight in the MAC's schedule (``server.link.schedule``), as registered
     urgent: bool = False  # it reported time-sensitive data since it was last polled
     restart_raised: float = -1e18  # when an unknown base last asked for a chain restart (shore clock)
+    protocol: int = VERSION  # the protocol version it is registered as speaking (``tacit.packets``)
 
     def saved(self) -> dict[str, Any]:
         """What ``linkstate`` holds: the record and the decoder's last states."""
         if self.decoder_saved is None:
-            self.decoder_saved = base64.b64encode(self.decoder.to_bytes(SAVED_CHAINS)).decode()
+            # the states the vehicle may continue from (``PacketDecoder.keep``); one based on a state not
+            # kept raises UnknownBase and the vehicle restarts its chains
+            self.decoder_saved = base64.b64encode(self.decoder.to_bytes(self.decoder.keep)).decode()
         return {**self.link.to_json(SAVED_SEEN), "decoder": self.decoder_saved}
 
     def undo_point(self) -> Undo:

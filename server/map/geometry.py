@@ -7,6 +7,7 @@ it lands where the ray meets the water surface or the chosen depth plane.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 from server.commands.schemas import CommandIn
 from tacit import navigation
@@ -33,11 +34,15 @@ PLAN_FOV = math.radians(12.0)  # top-down: high and narrow, near a plan (depth b
 OBLIQUE_FOV = math.radians(75.0)  # viser's default
 
 
+MARGIN = 0.3  # a fitted view's margin around what it shows, as a share of their extent
+MIN_VIEW = 70.0  # m: the narrowest fitted view (a single vehicle and its neighbourhood)
+
+
 def top_down(north: float, east: float, height: float = 330.0) -> tuple[Point, Point]:
     """(camera position, look-at point) looking straight down on (north, east), north up on screen (the
-    camera sits a few metres south: exactly overhead, "up" on screen would be undefined). With
-    ``PLAN_FOV`` it shows about 70 m of the area."""
-    return (east, north - 5.0, height), (east, north, -2.0)
+    camera sits a little south: exactly overhead, "up" on screen would be undefined). With
+    ``PLAN_FOV`` it shows about ``height`` / 4.8 m of the area."""
+    return (east, north - height / 66.0, height), (east, north, -2.0)
 
 
 def move_to(pose: Pose, north: float, east: float, depth: float, absolute: bool = False) -> CommandIn:
@@ -52,3 +57,46 @@ def move_to(pose: Pose, north: float, east: float, depth: float, absolute: bool 
         depth=round(depth - pose.depth, 2),
         absolute_angle=absolute,
     )
+
+
+LABEL_WIDTH = 8.0  # a label's width in label heights (a name, a state, a heading and an age)
+
+
+def stack(places: Sequence[tuple[float, float]], gap: float) -> list[tuple[float, float]]:
+    """Where to put the labels of things at ``places`` (north, east) so that no two overlap, seen from
+    above: a label is ``gap`` high and ``LABEL_WIDTH`` gaps wide; from the southernmost up, each stays at
+    its own place or moves north until it clears those placed before it."""
+    placed: dict[int, tuple[float, float]] = {}
+    for i in sorted(range(len(places)), key=lambda i: (places[i][0], places[i][1])):
+        north, east = places[i]
+        clash = True
+        while clash:
+            clash = False
+            for other_north, other_east in placed.values():
+                if abs(other_east - east) < LABEL_WIDTH * gap and abs(other_north - north) < gap:
+                    north, clash = other_north + gap, True
+        placed[i] = (north, east)
+    return [placed[i] for i in range(len(places))]
+
+
+def fit(
+    points: Sequence[tuple[float, float]], fov: float = PLAN_FOV, aspect: float = 16 / 9, panel: float = 0.25
+) -> tuple[Point, Point, float]:
+    """The top-down view that shows every point (north, east) with a margin around them, north up:
+    (camera position, look-at point, the height of the view in metres at the water). The view's right
+    ``panel`` share is left free for the map's panel (the points sit in the rest); ``aspect``: the
+    view's width over its height."""
+    norths, easts = [p[0] for p in points] or [0.0], [p[1] for p in points] or [0.0]
+    usable = aspect * (1.0 - panel)  # the free part's width over the view's height
+    span = max(max(norths) - min(norths), (max(easts) - min(easts)) / usable, MIN_VIEW / (1 + MARGIN))
+    seen = span * (1 + MARGIN)
+    centre_north, centre_east = (max(norths) + min(norths)) / 2, (max(easts) + min(easts)) / 2
+    look_east = centre_east + aspect * seen * panel / 2  # the free part's centre on the points' centre
+    height = seen / 2 / math.tan(fov / 2)
+    position, look_at = top_down(centre_north, look_east, height)
+    return position, look_at, seen
+
+
+def far_plane(height: float) -> float:
+    """The camera's far clipping distance for a view from ``height``: room to zoom out four times."""
+    return max(1000.0, 5.0 * height)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import html
 import logging
+import time
 from typing import Any, Protocol
 
 import numpy as np
@@ -27,7 +28,7 @@ from server.core.config import Settings
 from server.core.errors import ApiError
 from server.core.events import CommandChanged
 from server.core.security import Actor, Role, Throttle
-from server.map.geometry import OBLIQUE_FOV, PLAN_FOV, move_to, ray_to_depth_plane, top_down
+from server.map.geometry import OBLIQUE_FOV, PLAN_FOV, Point, far_plane, move_to, ray_to_depth_plane, top_down
 from server.screens.form import SPEED_DEFAULT, check_form, command_form, field_specs
 from server.vehicles.models import Vehicle
 from tacit.navigation import Pose
@@ -39,8 +40,15 @@ class MapOwner(Protocol):
     settings: Settings
     desk: CommandDesk
     sign_ins: Throttle
-    suggestion: tuple[float, float] | None
-    estimate_cloud: tuple[np.ndarray, np.ndarray, np.ndarray] | None
+
+    @property
+    def suggestion(self) -> tuple[float, float] | None: ...
+
+    @property
+    def estimate_cloud(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None: ...
+
+    @property
+    def view(self) -> tuple[Point, Point, float] | None: ...
 
     def vehicle_names(self) -> list[str]: ...
 
@@ -66,13 +74,14 @@ FLEET = "all:"  # a confirmation's prefix for an action that goes to every vehic
 INPUTS = ("distance", "angle", "depth", "speed", "param_id", "param_value")
 
 LEGEND = """\
-**In the scene** (x east, y north, z up; metres from home; opens top-down, north up)
+**In the scene** (x east, y north, z up; metres from the fleet's origin; opens top-down, north up, on every vehicle and gateway: **Fit all** returns there)
 - **red arrow from home**: north (N); **dark arrow**: east (E); grid: 5 m cells, 25 m sections
 - **depth scale**: the black line south-west of home, with its labels stepped aside
 - **fleet origin (0, 0)**: the one origin every vehicle's position is measured from (latitude, longitude when known)
 - **vehicle**: box in its colour (grey while overdue); **yellow arrow outlined in black** = its heading; label = name, state, heading, age of the report
 - **line in the vehicle's colour**: the track it reported (check-points); the same colour as its row on the dashboard
-- **grey line**: the mission's planned waypoints
+- **grey line**: the mission's planned waypoints; **thicker line in the vehicle's colour**: the path the separation check plans for it (queued commands, team lanes to come)
+- **dark grey outline**: a team mission's survey area (its name and state at its north-west corner), each member's lanes as a thin line in its colour
 - **orange**: where the shore predicts it is now (sphere), the line from its last report to there, and a circle = how unsure (grows with silence)
 - **dots above the track**: packets by priority (blue routine, yellow, orange, red time-sensitive)
 - **coloured dots**: verified water temperatures (scale below); **grey squares**: not yet verified (left out of the estimate)
@@ -98,17 +107,35 @@ def _fleet_row(v: dict[str, Any]) -> str:
     late = " <b>(overdue)</b>" if v["overdue"] else ""
     pinned = " (pinned)" if v["gateway_pinned"] else ""
     via = f"; via gateway {html.escape(v['gateway'])}{pinned}" if v["gateway"] else ""
-    head = f"{swatch} <b>{html.escape(v['name'])}</b>: {html.escape(v['state_label'] or 'no check-point yet')}{late}{via}"
+    head = f"{swatch} <b>{html.escape(v['name'])}</b>: {html.escape(_state(v))}{late}{via}"
     if cp is None or p is None:
         return f'<div style="font-size:0.8em;{style}">{head}</div>'
     snr = "-" if v["snr_in"] is None else f"{v['snr_in']:.0f}"
-    offset = "" if v["clock_offset_s"] is None else f" (its clock ≥ {v['clock_offset_s']:+.1f} s)"
+    offset = "" if v["clock_offset_s"] is None else f" ({clock_words(v['clock_offset_s'])})"
     return (
         f'<div style="font-size:0.8em;margin-bottom:4px;{style}">{head}<br>'
         f"report {v['age_s']:.0f} s ago{offset}: N {cp['north']:.1f}, E {cp['east']:.1f}, {cp['depth']:.1f} m deep; "
         f"battery {cp['battery']:.1f} V, SNR {snr} dB<br>"
         f"predicted N {p['north']:.1f}, E {p['east']:.1f} m <b>± {p['radius_m']:.1f} m</b></div>"
     )
+
+
+def _state(v: dict[str, Any]) -> str:
+    """Its state's label; before its first check-point, whether it is due yet."""
+    if v["state_label"]:
+        return str(v["state_label"])
+    if v["awaited"]:
+        return f"waiting for its first report (due by {time.strftime('%H:%M:%SZ', time.gmtime(v['first_report_due']))})"
+    return "no report yet"
+
+
+def clock_words(offset: float) -> str:
+    """The vehicle's clock against the shore's in words. ``offset`` is a lower bound of vehicle minus shore
+    (``server.telemetry.clock``: a check-point's stamp against when it was heard, its wait included): so
+    ``vehicle clock at most 41.6 s behind the shore's``, or ``at least 3.2 s ahead of``."""
+    if offset >= 0:
+        return f"vehicle clock at least {offset:.1f} s ahead of the shore's"
+    return f"vehicle clock at most {-offset:.1f} s behind the shore's"
 
 
 def colour_scale(lo: float | None, hi: float | None) -> str:
@@ -152,6 +179,10 @@ class OperatorPanel:
             self.sign_in_btn = gui.add_button("Sign in", hint="Check the token with the shore server")
             self.role_md = gui.add_markdown(NOT_SIGNED_IN)
         with gui.add_folder("View"):
+            fit_all = gui.add_button(
+                "Fit all",
+                hint="Look down on every vehicle and gateway at once, north up (the view the map opens with)",
+            )
             top = gui.add_button(
                 "Top-down view",
                 hint="Look straight down on the vehicle, north "
@@ -229,7 +260,16 @@ class OperatorPanel:
             )
         with gui.add_folder("Commands"):
             self.commands_md = gui.add_markdown(self.map.command_list())
+            self.cancel_in = gui.add_number(
+                "Command #", 0, min=0, step=1, hint="The command to take back (the last one sent from here)"
+            )
+            self.withdraw_btn = gui.add_button(
+                "Cancel queued command",
+                hint="Take it back while it waits: it ends cancelled and is never sent (too late once it is "
+                "signed for transmission: it goes on as sent)",
+            )
         self.sign_in_btn.on_click(lambda _e: self.sign_in(self.token_in.value))
+        fit_all.on_click(lambda _e: self.fit_all())
         top.on_click(lambda _e: self.top_down())
         side.on_click(lambda _e: self.oblique())
         self.estimate_cb.on_update(lambda _e: self.show_estimate())
@@ -238,6 +278,7 @@ class OperatorPanel:
         self.speed_cb.on_update(lambda _e: self._apply_form())
         self.vehicle_dd.on_update(lambda _e: self._apply_form())
         self.send_btn.on_click(lambda _e: self.send_form())
+        self.withdraw_btn.on_click(lambda _e: self.cancel_command(int(self.cancel_in.value or 0)))
         self.start_btn.on_click(lambda _e: self.ask("start_mission"))
         self.abort_btn.on_click(lambda _e: self.ask("abort_mission"))
         self.home_btn.on_click(lambda _e: self.ask("return_home"))
@@ -353,8 +394,23 @@ class OperatorPanel:
             queued = self.map.desk.submit(vehicle.id, command, actor.name)
         except ApiError as exc:
             return self._status(f"**Refused**: {exc.field}: {exc.detail}")
-        self.last_sent = queued.id
-        return self._status(f"Command #{queued.id} **{queued.command}** seq {queued.seq}: **queued**")
+        self.last_sent = self.cancel_in.value = queued.id
+        waiting = self.map.desk.pending(vehicle.id)
+        return self._status(
+            f"Command #{queued.id} **{queued.command}** seq {queued.seq}: **queued** "
+            f"({waiting} / {self.map.desk.max_queued} of {vehicle.name}'s commands waiting for the link)"
+        )
+
+    def cancel_command(self, command_id: int) -> str:
+        """Take back a queued command (``CommandDesk.cancel``): cancelled, or why it is too late."""
+        actor = self.may_act()
+        if actor is None:
+            return self._status("**Not cancelled**: sign in with an operator's token.")
+        try:
+            command = self.map.desk.cancel(command_id, actor.name)
+        except ApiError as exc:
+            return self._status(f"**Not cancelled**: {exc.detail}")
+        return self._status(f"Command #{command.id} seq {command.seq}: **cancelled**, never sent")
 
     def send_fleet(self, command: str) -> str:
         """One command per vehicle (``CommandDesk.submit_fleet``), each followed in the command list."""
@@ -436,6 +492,12 @@ class OperatorPanel:
         )
         self._status(f"Target set: {command.distance:.1f} m, angle {angle:.1f} deg. Press **Send**.")
 
+    def fit_all(self) -> None:
+        """Every vehicle and gateway in view (``OperatorMap.view``), the panel's side left free."""
+        view = self.map.view
+        if view is not None:
+            self._look(view[0], view[1], PLAN_FOV, view[2])
+
     def top_down(self) -> None:
         self._look(*top_down(*self.map.focus()), PLAN_FOV)
 
@@ -443,11 +505,13 @@ class OperatorPanel:
         north, east = self.map.focus()
         self._look((east - 25.0, north - 35.0, 30.0), (east, north, -2.0), OBLIQUE_FOV)
 
-    def _look(
-        self, position: tuple[float, float, float], look_at: tuple[float, float, float], fov: float
-    ) -> None:
+    def _look(self, position: Point, look_at: Point, fov: float, far: float | None = None) -> None:
+        """Move this browser's camera; the far plane stays beyond the fitted view's (zooming out from a
+        close view must reach the whole fleet)."""
+        view = self.map.view
         camera = self.client.camera
         with self.client.atomic():
+            camera.far = far or (view[2] if view is not None else far_plane(position[2]))
             camera.up_direction = (0.0, 0.0, 1.0)
             camera.fov = fov
             camera.position = position

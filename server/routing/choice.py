@@ -5,8 +5,8 @@ A gateway's score for a vehicle (dB) is the mean SNR of the vehicle's frames it 
 that hears loudly but seldom is not preferred to one that hears every frame a little less loudly.
 Hysteresis: the vehicle moves only to a gateway better by ``margin`` dB, and not before it has been
 ``dwell`` s on its gateway (also when its gateway heard none of its frames in the window: a few lost
-frames must not move it); it moves at once if its gateway is silent (no heartbeat). A pin is kept
-whatever the scores.
+frames must not move it); it moves at once if its gateway is silent (no heartbeat) or faulty
+(``Routing.audit``). A pin is kept whatever the scores.
 """
 
 from __future__ import annotations
@@ -60,7 +60,7 @@ def choose(
     if current is None:
         return Decision(best, f"{best} heard it best ({scores[best]:.1f} dB)", moved=True)
     if current.gateway not in alive:
-        return Decision(best, f"{current.gateway} is silent; {best} heard it best", moved=True)
+        return Decision(best, f"{current.gateway} is silent or faulty; {best} heard it best", moved=True)
     if best == current.gateway:
         return Decision(best, f"{best} hears it best ({scores[best]:.1f} dB)")
     if current.gateway not in scores:  # lost frames or out of its reach: the dwell tells them apart

@@ -16,7 +16,9 @@ class DispatchState(enum.StrEnum):
     (no ACK after its attempts), ``expired`` (it came after ``start_by``), ``unanswered`` (no receipt or
     no outcome in time: the gateway is taken for down), ``superseded`` (signed before a SYNC that answered
     the vehicle's challenge: the vehicle would refuse its frame, so it went again, signed anew; not the
-    gateway's failure, and what the gateway reports of it is ignored)."""
+    gateway's failure, and what the gateway reports of it is ignored), ``refuted`` (acked by its gateway,
+    but a later check-point of the vehicle shows the command never arrived: the gateway lied or erred),
+    ``withdrawn`` (its command was cancelled before it was signed: never published)."""
 
     PUBLISHED = "published"
     STORED = "stored"
@@ -26,6 +28,8 @@ class DispatchState(enum.StrEnum):
     EXPIRED = "expired"
     UNANSWERED = "unanswered"
     SUPERSEDED = "superseded"
+    REFUTED = "refuted"
+    WITHDRAWN = "withdrawn"
 
     @property
     def final(self) -> bool:
@@ -35,6 +39,8 @@ class DispatchState(enum.StrEnum):
             DispatchState.EXPIRED,
             DispatchState.UNANSWERED,
             DispatchState.SUPERSEDED,
+            DispatchState.REFUTED,
+            DispatchState.WITHDRAWN,
         )
 
 
@@ -58,6 +64,11 @@ class GatewayRecord(SQLModel, table=True):
     outage_s: float | None = None  # how long its last backhaul outage lasted (its own account)
     outage_ended: float | None = None  # when it ended (the gateway's clock)
     outage_backlog: int | None = None  # messages its outbox held when the backhaul came back
+    faulty: str = Field(default="", max_length=256, sa_column_kwargs={"server_default": ""})  # why, if
+    # what the center can check refuted its word (``Routing.audit``): routed around for a while
+    faulty_at: float | None = None  # when (the center's clock)
+    foreign_reports: int = Field(default=0, sa_column_kwargs={"server_default": "0"})  # reports of
+    # commands that went through another gateway: ignored, counted
 
 
 class Assignment(SQLModel, table=True):

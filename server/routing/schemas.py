@@ -101,3 +101,12 @@ class GatewayOut(BaseModel):
     frames: int = Field(description="frames it relayed (every copy; the records retention keeps)")
     colour: str = Field(description="#rrggbb on both screens (server.screens.fleet)")
     vehicles: list[Assigned] = Field(description="the vehicles whose commands go through it")
+    faulty: str = Field(
+        description="why it is routed around: what the center could check refuted its word (an ACK the "
+        "vehicle's check-points show never arrived, a command held for gateway_faulty_slots of its slots "
+        "without a word); empty: it is not. Lasts gateway_quarantine s after the fault"
+    )
+    faulty_at: float | None = Field(description="when it was last found faulty (UNIX s); None: never")
+    foreign_reports: int = Field(
+        description="its reports of commands that went through another gateway: ignored, counted"
+    )

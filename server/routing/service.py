@@ -13,10 +13,11 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 from sqlalchemy import Engine
 
-from server.backhaul.subjects import GatewayState
+from server.backhaul.subjects import COMMAND_MAX_AGE, GatewayState
 from server.core.config import Settings
 from server.core.db import Tx, reading, saved_id, writing
 from server.core.errors import NotFound
@@ -28,6 +29,22 @@ from server.vehicles import repository as vehicle_repo
 from server.vehicles.models import Vehicle
 
 log = logging.getLogger("tacit.server.routing")
+
+ARRIVAL_SLACK = 5.0  # s: a check-point the vehicle stamped this long after an ACK was reported names
+# the command as received, or later ones (the vehicle's clock is its SYNCs', within a second or two)
+
+
+def _last_command(checkpoints: list[dict[str, Any]], after: float) -> int | None:
+    """The last command (16 bits) named by the newest check-point stamped after ``after``; None if none."""
+    later = [cp for cp in checkpoints if float(cp.get("time", 0)) >= after]
+    newest = max(later, key=lambda cp: float(cp.get("time", 0)), default=None)
+    return None if newest is None else int(newest.get("last_command", 0))
+
+
+def _arrived(last: int, seq: int) -> bool:
+    """A vehicle whose last command is ``last`` (16 bits) has received command ``seq``: ``last`` is it or
+    one after it (within half the 16-bit circle)."""
+    return (last - seq) % 65536 < 32768 if last else False
 
 
 @dataclass(frozen=True)
@@ -45,12 +62,14 @@ class Route:
 @dataclass(frozen=True)
 class GatewayStatus:
     """A gateway as the screens show it: its record (what its last heartbeat said), whether it beats,
-    the frames it relayed (the records kept) and the vehicles assigned to it (id, name, pinned)."""
+    the frames it relayed (the records kept), the vehicles assigned to it (id, name, pinned), and why it
+    is routed around ("": it is not)."""
 
     record: GatewayRecord
     alive: bool
     frames: int
     vehicles: list[tuple[int, str, bool]]
+    faulty: str = ""
 
 
 class Routing:
@@ -107,7 +126,13 @@ class Routing:
         for vehicle_id, a in sorted(current.items()):
             vehicles.setdefault(a.gateway, []).append((vehicle_id, names.get(vehicle_id, "?"), a.pinned))
         return [
-            GatewayStatus(row, row.name in alive, frames.get(row.name, 0), vehicles.get(row.name, []))
+            GatewayStatus(
+                row,
+                row.name in alive,
+                frames.get(row.name, 0),
+                vehicles.get(row.name, []),
+                self.faulty(row, time.time() if now is None else now),
+            )
             for row in rows
         ]
 
@@ -125,14 +150,76 @@ class Routing:
         limit = (time.time() if now is None else now) - self.settings.gateway_timeout
         return {g.name for g in self.gateways() if g.last_seen >= limit}
 
+    def faulty(self, row: GatewayRecord, now: float) -> str:
+        """Why the gateway is routed around ("": it is not): its last fault within ``gateway_quarantine``."""
+        recent = row.faulty_at is not None and now < row.faulty_at + self.settings.gateway_quarantine
+        return row.faulty if recent else ""
+
+    def usable(self, now: float | None = None) -> set[str]:
+        """The live gateways that are not faulty: those the vehicles are assigned to and commands go
+        through."""
+        now = time.time() if now is None else now
+        limit = now - self.settings.gateway_timeout
+        return {g.name for g in self.gateways() if g.last_seen >= limit and not self.faulty(g, now)}
+
+    # --- a gateway's word against what the center can check ----------------------------------------
+
+    def audit(self, now: float | None = None) -> list[Dispatch]:
+        """Check the gateways' word against the vehicles': a gateway is faulty (routed around for
+        ``gateway_quarantine`` s, and shown so) when
+
+        * it reported a command acknowledged, and a verified check-point the vehicle stamped
+          ``ARRIVAL_SLACK`` s after the center took that report names an older command as its last
+          (the command never arrived): the dispatch is ``refuted``; these are returned, for their
+          commands to go again through another gateway;
+        * it has held a command (stored or sent, no final outcome) for ``gateway_faulty_slots`` of its
+          slots (a slot of each live gateway in turn), reported nothing of any command in that time, and
+          nothing verified of the vehicle came through it: the dispatch is ``unanswered``, and the
+          command goes through the next gateway."""
+        now = time.time() if now is None else now
+        span = self.settings.gateway_faulty_slots * self.settings.tdma_slot * max(1, len(self.alive(now)))
+        refuted: list[Dispatch] = []
+        faults: list[tuple[str, str]] = []
+        with writing(self.db) as s:
+            for row, command in repo.acked_since(s, now - COMMAND_MAX_AGE):
+                last = _last_command(repo.checkpoints(s, command.vehicle_id, row.updated_at - COMMAND_MAX_AGE),
+                                     row.updated_at + ARRIVAL_SLACK)  # fmt: skip
+                if last is None or _arrived(last, command.seq):
+                    continue
+                repo.set_dispatch(s, row, DispatchState.REFUTED)
+                refuted.append(row)
+                faults.append((row.gateway, f"reported command {command.seq} acknowledged; the vehicle's "
+                               f"check-points since name command {last} as their last: it never arrived"))  # fmt: skip
+            for row, command in repo.held_since(s, now - span):
+                address = vehicle_repo.get(s, command.vehicle_id)
+                if (
+                    address is None
+                    or repo.reported_since(s, row.gateway, now - span)
+                    or repo.heard_through(s, address.address, row.gateway, now - span)
+                ):
+                    continue
+                repo.set_dispatch(s, row, DispatchState.UNANSWERED)
+                faults.append((row.gateway, f"held command {command.seq} for {span:.0f} s (its "
+                               f"{self.settings.gateway_faulty_slots} slots) without a word of it, nor a "
+                               f"verified frame of the vehicle"))  # fmt: skip
+            for gateway, why in faults:
+                repo.set_faulty(s, gateway, why, now)
+            s.commit()
+        for gateway, why in faults:
+            log.error("gateway %s is faulty, routed around: %s", gateway, why)
+            self._changed(gateway, "faulty")
+        return refuted
+
     # --- assignment ------------------------------------------------------------------------------
 
     def _heard(self, s: Tx, now: float) -> dict[int, dict[str, Quality]]:
-        """By vehicle address, by gateway: how it heard the vehicle in the window."""
+        """By vehicle address, by gateway: how it heard the vehicle in the window. Only frames that
+        verified count (a tag or a check-point's MAC held, on a packet heard for the first time), each at
+        most at ``routing_snr_cap`` dB: what a gateway claims of a frame is not evidence."""
         since = now - self.settings.routing_window
         totals = repo.frames_sent(s, since)
         heard: dict[int, dict[str, Quality]] = {}
-        for src, gateway, n, snr in repo.hearing(s, since):
+        for src, gateway, n, snr in repo.hearing(s, since, self.settings.routing_snr_cap):
             share = n / max(1, totals.get(src, n))
             heard.setdefault(src, {})[gateway] = Quality(n, snr if snr is not None else 0.0, min(1.0, share))
         return heard
@@ -140,7 +227,7 @@ class Routing:
     def update(self, now: float | None = None) -> list[Route]:
         """Apply the rule to every vehicle; the routes that moved."""
         now = time.time() if now is None else now
-        alive = self.alive(now)
+        alive = self.usable(now)
         moved: list[Route] = []
         with writing(self.db) as s:
             heard, current = self._heard(s, now), repo.assignments(s)
@@ -225,10 +312,10 @@ class Routing:
         return route
 
     def candidates(self, vehicle: Vehicle, now: float | None = None) -> list[str]:
-        """The live gateways to send the vehicle's command through, in order: its own first, then the
-        others that heard it in the window, best first."""
+        """The live gateways not faulty to send the vehicle's command through, in order: its own first,
+        then the others that heard it in the window, best first."""
         now = time.time() if now is None else now
-        alive = self.alive(now)
+        alive = self.usable(now)
         route = next((r for r in self.routes(now) if saved_id(r.vehicle) == saved_id(vehicle)), None)
         heard = route.heard if route else {}
         ranked = sorted((g for g in heard if g in alive), key=lambda g: -heard[g].score)
@@ -252,14 +339,28 @@ class Routing:
         report = self.report(dispatch_id, state, 0)
         return report.dispatch if report is not None and report.moved else None
 
-    def report(self, dispatch_id: str, state: DispatchState | None, attempt: int) -> Report | None:
-        """What a gateway said of a dispatch: its state moved forward (or from unanswered to acked: the
-        ACK came after the center had given up on the gateway), and whether attempt number ``attempt`` is
-        news (an event delivered twice is counted once). None for an unknown dispatch."""
+    def report(
+        self, dispatch_id: str, state: DispatchState | None, attempt: int, reporter: str | None = None
+    ) -> Report | None:
+        """What gateway ``reporter`` said of a dispatch (None: the center's own verdict): its state moved
+        forward (or from unanswered to acked: the ACK came after the center had given up on the gateway),
+        and whether attempt number ``attempt`` is news (an event delivered twice is counted once). None
+        for an unknown dispatch. A gateway's word counts only for the dispatches that went through it:
+        another's is ignored, logged and counted (the reporter's ``foreign_reports``), the dispatch left
+        alone."""
         with writing(self.db) as s:
             row = repo.dispatch(s, dispatch_id)
             if row is None:
+                log.warning("gateway %s reported an unknown command %s", reporter, dispatch_id[:128])
                 return None
+            if reporter is not None and reporter != row.gateway:
+                repo.count_foreign_report(s, reporter)
+                s.commit()
+                log.error(
+                    "gateway %s reported %s of dispatch %s, which went through %s: ignored",
+                    reporter, state, row.id, row.gateway,
+                )  # fmt: skip
+                return Report(row, moved=False, fresh_attempt=False, foreign=True)
             fresh = attempt > row.attempts
             # the center took the gateway for down, but it got the vehicle's ACK: its word wins
             late_ack = row.state == DispatchState.UNANSWERED and state == DispatchState.ACKED
@@ -279,6 +380,7 @@ class Report:
     dispatch: Dispatch
     moved: bool
     fresh_attempt: bool
+    foreign: bool = False  # reported by a gateway the dispatch did not go through: ignored
 
 
 _RANK = {

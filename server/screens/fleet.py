@@ -7,7 +7,9 @@ Overdue: a vehicle answers when it is polled, and it has something to say at lea
 clock, so a simulation's time scale needs nothing). Once that much time has passed it must wait for
 its next slot, and a lost frame costs it a slot more: so it is overdue after its report gap and
 ``OVERDUE_SLOTS`` of its slot intervals (the time between its slots in the polled MAC's plan, in
-proportion to its share) without a frame.
+proportion to its share) without a frame. Before two of its check-points were heard, its registered
+report interval stands for its report gap, and its silence counts from when the shore began to listen
+(or it was registered): until then it is *awaited* (its first report is not due yet), not overdue.
 """
 
 from __future__ import annotations
@@ -18,8 +20,9 @@ from collections.abc import Sequence
 #: One colour per vehicle, in order of registration (Okabe-Ito's colour-blind-safe set without its
 #: yellow, which a white page and the map's light water do not show).
 PALETTE = ("#0072b2", "#d55e00", "#009e73", "#cc79a7", "#e69f00", "#56b4e9", "#7a4a00", "#000000")
-#: A gateway's marker and its row: dark while its heartbeats come, light grey once it is silent.
-GATEWAY = "#333333"
+#: A gateway's marker and its row: one dark colour per gateway (in order of name, none of the vehicles'
+#: colours) while its heartbeats come, light grey once it is silent.
+GATEWAYS = ("#333333", "#6a3d9a", "#8c510a", "#01665e", "#b2182b")
 GATEWAY_SILENT = "#b0b0b0"
 OVERDUE_SLOTS = 3  # slots a vehicle may miss (a frame lost, a slot taken by a command) before it is greyed
 
@@ -29,9 +32,9 @@ def colour(index: int) -> str:
     return PALETTE[index % len(PALETTE)]
 
 
-def gateway_colour(alive: bool) -> str:
-    """A gateway's colour on both screens: ``GATEWAY``, or ``GATEWAY_SILENT`` once it is silent."""
-    return GATEWAY if alive else GATEWAY_SILENT
+def gateway_colour(index: int, alive: bool) -> str:
+    """The ``index``-th gateway's colour (by name) on both screens, or ``GATEWAY_SILENT`` once it is silent."""
+    return GATEWAYS[index % len(GATEWAYS)] if alive else GATEWAY_SILENT
 
 
 def rgb(hex_colour: str) -> tuple[int, int, int]:
@@ -62,8 +65,13 @@ def slot_interval(share: float, slots: Sequence[tuple[float, float]]) -> float |
     return mean_slot * sum(s for s, _ in slots) / share
 
 
-def overdue_after(gap: float | None, interval: float | None) -> float | None:
-    """The silence (s) after which a vehicle is overdue; None while the shore cannot tell."""
-    if gap is None:
-        return None
+def overdue_after(gap: float, interval: float | None) -> float:
+    """The silence (s) after which a vehicle is overdue: its report gap and ``OVERDUE_SLOTS`` of its slot
+    ``interval`` (none: no slot planned for it yet)."""
     return gap + OVERDUE_SLOTS * (interval or 0.0)
+
+
+def silence(last_heard: float | None, listening: float, registered: float, now: float) -> float:
+    """How long the shore has heard nothing from a vehicle: since its last frame, or (none heard since the
+    shore began ``listening``) since then or since it was ``registered``, whichever came later."""
+    return now - (last_heard if last_heard is not None else max(listening, registered))

@@ -81,12 +81,23 @@ class FleetVehicle(BaseModel):
     range_m: float | None
     overdue: bool = Field(description="heard nothing for longer than its place in the schedule allows")
     overdue_after_s: float | None = Field(
-        description="the silence that makes it overdue: its report gap and three of its slot intervals"
+        description="the silence that makes it overdue: its report gap (before two check-points, its report "
+        "interval) and three of its slot intervals"
+    )
+    awaited: bool = Field(
+        False, description="no check-point heard yet and its first not due yet: starting, not overdue"
+    )
+    first_report_due: float | None = Field(
+        None, description="while awaited: when its first check-point is overdue (shore clock, UNIX s)"
     )
     next_slot: str | None = Field(description="what its next slot carries (GET /link/schedule)")
     share: float
     airtime_s: dict[str, float] = Field(description="its seconds on the air by use, and their total")
     airtime_share: float = Field(description="its part of the fleet's airtime")
+    queued: int = Field(
+        description="its commands waiting for the link (queued, or sent and not acknowledged)"
+    )
+    queue_cap: int = Field(description="the most that may wait (max_queued_commands): more are refused, 429")
 
 
 class Fleet(BaseModel):
@@ -115,8 +126,8 @@ class VehicleLinkStatus(BaseModel):
     bytes_saved: int
     checkpoint: dict[str, Any] | None
     old_protocol: int = Field(
-        description="packets refused for speaking the previous protocol version (its agent needs "
-        "updating; logged once)"
+        description="packets refused for speaking another protocol version than the vehicle's (version 2, "
+        "or samples in a version it is not registered as speaking; logged once)"
     )
 
 
@@ -146,6 +157,10 @@ class StateLabel(BaseModel):
 
 class ScreenConfig(BaseModel):
     map_port: int | None
+    map_url: str | None = Field(
+        None,
+        description="the 3D map's address as browsers reach it (a proxy's); none: the page's host on map_port",
+    )
     streams: dict[str, StreamInfo]
     states: dict[str, StateLabel]
     form: CommandForm

@@ -70,6 +70,7 @@ class Screens:
         self.link = link
         self.routing = routing
         self.map_port: Callable[[], int | None] = lambda: None  # set when the map runs
+        self.listening = time.time()  # when this shore began to listen: a silence counts from here at most
         self._counted: tuple[float, dict[int, int], dict[tuple[int, str], int]] = (-1e18, {}, {})
 
     # --- vehicles ---------------------------------------------------------------------------------
@@ -181,6 +182,7 @@ class Screens:
         with reading(self.db) as s:
             heard = [r.at for r in telemetry.checkpoints(s, vehicle_id, clock.WINDOW)]
             offset = telemetry_service.clock_offset(s, vehicle_id)
+            waiting = command_repo.pending_count(s, vehicle_id)
         plan = channel.planned.get(vehicle_id)
         return {
             "id": vehicle_id,
@@ -190,10 +192,12 @@ class Screens:
             "home": list(vehicle.home),
             **_gateway(channel.gateways.get(vehicle_id)),
             **self._reported(known, offset),
-            **_heard(vehicle, channel, heard, now),
+            **self._heard(vehicle, channel, heard, now),
             "next_slot": None if plan is None else plan["next_slot"],
             "share": vehicle.share,
             "airtime_s": _airtime(vehicle, plan, channel),
+            "queued": waiting,
+            "queue_cap": self.settings.max_queued_commands,
         }
 
     def _reported(self, known: dict[str, Any], offset: float | None) -> dict[str, Any]:
@@ -215,9 +219,10 @@ class Screens:
         /api/v1/gateways`` lists it: beating (``up``, since its first heartbeat after a silence) or
         ``silent`` (since its last), its place, modem, outbox, last outage, frames and vehicles."""
         now = time.time() if now is None else now
-        return [self._gateway(g, now) for g in self.routing.board(now)]
+        board = sorted(self.routing.board(now), key=lambda g: g.record.name)
+        return [self._gateway(g, i, now) for i, g in enumerate(board)]
 
-    def _gateway(self, g: GatewayStatus, now: float) -> dict[str, Any]:
+    def _gateway(self, g: GatewayStatus, index: int, now: float) -> dict[str, Any]:
         r = g.record
         since = (r.beating_since or r.first_seen) if g.alive else r.last_seen
         place = None if r.north is None or r.east is None else (r.north, r.east, r.depth or 0.0)
@@ -229,8 +234,9 @@ class Screens:
             "latlon": None if place is None else self.latlon(place[0], place[1]),
             "address": r.address, "modem": r.modem or None, "outbox": r.outbox,
             "last_outage": None if outage is None else dict(zip(("lasted_s", "ended", "backlog"), outage, strict=True)),
-            "frames": g.frames, "colour": fleet.gateway_colour(g.alive),
+            "frames": g.frames, "colour": fleet.gateway_colour(index, g.alive),
             "vehicles": [{"id": i, "name": name, "pinned": pinned} for i, name, pinned in g.vehicles],
+            "faulty": g.faulty, "faulty_at": r.faulty_at, "foreign_reports": r.foreign_reports,
         }  # fmt: skip
 
     def latlon(self, north: float, east: float) -> list[float] | None:
@@ -263,7 +269,8 @@ class Screens:
         )
 
     def config(self) -> dict[str, Any]:
-        """What the browser needs (no secrets): the map's port, the streams' channels with units, what
+        """What the browser needs (no secrets): the map's port and public address (``map_url``: none when
+        the browser reaches it on the dashboard's host), the streams' channels with units, what
         the mission states mean, the commands' fields and the simulated time scale (1 when real)."""
         streams = {
             s.name: {
@@ -280,24 +287,30 @@ class Screens:
         }
         return {
             "map_port": self.map_port(),
+            "map_url": (self.settings.map_url or None) if self.map_port() is not None else None,
             "streams": streams,
             "states": labels,
             "form": command_form(),
             "time_scale": self.settings.time_scale,
         }
 
-
-def _heard(vehicle: Vehicle, channel: Channel, heard: list[float], now: float) -> dict[str, Any]:
-    """The vehicle's link (last frame heard, SNR, range) and whether it is overdue for its place in the
-    schedule (``fleet.overdue_after``: ``heard`` are its last check-points' arrival times)."""
-    link = channel.link.get(vehicle.name, {})
-    limit = fleet.overdue_after(fleet.report_gap(heard), fleet.slot_interval(vehicle.share, channel.slots()))
-    last = link.get("last_heard")
-    return {
-        **{k: link.get(k) for k in ("last_heard", "snr_in", "snr_out", "range_m")},
-        "overdue": last is None or (limit is not None and now - last > limit),
-        "overdue_after_s": None if limit is None else round(limit, 1),
-    }
+    def _heard(self, vehicle: Vehicle, channel: Channel, heard: list[float], now: float) -> dict[str, Any]:
+        """The vehicle's link (last frame heard, SNR, range) and whether it is overdue for its place in the
+        schedule (``fleet``: ``heard`` are its last check-points' arrival times), or awaited: never
+        reported and its first report not due yet."""
+        link = channel.link.get(vehicle.name, {})
+        gap = fleet.report_gap(heard) or vehicle.report_interval / self.settings.time_scale
+        limit = fleet.overdue_after(gap, fleet.slot_interval(vehicle.share, channel.slots()))
+        last = link.get("last_heard")
+        quiet = fleet.silence(last, self.listening, vehicle.created_at, now)
+        awaited = last is None and not heard and quiet <= limit
+        return {
+            **{k: link.get(k) for k in ("last_heard", "snr_in", "snr_out", "range_m")},
+            "overdue": quiet > limit,
+            "overdue_after_s": round(limit, 1),
+            "awaited": awaited,
+            "first_report_due": round(now - quiet + limit, 1) if awaited else None,
+        }
 
 
 def _gateway(assignment: Assignment | None) -> dict[str, Any]:

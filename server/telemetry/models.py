@@ -94,6 +94,8 @@ class Telemetry(SQLModel, table=True):
     certain: bool = True
     packet_id: int | None = Field(default=None, foreign_key="packet.id", index=True)
     verified: bool = Field(default=False, sa_column_kwargs={"server_default": "0"})  # its packet's MAC held
+    # the rest of the row before it (the same tick, the channels that row lacks), sent in the next packet
+    part: bool = Field(default=False, sa_column_kwargs={"server_default": "0"})
 
     __table_args__ = (Index("ix_telemetry_vehicle_stream_time", "vehicle_id", "stream", "time"),)
 
@@ -106,3 +108,4 @@ class SampleRow(NamedTuple):
     values: list[float | None]
     certain: bool
     verified: bool
+    part: bool  # the rest of the row before it (``Telemetry.part``)

@@ -274,7 +274,8 @@ def sample_page(
 
 
 _EXPORTED: tuple[Any, ...] = (
-    Telemetry.time, Telemetry.tick, Telemetry.values, Telemetry.certain, Telemetry.verified, Packet.auth,
+    Telemetry.time, Telemetry.tick, Telemetry.values, Telemetry.certain, Telemetry.verified, Telemetry.part,
+    Packet.auth,
 )  # fmt: skip
 
 
@@ -292,10 +293,11 @@ def all_samples(
         )
         .order_by(col(Telemetry.time), col(Telemetry.id))
     )
-    for time, tick, values, certain, verified, auth in s.execute(
+    for time, tick, values, certain, verified, part, auth in s.execute(
         query.execution_options(yield_per=EXPORT_ROWS)
     ):
-        yield SampleRow(time, tick, values, certain, verified), None if auth is None else PacketTrust(auth)
+        trust = None if auth is None else PacketTrust(auth)
+        yield SampleRow(time, tick, values, certain, verified, part), trust
 
 
 def sample_span(s: Session, vehicle_id: int, stream: str) -> tuple[float, float] | None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
+from itertools import zip_longest
 from typing import Any
 
 from sqlalchemy import Engine
@@ -16,7 +17,7 @@ from server.core.errors import Refused
 from server.telemetry import clock
 from server.telemetry import repository as repo
 from server.telemetry.metadata import About, Dataset
-from server.telemetry.models import Packet, SampleRow, SampleTrust, Telemetry
+from server.telemetry.models import Packet, PacketTrust, SampleRow, SampleTrust, Telemetry
 from server.vehicles import service as vehicles
 from tacit.codec import StreamSpec
 from tacit.packets import Stream
@@ -112,8 +113,9 @@ class TelemetryReader:
 
         def rows() -> Iterator[Sample]:
             with reading(self.db) as s:
-                for sample, auth in repo.all_samples(s, vehicle_id, stream, window.since, window.until):
-                    trust = SampleTrust.of(sample.verified, auth)
+                for sample, trust in whole(
+                    repo.all_samples(s, vehicle_id, stream, window.since, window.until)
+                ):
                     if include_forged or trust is not SampleTrust.FORGED:
                         yield sample, trust
 
@@ -122,6 +124,28 @@ class TelemetryReader:
                 yield from repo.fixes(s, vehicle_id, window.since, window.until)
 
         return Exported(Dataset(vehicle_id, vehicle.name, spec, self.about), rows(), fixes())
+
+
+def whole(samples: Iterator[tuple[SampleRow, PacketTrust | None]]) -> Iterator[Sample]:
+    """The samples with their trust, a sample sent in parts (``Telemetry.part``) as one row: the part's
+    channels fill the ones the row before it lacks; the row is as certain and as trusted as its least."""
+    held: Sample | None = None
+    for row, auth in samples:
+        sample = row, SampleTrust.of(row.verified, auth)
+        if held is not None and row.part and row.tick == held[0].tick:
+            sample = _joined(held, sample)
+        elif held is not None:
+            yield held
+        held = sample
+    if held is not None:
+        yield held
+
+
+def _joined(first: Sample, rest: Sample) -> Sample:
+    (a, trust_a), (b, trust_b) = first, rest
+    values = [x if x is not None else y for x, y in zip_longest(a.values, b.values)]
+    row = a._replace(values=values, certain=a.certain and b.certain, verified=a.verified and b.verified)
+    return row, max(trust_a, trust_b, key=list(SampleTrust).index)
 
 
 def _heard(packet: Packet, snr: float | None, copies: list[RelayedFrame]) -> dict[str, Any]:

@@ -8,7 +8,8 @@ from sqlmodel import AutoString, Field, SQLModel
 
 from server.core.db import now
 from tacit.limits import Limits
-from tacit.params import LostAction
+from tacit.packets import NEWEST
+from tacit.params import CHECKPOINT_INTERVAL, LostAction
 
 
 class Vehicle(SQLModel, table=True):
@@ -37,6 +38,14 @@ class Vehicle(SQLModel, table=True):
     # what it does when the link is lost: its agent's lost_action, then each SET_PARAM it executed
     lost_action: LostAction = Field(
         default=LostAction.HOLD, sa_type=AutoString(16), sa_column_kwargs={"server_default": "hold"}
+    )
+    # the protocol version its agent speaks (``tacit.packets.VERSIONS``): the shore decodes its packets in
+    # it; registered with it (the newest by default; vehicles registered before versions were kept: 3)
+    protocol: int = Field(default=NEWEST, sa_column_kwargs={"server_default": "3"})
+    # s between its check-points (its agent's checkpoint_interval, on the vehicle's clock): until its first
+    # is due the screens say it is awaited, not overdue
+    report_interval: float = Field(
+        default=CHECKPOINT_INTERVAL, sa_column_kwargs={"server_default": str(CHECKPOINT_INTERVAL)}
     )
     created_at: float = Field(default_factory=now)
 

@@ -8,9 +8,9 @@ from pydantic import BaseModel, Field
 
 from server.core.schemas import STRICT
 from tacit.limits import Limits
-from tacit.packets import CheckpointPacket
+from tacit.packets import NEWEST, VERSIONS, CheckpointPacket
 from tacit.packets import ControlPacket as WIRE
-from tacit.params import LostAction, Param
+from tacit.params import CHECKPOINT_INTERVAL, LostAction, Param
 
 MAX_KEY_HEX = 128  # 64 bytes: twice what HMAC-SHA256 needs
 DEFAULT = Limits()
@@ -60,6 +60,20 @@ class VehicleIn(LimitsIn):
         description="what it does when the link is lost (its agent's lost_action; a set_param of parameter "
         f"{int(Param.LOST_ACTION)} changes both): the separation check counts it",
     )
+    protocol: int = Field(
+        NEWEST,
+        ge=min(VERSIONS),
+        le=max(VERSIONS),
+        description=f"the protocol version its agent speaks (its agent's protocol; {NEWEST} by default): "
+        "the shore decodes its packets in it, so a fleet moves to a new version one vehicle at a time",
+    )
+    report_interval: float = Field(
+        CHECKPOINT_INTERVAL,
+        gt=0,
+        le=86400,
+        description="s between its check-points (its agent's checkpoint_interval): until its first is due, "
+        "the screens say it is awaited rather than overdue",
+    )
 
 
 class KeyIn(BaseModel):
@@ -98,8 +112,10 @@ class VehicleOut(LimitsIn):
     address: int
     home: tuple[float, float] = Field(description="m north, east of the fleet's origin where it starts")
     lost_action: LostAction = Field(description="what it does when the link is lost")
+    report_interval: float = Field(description="s between its check-points (its agent's checkpoint_interval)")
     key_version: int
     share: float = Field(description="its weight in the channel's schedule")
+    protocol: int = Field(description="the protocol version its agent speaks")
     key_rotation: KeyRotation | None = None
 
 

@@ -66,6 +66,8 @@ class Vehicles:
                 home_north=body.home[0],
                 home_east=body.home[1],
                 lost_action=body.lost_action,
+                protocol=body.protocol,
+                report_interval=body.report_interval,
                 **body.model_dump(include=set(LimitsIn.model_fields)),
             )
             return repo.save(s, vehicle)

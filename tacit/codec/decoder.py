@@ -14,7 +14,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from tacit.arithmetic import Decoder
-from tacit.codec.format import CODE_BITS, CodecError, UnknownBase, next_id, unpack
+from tacit.codec.format import (
+    CODE_BITS,
+    MAX_BACK,
+    MAX_WINDOW,
+    SEQS,
+    CodecError,
+    UnknownBase,
+    chain_ids,
+    unpack,
+)
 from tacit.codec.grammar import (
     RawValue,
     continues,
@@ -74,18 +83,43 @@ class PacketDecoder:
         self._initial = Chain.initial(self.specs, self.predictors, self.coding)
         self.snapshots: dict[int, Chain] = {}
 
-    def decode(self, payload: bytes, received_at: float) -> list[DecodedSpan]:
+    def decode(self, payload: bytes, received_at: float, seq: int | None = None) -> list[DecodedSpan]:
         """Every stream's samples in a packet (empty streams included); ``CodecError`` if it is not
-        this format, its base state is not held here, or it is malformed."""
+        this format, its base state is not held here, or it is malformed. ``seq``: the priority packet's
+        (version 4 names states by it: required)."""
+        if seq is None and self.coding.window:
+            raise ValueError(f"protocol {self.coding.version} decodes a payload with its packet's seq")
+        seq = seq or 0
         try:
-            return self._decode(payload, received_at)
+            return self._decode(payload, received_at, seq)
         except CodecError:
             raise
         except (ValueError, IndexError, ArithmeticError, TypeError) as exc:  # malformed beyond the checks
             raise CodecError(f"malformed payload ({exc})") from None
 
-    def _decode(self, payload: bytes, received_at: float) -> list[DecodedSpan]:
-        base_id, code = unpack(payload)
+    @property
+    def keep(self) -> int:
+        """How many states are worth saving (``to_bytes``): the vehicle continues from its last delivered
+        packet (version 3), or from one of the packets of its window (version 4)."""
+        return MAX_WINDOW + 2 if self.coding.window else 4
+
+    def ahead(self, base: int, seq: int) -> bool:
+        """Version 4: whether the state ``base`` (not held), on which the packet with ``seq`` continues,
+        may still come: newer than every state held, the packet with ``seq`` no further than
+        ``MAX_WINDOW`` seqs after the one that follows the newest held (the vehicle numbers no packet
+        further than that from the oldest whose fate it has not heard): a packet of its window that
+        was lost or comes later (if lost, the vehicle codes again from a state held). False when no
+        state is held, or ``base`` is older than one held, or ``seq`` further on: the vehicle heard a
+        packet delivered that this shore never had, so it must start over."""
+        if not self.coding.window or not base:
+            return False
+        behind = [(seq - (k - 1)) % SEQS for k in self.snapshots]
+        held = [b for b in behind if b <= MAX_BACK]  # not those of packets after it (come first)
+        return bool(held) and (seq - (base - 1)) % SEQS < min(held) <= MAX_WINDOW + 1
+
+    def _decode(self, payload: bytes, received_at: float, seq: int) -> list[DecodedSpan]:
+        _, code = unpack(payload, self.coding.window)
+        base_id, own = chain_ids(payload, seq)
         if base_id == 0:
             base = self._initial
         elif base_id in self.snapshots:
@@ -100,8 +134,11 @@ class PacketDecoder:
             positions.append(position)
         if base_id == 0:  # the vehicle started over: nothing before this packet will be a base again
             self.snapshots.clear()
-        self.snapshots.pop(next_id(base_id), None)  # the dict's order: least recently decoded first
-        self.snapshots[next_id(base_id)] = Chain(next_id(base_id), positions)
+        self.snapshots.pop(own, None)  # the dict's order: least recently decoded first
+        self.snapshots[own] = Chain(own, positions)
+        if self.coding.window:  # states named by a seq that has come round again are another packet's
+            for stale in [k for k in self.snapshots if MAX_BACK < (seq - (k - 1)) % SEQS <= SEQS - MAX_BACK]:
+                del self.snapshots[stale]
         return spans
 
     def mark(self) -> dict[int, Chain]:
@@ -231,5 +268,5 @@ class StreamDecoder(PacketDecoder):
         super().__init__([spec], protocol)
         self.spec = spec
 
-    def decode(self, payload: bytes, received_at: float) -> DecodedSpan:  # type: ignore[override]
-        return super().decode(payload, received_at)[0]
+    def decode(self, payload: bytes, received_at: float, seq: int | None = None) -> DecodedSpan:  # type: ignore[override]
+        return super().decode(payload, received_at, seq)[0]

@@ -7,6 +7,12 @@ draft) holds every stream's pending samples, oldest first, as far as its 224 cod
 stays in flight until the modem says whether it arrived; if it was lost, the pending samples are coded
 again from the last delivered state, after a LOST that declares the lost ticks.
 
+Version 4 keeps a window of packets in flight (``window``, at most ``MAX_WINDOW``): each is coded on the
+state the one before it leaves. When one is lost, its samples and those of every packet after it go back
+to the pending samples and are coded again from the state before it (the shore has it, or will): nothing
+the vehicle holds is lost, and no LOST is declared; ``resolve`` returns the seqs of the packets after it,
+which the caller withdraws from its send queue.
+
 A sample too large for an empty packet (many channels far off, raw values) is sent as several samples of
 the same tick, each with some of its channels (the others absent): the stream never stalls, and the
 shore gets every channel, in parts (a part in a lost packet is declared lost like any sample).
@@ -19,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tacit.arithmetic import Encoder
-from tacit.codec.format import CODE_BITS, next_id, pack
+from tacit.codec.format import CODE_BITS, MAX_WINDOW, base_field, next_id, pack, seq_id
 from tacit.codec.grammar import (
     RAW_Q,
     RawValue,
@@ -53,6 +59,18 @@ class _Sample:
     q: list[int | None] = field(default_factory=list)
     fine: np.ndarray | None = None  # per channel, the fraction of a step q counts (``Dual.fine``)
     state_before: object = None  # the predictor before this sample (for a packet that ends before it)
+
+
+@dataclass
+class _Flight:
+    """A packet in flight: its seq, the state it leaves, which streams it carried, and its samples per
+    stream (version 4 codes them again if a packet before it is lost)."""
+
+    seq: int
+    chain: Chain
+    carried: list[bool]
+    taken: list[list[_Sample]]
+    delivered: bool = False
 
 
 @dataclass
@@ -176,7 +194,8 @@ class PacketEncoder:
         self.initial = Chain.initial(self.specs, self.predictors, self.coding)
         self.delivered = self.initial
         self._queues: list[list[_Sample]] = [[] for _ in self.specs]
-        self.in_flight: tuple[Chain, list[bool]] | None = None  # its chain; which streams it carried
+        self.in_flight: list[_Flight] = []  # oldest first
+        self.window = 1  # packets in flight at most (``set_window``)
         self.seq = 0
         self._cursor: list[int | None] = [None] * len(self.specs)  # of the last processed sample
         self._lost: list[int | None] = [None] * len(self.specs)
@@ -191,6 +210,13 @@ class PacketEncoder:
         self._oversize: int | None = None  # a stream whose first pending sample fits no empty packet
         self._restart_on_resolve = False
         self._start(self.initial)
+
+    def set_window(self, packets: int) -> None:
+        """Keep up to ``packets`` in flight (version 4; at least 1, at most ``MAX_WINDOW``): as many as
+        the rate the shore polls at carries."""
+        if packets > 1 and not self.coding.window:
+            raise ValueError(f"protocol {self.coding.version} keeps one packet in flight")
+        self.window = min(max(1, packets), MAX_WINDOW)
 
     @property
     def pending(self) -> list[_Sample]:
@@ -360,29 +386,43 @@ class PacketEncoder:
     def _in_draft(self) -> list[_Sample]:
         return [x for s, sec in enumerate(self._sections) for x in self._queues[s][: sec.count]]
 
+    def predictable_until(self, now: float) -> float:
+        """Up to when every stream was predictable within its eps, as a version-4 check-point tells the
+        shore: the time of the oldest sample the shore could not predict and does not hold yet (waiting,
+        or in a packet in flight), else ``now``. What is older is delivered, or predictable (from the
+        state the shore holds, the initial one included) and waiting for a packet."""
+        waiting = [x for queue in self._queues for x in queue]
+        waiting += [x for f in self.in_flight for taken in f.taken for x in taken]
+        return min((x.time for x in waiting if any(x.q)), default=now)
+
     def deadline(self) -> float | None:
         """When a packet must leave, by the send policy (None: nothing pending that must leave)."""
         return self.policy.deadline(self._queues)
 
     def ready(self, now: float) -> bool:
-        """A packet should go out now: none is in flight, and the send policy says the draft is due."""
-        if self.in_flight is not None:
+        """A packet should go out now: the window has room, and the send policy says the draft is due."""
+        if len(self.in_flight) >= self.window:
             return False
         draft = self._in_draft()
         return bool(draft) and self.policy.due(now, draft, self._full, self._queues)
 
-    def take(self) -> EncodedPacket:
-        """The next priority packet (call when ``ready``); it stays in flight until ``resolve``."""
-        draft = self._in_draft()
-        if not draft:
+    def take(self, seq: int | None = None) -> EncodedPacket:
+        """The next priority packet (call when ``ready``), numbered ``seq`` (the caller's packet counter;
+        by default this encoder's own); it stays in flight until ``resolve``."""
+        seq = self.seq if seq is None else seq
+        if not self._in_draft():
             raise RuntimeError("nothing to send")
+        if base_field(self.coding.window, self._base.id, seq) is None:  # too far back to name
+            self._lost = [None] * len(self.specs)
+            self._rebase(self.initial)
+        draft = self._in_draft()
         enc = self._layout(0)
         bits = enc.finish()
-        payload = pack(self._base.id, bits)
+        payload = pack(base_field(self.coding.window, self._base.id, seq) or 0, bits, self.coding.window)
         urgent = any(x.urgent for x in draft)
         main = self._main_stream(urgent)  # before the taken samples leave the queues
         main_first = self._first_index(main)
-        positions, counts, serials, rows, surprises = [], {}, [], [], {}
+        positions, counts, serials, rows, surprises, carried_samples = [], {}, [], [], {}, []
         for s, section in enumerate(self._sections):
             taken, rest = self._queues[s][: section.count], self._queues[s][section.count :]
             predictor = rest[0].state_before if rest else self.predictors[s].state()
@@ -395,13 +435,15 @@ class PacketEncoder:
             ]
             serials.append([x.serial for x in taken])
             rows.append(_rows(section, taken))
+            carried_samples.append(taken)
             self._queues[s] = rest
-        chain = Chain(next_id(self._base.id), positions)
+        chain = Chain(seq_id(seq) if self.coding.window else next_id(self._base.id), positions)
         packet = PriorityPacket(
-            self.seq % 256,
+            seq % 256,
             Priority.TIME_SENSITIVE if urgent else Priority.ROUTINE,
             self.specs[main].stream,
             payload,
+            version=self.coding.version,
         )
         encoded = EncodedPacket(
             packet,
@@ -418,8 +460,8 @@ class PacketEncoder:
             rows,
         )
         carried = [sec.count > 0 or sec.lost is not None for sec in self._sections]
-        self.in_flight = (chain, carried)
-        self.seq += 1
+        self.in_flight.append(_Flight(seq % 256, chain, carried, carried_samples))
+        self.seq = seq + 1
         self._lost = [None] * len(self.specs)
         self._start(chain)
         self._refill()
@@ -461,41 +503,60 @@ class PacketEncoder:
         self._add_to_draft(stream)
         self._queues[stream].extend(keep)
 
-    def resolve(self, delivered: bool) -> None:
-        """The in-flight packet was delivered (ACK) or lost for good; re-base if lost."""
-        if self.in_flight is None:
-            return
-        (chain, carried), self.in_flight = self.in_flight, None
+    def resolve(self, delivered: bool, seq: int | None = None) -> list[int]:
+        """The packet in flight numbered ``seq`` (by default the oldest) was delivered (ACK) or lost for
+        good; re-base if lost. Returns the seqs of the packets after it that version 4 codes again (the
+        caller withdraws them); a seq not in flight (withdrawn, or forgotten by ``restart``) is ignored."""
+        at = 0 if seq is None else next((i for i, f in enumerate(self.in_flight) if f.seq == seq % 256), -1)
+        if not self.in_flight or at < 0:
+            return []
         if self._restart_on_resolve:
+            self.in_flight.clear()
             self._restart_on_resolve = False
             self.restart()
-            return
+            return []
+        flight = self.in_flight[at]
         if delivered:
-            self.delivered = chain
-            return
-        # the lost packet's samples are gone: the next packet says up to which tick, per stream (a
-        # stream that had not started on the shore starts afresh, its lost samples before its START)
-        for s, position in enumerate(self.delivered.streams):
-            end = chain.streams[s].cursor
-            if carried[s] and position.cursor is not None and end is not None:
+            flight.delivered = True
+            while self.in_flight and self.in_flight[0].delivered:
+                self.delivered = self.in_flight.pop(0).chain
+            return []
+        base = self.in_flight[at - 1].chain if at else self.delivered
+        dropped, self.in_flight = self.in_flight[at:], self.in_flight[:at]
+        if self.coding.window:  # every sample of the lost packet and those after it is coded again
+            for s in range(len(self.specs)):
+                self._queues[s] = [x for f in dropped for x in f.taken[s]] + self._queues[s]
+        else:  # the lost packet's samples are gone: the next packet says up to which tick, per stream (a
+            # stream that had not started on the shore starts afresh, its lost samples before its START)
+            self._declare_lost(base, flight)
+        self._rebase(base)
+        self._settle()
+        return [f.seq for f in dropped[1:]]
+
+    def _declare_lost(self, base: Chain, flight: _Flight) -> None:
+        for s, position in enumerate(base.streams):
+            end = flight.chain.streams[s].cursor
+            if flight.carried[s] and position.cursor is not None and end is not None:
                 # the lost packet's end on the delivered packet's grid (it may have moved the grid)
-                end = unregrid(end, position.phase, chain.streams[s].phase)
+                end = unregrid(end, position.phase, flight.chain.streams[s].phase)
                 self._lost[s] = max(0, end - position.cursor)
             else:
                 self._lost[s] = None
-        self._rebase(self.delivered)
-        self._settle()
 
     def restart(self) -> None:
         """Start over: the next packet continues from the initial state (base 0), whatever was delivered.
         For a shore that lost its decoder state (``UnknownBase``): the samples still pending are re-coded
-        from the initial state (each stream starts again with START); a packet in flight is forgotten
-        when it resolves (delivered or not, the shore that asked cannot continue from it)."""
+        from the initial state (each stream starts again with START). Version 3: a packet in flight is
+        forgotten when it resolves (delivered or not, the shore that asked cannot continue from it).
+        Version 4: the packets in flight are forgotten now and their samples coded again."""
         self.delivered = self.initial
         self._lost = [None] * len(self.specs)
-        if self.in_flight is not None:
+        if self.in_flight and not self.coding.window:
             self._restart_on_resolve = True
             return
+        for s in range(len(self.specs)):
+            self._queues[s] = [x for f in self.in_flight for x in f.taken[s]] + self._queues[s]
+        self.in_flight = []
         self._rebase(self.initial)
         self._settle()
 

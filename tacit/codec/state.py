@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tacit.codec.format import CHAIN_IDS, FORMAT, CodecError
+from tacit.codec.format import FORMAT, SEQS, CodecError
 from tacit.codec.grid import PHASES
 from tacit.codec.models import Coder
 from tacit.codec.prediction import Dual
@@ -35,7 +35,7 @@ class Position:
 
 @dataclass
 class Chain:
-    id: int  # 0: the initial state; 1..63 the packet that ended here
+    id: int  # 0: the initial state; else the packet that ended here (version 3: 1..63; 4: 1 + its seq)
     streams: list[Position]
 
     @classmethod
@@ -67,7 +67,7 @@ def restore(specs: Sequence[StreamSpec], data: bytes, coding: Coding) -> dict[in
             raise CodecError("saved decoder state is for another format or other streams")
         chains = {}
         for chain_id, streams in doc["chains"]:
-            if not (isinstance(chain_id, int) and 1 <= chain_id <= CHAIN_IDS and len(streams) == len(specs)):
+            if not (isinstance(chain_id, int) and 1 <= chain_id <= SEQS and len(streams) == len(specs)):
                 raise CodecError("saved decoder state is malformed")
             positions = [Position(_load(p), Coder.load(c), _cursor(k), _phase(f)) for p, c, k, f in streams]
             if any((p.coder.timing is None) == coding.timing for p in positions):

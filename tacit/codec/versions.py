@@ -12,6 +12,9 @@ Version 4 adds:
   sampler whose intervals wander about its period (a glider's CTD reporting every one, two or three of its
   own cycles) then costs a STEP per sample instead of SAME and JUMP tokens; a gap longer than the
   tolerance stays a gap. Nothing changes on the shore: any tick is decoded as before.
+- **a window** (``tacit.codec.format``, ``tacit.codec.encoder``): a packet's state is named by the
+  packet's seq, so the vehicle may keep several packets in flight, each coded on the state the one before
+  it leaves, and a packet coded again after a loss never shares a name with the one it replaces.
 - **timing** (``tacit.codec.models.Timing``): JUMP's count is coded as the stream's last one, the one
   before, or a new one, and the token after a sample is modelled by how long its run of equal tick deltas
   is (against that delta's run before); the tolerance above then prefers the tick the last delta (or,
@@ -30,8 +33,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-VERSIONS = (3, 4)
-NEWEST = VERSIONS[-1]
+from tacit.packets import NEWEST, VERSIONS
+
+__all__ = ["NEWEST", "VERSIONS", "Coding", "coding"]
 
 
 @dataclass(frozen=True)
@@ -41,6 +45,7 @@ class Coding:
     version: int
     tolerance: bool = False  # date a sample on the next tick when within the stream's time tolerance
     trend: bool = False  # a channel may predict by extending the line through its last two values
+    window: bool = False  # states named by packet seq: several packets in flight (``tacit.codec.format``)
     timing: bool = False  # a sample's tick delta is coded against the stream's last ones
     profile: bool = False  # a channel may predict from its last profile (a stream with a depth channel)
 
@@ -50,5 +55,5 @@ def coding(protocol: int) -> Coding:
     if protocol == 3:
         return Coding(3)
     if protocol == 4:
-        return Coding(4, tolerance=True, trend=True, timing=True, profile=True)
+        return Coding(4, tolerance=True, trend=True, window=True, timing=True, profile=True)
     raise ValueError(f"protocol {protocol}: this codec codes versions {', '.join(map(str, VERSIONS))}")

@@ -98,10 +98,11 @@ class Cycles:
                 result = replace(result, error="no acknowledgement")
         return result
 
-    async def poll(self, remote: int, rate: int = 0, ack: bool = False) -> None:
-        """Third-party poll: ask ``remote`` to send us its data (it arrives as received frames)."""
+    async def poll(self, remote: int, rate: int = 0, ack: bool = False, frames: int = 1) -> None:
+        """Third-party poll: ask ``remote`` to send us up to ``frames`` frames of its data (they arrive
+        as received frames)."""
         async with self.lock:
-            await self.channel.command(nmea.Cycle(remote, self.settings.address, rate, ack, 1))
+            await self.channel.command(nmea.Cycle(remote, self.settings.address, rate, ack, frames))
 
     async def ping(self, dest: int, timeout: float = 10.0) -> float | None:
         """Two-way ping; the one-way travel time in seconds, or None if no reply came."""

@@ -243,9 +243,9 @@ class ModemDriver:
         """Run one data cycle to ``dest`` (``Cycles.send``)."""
         return await self.cycles.send(dest, frames, rate, ack, ack_timeout)
 
-    async def poll(self, remote: int, rate: int = 0, ack: bool = False) -> None:
-        """Third-party poll: ask ``remote`` to send us its data (``Cycles.poll``)."""
-        await self.cycles.poll(remote, rate, ack)
+    async def poll(self, remote: int, rate: int = 0, ack: bool = False, frames: int = 1) -> None:
+        """Third-party poll: ask ``remote`` to send us up to ``frames`` frames of data (``Cycles.poll``)."""
+        await self.cycles.poll(remote, rate, ack, frames)
 
     async def ping(self, dest: int, timeout: float = 10.0) -> float | None:
         """Two-way ping; the one-way travel time in seconds, or None (``Cycles.ping``)."""

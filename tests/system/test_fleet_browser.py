@@ -94,20 +94,24 @@ def test_the_fleet_on_both_screens(fleet: dict) -> None:
         assert len(set(colours)) == 2  # each vehicle its own colour
         for i in range(2):
             text = rows.nth(i).text_content()
-            assert re.search(r"± \d+\.\d m", text) and " V" in text and "SNR" in text and "clock" in text
+            assert re.search(r"± \d+\.\d m", text) and " V" in text and "SNR" in text
+            assert re.search(r"vehicle clock at (most|least) \d+\.\d s (behind|ahead of) the shore's", text)
         assert "40.48620° N, 74.45180° W" in dashboard.text_content("#origin")  # the one origin
         dashboard.wait_for_function(
             "state.vehicles.every(v => state.timeline.some(e => e.vehicle === v.name))", timeout=LONG
         )
         assert dashboard.evaluate("document.querySelector('#timeline').height") >= 40 + 2 * 44  # a row each
-        dashboard.wait_for_function(
-            "document.querySelector('#link-stats').textContent.includes('airtime: rov2')", timeout=LONG
-        )
-
         # the command form: the vehicle picked is the one the command goes to
         dashboard.select_option("#vehicle", label="rov2 (modem 3)")
         dashboard.wait_for_function(
             "document.querySelector('#vehicle-name').textContent === 'rov2'", timeout=LONG
+        )
+        dashboard.wait_for_function(  # the card is the chosen vehicle's link, not a row per vehicle
+            "document.querySelector('#link-stats').textContent.includes('its airtime')", timeout=LONG
+        )
+        link = dashboard.eval_on_selector_all("#link-stats th", "ths => ths.map(th => th.textContent)")
+        assert link.count("last heard") == 1 and link.count("its airtime") == 1 and link.count("key") == 1, (
+            link
         )
         dashboard.select_option("#cmd", "goto_depth")
         dashboard.fill("#f-depth", "1.5")

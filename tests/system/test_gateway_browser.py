@@ -30,7 +30,7 @@ from server.backhaul.outbox import Outbox
 from server.backhaul.subjects import Place
 from tacit import auth
 from tacit.packets import CheckpointPacket, MissionState
-from tests.integration.server.test_routing import StandInModem, Vehicle
+from tests.integration.server.routing.test_choice import StandInModem, Vehicle
 from tests.support.nats import NATS_SERVER, NatsServer, free_port
 from tests.system.test_browser import ARTIFACTS, CHROMIUM, FLAGS
 

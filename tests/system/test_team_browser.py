@@ -15,7 +15,7 @@ from playwright.sync_api import Page, expect, sync_playwright
 
 from launch.stack import wait_for
 from tests.conftest import tacit_process
-from tests.integration.server.test_team_missions import manual_example
+from tests.integration.server.missions.test_teams import manual_example
 from tests.system.test_browser import ARTIFACTS, CHROMIUM, FLAGS
 
 LONG = 120_000  # ms: three vehicles share a rate-0 channel on 2 busy cores

@@ -1,4 +1,5 @@
-"""The layers import one way: core <- apps (server, vehicle_agent) <- simulators, analysis <- launch.
+"""The layers import one way: core <- gateway wing <- apps (server, vehicle_agent) <- simulators,
+analysis <- launch.
 
 The core (``tacit/``) runs on the vehicle's Raspberry Pi with three dependencies; the agent must not
 pull in the web stack, the server not the vehicle's code. A wrong import is caught here, not on a
@@ -14,18 +15,19 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-OURS = {"tacit", "server", "vehicle_agent", "simulators", "analysis", "launch", "tests", "bench"}
+OURS = {"tacit", "gateway", "server", "vehicle_agent", "simulators", "analysis", "launch", "tests", "bench"}
 CORE_THIRD_PARTY = {"numpy", "filterpy", "serial"}
 
 # package: the project's packages it may import
 ALLOWED = {
     "tacit": {"tacit"},
-    "server": {"tacit", "server"},
+    "gateway": {"tacit", "gateway"},  # the MAC every shore modem's process runs: no web stack, no database
+    "server": {"tacit", "gateway", "server"},
     "vehicle_agent": {"tacit", "vehicle_agent"},
     "simulators": {"tacit", "simulators", "analysis"},  # the tlog reader, to stream a real dive
     "analysis": {"tacit", "analysis"},
-    "launch": {"tacit", "server", "vehicle_agent", "simulators", "analysis", "launch"},
-    "bench": {"tacit", "server", "vehicle_agent", "simulators", "analysis", "launch", "bench"},
+    "launch": {"tacit", "gateway", "server", "vehicle_agent", "simulators", "analysis", "launch"},
+    "bench": {"tacit", "gateway", "server", "vehicle_agent", "simulators", "analysis", "launch", "bench"},
 }
 
 

@@ -172,7 +172,8 @@ def test_values_are_rounded_to_resolution_not_wrapped() -> None:
         (b"\x40" * 31, "32 bytes"),
         (bytes([0x00]) + bytes(31), "version"),
         (bytes([0xF0]) + bytes(31), "type"),
-        (bytes([0x70]) + bytes(31), "version 1"),
+        (bytes([0x70]) + bytes(31), "type 3"),  # code 1 is version 4 now
+        (bytes([0x00, 5]) + bytes(30), "unknown packet version 5 .byte 1"),
         (bytes([0x90]) + bytes(31), "protocol version 2 .*update its agent"),
         (bytes([0xC0, 0xEE]) + bytes(30), "command"),
         (bytes([0xD0, 0]) + bytes(4) + bytes([0x0E]) + bytes(25), "state"),
@@ -263,3 +264,74 @@ def test_only_a_sync_is_scheduled() -> None:
     assert packets.decode_control(sync).flags == ControlFlag.SCHEDULED
     with pytest.raises(PacketError, match="HOLD is flagged scheduled"):
         packets.decode_control(sync[:1] + bytes([Command.HOLD]) + sync[2:])
+
+
+checkpoints_v4 = st.builds(
+    CheckpointPacket,
+    seq=st.integers(0, 255),
+    time=st.integers(0, 2**32 - 1),
+    state=st.sampled_from(MissionState),
+    oxygen=st.one_of(fixed(0, 25.4, 0.1), st.just(packets.OXYGEN_NONE)),
+    quiet=st.integers(0, 255),
+    covered=st.integers(0, 65535),
+    mac=st.binary(min_size=4, max_size=4),
+    version=st.just(4),
+)
+
+
+@given(checkpoints_v4)
+def test_version_4_checkpoint_round_trip(packet: CheckpointPacket) -> None:
+    assert packets.decode(packet.encode()) == packet
+
+
+@given(st.builds(PriorityPacket, seq=st.integers(0, 255), priority=st.sampled_from(Priority),
+                 stream=st.sampled_from(Stream), payload=st.binary(min_size=29, max_size=29),
+                 tag=st.integers(0, 255), version=st.just(4)))  # fmt: skip
+def test_version_4_priority_round_trip(packet: PriorityPacket) -> None:
+    assert packets.decode(packet.encode()) == packet
+
+
+def test_version_4_header_code_and_checkpoint_layout() -> None:
+    """Version 4 is code 1 in the header's two bits; its check-point has oxygen on byte 24 (0.1 mg/L,
+    25.5 none) and the silence it says on byte 25; version 3's bytes are unchanged (golden)."""
+    cp = CheckpointPacket(seq=9, time=5, state=MissionState.PREPROGRAMMED, temperature=21.5, oxygen=8.3,
+                          quiet=42, covered=300, flags=5, key_parity=1, mac=b"WXYZ", version=4)  # fmt: skip
+    encoded = cp.encode()
+    assert encoded[0] == (1 << 6) | (1 << 4) | 8 | 5
+    assert encoded[24] == 83 and encoded[25] == 42 and struct.unpack(">H", encoded[26:28])[0] == 300
+    golden_v3 = "dd0900000005010000000000000000000000000000000866ffff012c5758595a"
+    assert replace_version(cp, 3).encode().hex() == golden_v3
+    golden_v4 = "5d0900000005010000000000000000000000000000000866532a012c5758595a"
+    assert encoded.hex() == golden_v4
+    none = packets.decode(replace_version(cp, 4, oxygen=packets.OXYGEN_NONE).encode())
+    assert isinstance(none, CheckpointPacket) and none.oxygen == packets.OXYGEN_NONE
+    with pytest.raises(FieldRangeError, match="oxygen"):
+        replace_version(cp, 4, oxygen=30.0).encode()
+    with pytest.raises(FieldRangeError, match="quiet"):  # version 3 cannot say a silence
+        replace_version(cp, 3, quiet=10, oxygen=8.3).encode()
+
+
+def replace_version(cp: CheckpointPacket, version: int, **changes: object) -> CheckpointPacket:
+    from dataclasses import replace
+
+    base = {"oxygen": packets.OXYGEN_NONE, "quiet": packets.QUIET_UNKNOWN} if version == 3 else {}
+    return replace(cp, version=version, **{**base, **changes})  # type: ignore[arg-type]
+
+
+def test_an_agent_of_either_version_takes_a_version_3_control_packet() -> None:
+    """Control packets keep version 3's layout and code in version 4: one shore signs for every vehicle."""
+    key = bytes(range(32))
+    frame = auth.sign(ControlPacket(Command.HOLD, seq=1, time=1), key, 2)
+    assert frame[0] >> 6 == 3 and packets.decode_control(frame).version == 3
+    four = ControlPacket(Command.HOLD, seq=1, time=1, version=4).signed_part()
+    assert four[0] >> 6 == 1 and four[1:] == frame[1:24]
+
+
+def test_quiet_never_says_more_than_it_knows() -> None:
+    assert packets.quiet_of(100, 99.5) == 1 and packets.quiet_of(100, 100.0) == 0  # rounded towards the past
+    assert packets.quiet_of(100, 100.4) == 0  # a mark after the whole second: the second
+    assert packets.quiet_of(1000, 746.0) == 254
+    assert packets.quiet_of(1000, 745.5) == packets.QUIET_UNKNOWN  # too far back to say
+    assert packets.quiet_of(1000, None) == packets.QUIET_UNKNOWN
+    cp = CheckpointPacket(seq=1, time=1000, state=MissionState.HOLDING, quiet=40, version=4)
+    assert packets.as_dict(cp)["predictable_until"] == 960
