@@ -4,7 +4,7 @@ last profile.
 A vehicle that dives and climbs measures, on each pass, nearly the profile it measured on the pass
 before: a channel's value changes between two samples about as much as it changed between those two
 depths on the last pass. ``Profile`` keeps, for a stream with a depth channel (``StreamSpec.depth``), the
-reconstructions of the pass under way (a point each ``SPACING`` depth steps) and of the last two finished
+reconstructions of the pass under way (a point each ``SPACING`` depth steps, thinned to ``POINTS``) and of the last two finished
 ones; a pass ends when the depth turns back by ``TURN`` steps. A channel's profile prediction at depth D is
 its last value v0 (at depth D0) plus ref(D) - ref(D0), ref the values of the last pass in the same
 direction interpolated linearly at those depths (none where D or D0 lies outside that pass, or a value there is absent).
@@ -22,7 +22,8 @@ import numpy as np
 
 SPACING = 4.0  # a pass keeps a point each time the depth has moved this many of its steps
 TURN = 8.0  # a pass ends when the depth has turned back this many steps from its extreme
-POINTS = 1024  # a pass keeps at most this many points (a deeper pass is followed no further)
+POINTS = 128  # a pass keeps at most this many points: when full, every other one of them goes (the
+# shore saves its states with every batch it stores: a pass stays a few kilobytes)
 
 
 class Profile:
@@ -90,7 +91,9 @@ class Profile:
             self.direction, self.extreme = -self.direction, depth
             self._reference()
         last = self.current[-1, self.depth] if len(self.current) else np.nan
-        if len(self.current) < POINTS and not abs(depth - last) < self.spacing:
+        if not abs(depth - last) < self.spacing:
+            if len(self.current) == POINTS:
+                self.current = np.vstack([self.current[:-1:2], self.current[-1:]])  # the ends kept
             self.current = np.vstack([self.current, values[None, :]])
 
     def state(self) -> tuple[Any, ...]:
