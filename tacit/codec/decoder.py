@@ -184,6 +184,7 @@ class PacketDecoder:
         phases: list[int] = []
         rows: list[np.ndarray] = []
         lost, first_continues, last_phase = None, False, base.phase
+        held: list[bool] = []  # the channels the last row holds
         while True:
             token = read_token(coder, decoder)
             if token.kind == END:
@@ -216,13 +217,18 @@ class PacketDecoder:
                 index = placed(cursor, token)
                 predictor.skip(index - cursor - 1)
                 prediction = predictor.predict()
-            before, same_tick = presence_before(coder), token.kind == SAME and phase == last_phase
+            # a part joins the row so far when it has none of that row's channels (not only the last part's)
+            before = held if rows else presence_before(coder)
+            same_tick = token.kind == SAME and phase == last_phase
             row = _reconstruct(predictor, prediction, read_sample(coder, decoder))
-            if continues(before, (~np.isnan(row)).tolist(), same_tick) and (rows or lost is None):
+            present = presence_before(coder)  # the channels the sample just read has
+            if continues(before, present, same_tick) and (rows or lost is None):
                 if rows:  # a part of the row before: one row
                     rows[-1] = np.where(np.isnan(rows[-1]), row, rows[-1])
+                    held = [b or p for b, p in zip(held, present, strict=True)]
                     continue
                 first_continues = True
+            held = present
             ticks.append(index)
             phases.append(phase)
             rows.append(row)

@@ -144,15 +144,16 @@ def _quantise(
 def _rows(section: _Section, taken: list[_Sample]) -> list[int]:
     """For each of ``taken`` (a section's samples), the row of the shore's span it is decoded into: a
     sample that is a part of the one before it in the same packet (``tacit.codec.grammar.continues``:
-    the same tick, other channels) is merged into that one's row."""
+    the same tick, none of the channels that row holds so far) is merged into that one's row."""
     base, rows = section.base, list[int]()
     before = presence_before(section.base.coder)
     tick, phase = (base.cursor, base.phase) if section.lost is None else (None, base.phase)
     for x in taken:
         present = [v is not None for v in x.q]
-        merged = rows and continues(before, present, x.index == tick and x.phase == phase)
+        merged = bool(rows) and continues(before, present, x.index == tick and x.phase == phase)
         rows.append(rows[-1] if merged else len(rows) and rows[-1] + 1)
-        before, tick, phase = present, x.index, x.phase
+        before = [b or p for b, p in zip(before, present, strict=True)] if merged else present
+        tick, phase = x.index, x.phase
     return rows
 
 

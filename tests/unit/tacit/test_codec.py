@@ -918,3 +918,14 @@ def test_wire_bytes_of_version_4_are_pinned_and_decode_back() -> None:
     pending = {(s, x.serial) for s, queue in enumerate(enc._queues) for x in queue}
     flying = {(s, x.serial) for f in enc.in_flight for s, xs in enumerate(f.taken) for x in xs}
     assert held | pending | flying == {(s, k) for s in range(2) for k in range(len(truth[s]))}
+
+
+@pytest.mark.parametrize("version", [3, 4])
+def test_samples_of_one_tick_join_a_row_only_with_channels_it_lacks(version: int) -> None:
+    """Three samples at one time, (-, 2), (0, -) and (-, 0): the first two are one row; the third has a
+    channel that row holds, so it is a row of its own, not dropped into the first (both ends agree)."""
+    rows = np.array([[np.nan, 2.0], [0.0, np.nan], [np.nan, 0.0], [0.0, np.nan], [np.nan, 1.0]])
+    run = Run(spec(2, 0.1), protocol=version).feed(np.array([T0, T0, T0, T0 + 1, T0 + 1]), rows)
+    run.check()
+    assert set(run.shore) == set(range(5))
+    assert [len(s.ticks) for s in run.spans if len(s.ticks)] == [3]  # two rows at T0, one at T0 + 1
