@@ -1,58 +1,76 @@
-"""A fleet on one acoustic channel, modelled slot by slot: what each vehicle costs the others, and how many
-vehicles one channel carries before a vehicle's data misses its latency bound.
+"""A fleet on one acoustic band through the MAC that ships: how many vehicles one shore, and two gateways
+sharing the band in TDMA, carry before a vehicle's data misses its latency bound.
 
-The parts that decide are the real ones: the shore's schedule (``server.link.schedule``: stride
-scheduling, commands first, urgent vehicles sooner), its rate choice (``tacit.link.choose_rate``) and
-slot windows (``server.link.timing``), the channel's timing, SNR and frame error rate at each vehicle's
-range (``simulators.acoustics``, ``tacit.rates``), and each vehicle's agent-side compressor
+The parts that decide are the real ones: the shore's MAC and queue (``gateway.mac``, ``gateway.queue``:
+SYNCs at their stamp, stops and commands first, ranging pings when due, polls by stride scheduling at the
+rate ``tacit.link.choose_rate`` picks from the SNR heard, slot discipline), their timings
+(``gateway.timing``) and the TDMA slots (``gateway.slots``), each vehicle's agent-side compressor
 (``vehicle_agent.compressor``, the agent's default latency and silence bounds) fed a recorded ArduSub dive
-(tests/data/ardusub: RAW_IMU and the Bar30, looped, at the demo's stream rates). What is scripted: the
-modems (no NMEA, no ptys) and the vehicle's motion; time is simulated, so the figures measure the
-channel, not this machine's CPU.
+(tests/data/ardusub: RAW_IMU and the Bar30, looped, at the demo's stream rates), and the channel's timing,
+SNR and frame error rate at each range (``simulators.sea`` over ``simulators.acoustics``). What is
+scripted: the modems (no NMEA, no ptys) and the vehicles' answers; time is virtual
+(``simulators.virtual_loop``), so the figures measure the channel, not this machine's CPU.
 
-Per vehicle and run: airtime share; polls; command POST to modem ACK and to the check-point that reports
-it (one command per vehicle every ``--command-every`` s), beside the channel's minimum for each; the
-worst latency of time-sensitive samples (measured to heard on the shore) and of all samples; bits on the
-link per sample. Per run: the share of the channel left idle (polls nobody answered).
+Every vehicle gets a SYNC every ``sync_interval`` (60 s) through its own station, stamped for that
+station's next slot opening, and a command every ``--command-every`` s; every station pings and polls
+every vehicle (through two gateways, each gateway's polls of the other's vehicles are the scoring polls
+the center routes by; a vehicle's own gateway polls it ``OWN_SHARE`` times as often, as the center's
+schedule says). A poll at rate r is answered with as many queued packets as rate r carries, up to
+``--window`` packets (1: one packet in flight, a vehicle of protocol 3; 0: a vehicle of protocol 4,
+whose compressor keeps as many in flight as the last poll's rate carries, up to ``MAX_WINDOW``), each
+coded on the chain the previous one leaves.
 
-Run: .venv/bin/python bench/bench_fleet.py [--vehicles 1 2 3 4] [--capacity 8] [--minutes 30] [--plot F]
+Per vehicle and run: polls, packets, command POST to modem ACK (median, p95) beside the channel's minimum,
+the worst latency of unpredictable samples and the p95 of all, samples waiting at the end. Per station:
+the band's airtime by exchange (SYNC, command, ping, poll) and the slots' idle share.
+
+Run: .venv/bin/python bench/bench_fleet.py [--vehicles 1 2 4] [--capacity 8] [--minutes 30]
+     [--window 0] [--slot 20] [--plot F]
 
 It fails (exit status 1) if it did not measure what it claims: a vehicle that delivered no samples, more
-samples delivered than measured, or a delivered sample without its latency.
+samples delivered than measured, a delivered sample without its latency, or an exchange of a gateway
+outside its own slot.
 """
 
 from __future__ import annotations
 
 import argparse
+import asyncio
 import csv
 import itertools
 import math
 import random
 import statistics
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from tqdm import tqdm
-
-from server.core.config import Settings
-from server.link.schedule import Schedule, SlotReason, Wants
-from server.link.state import VehicleState
-from server.link.timing import Timing
-from simulators.acoustics import ChannelParameters, cycle_with_ack_s, frame_error_rate
+from gateway.mac import Mac
+from gateway.queue import FrameKind, Held, Outcome, Queue, Report
+from gateway.slots import Schedule, SlotPlan, guard_for
+from gateway.timing import Timing
+from server.backhaul.dispatch import OWN_SHARE
+from server.backhaul.gateway import PING_INTERVAL
+from simulators.acoustics import ChannelParameters, cycle_with_ack_s
+from simulators.sea import Band, SeaModem, SeaVehicle
+from simulators.virtual_loop import run as run_virtual
+from tacit import modem as mm
 from tacit import rates
-from tacit.codec import PacketDecoder
-from tacit.link import capacity, choose_rate, packets_per_frame
-from tacit.packets import PACKET_SIZE, Priority, Stream
+from tacit.codec.format import MAX_WINDOW
+from tacit.link import capacity, packets_per_frame
+from tacit.packets import NEWEST, PACKET_SIZE, Priority, Stream
 from tacit.streams import default_streams
 from vehicle_agent.agent import AgentConfig
 from vehicle_agent.compressor import Compressor
 
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "ardusub"
-FIRST_RANGE_M = 300.0  # vehicle i sits at FIRST_RANGE_M + i * RANGE_STEP_M from the shore modem
+FIRST_RANGE_M = 300.0  # vehicle i sits at FIRST_RANGE_M + (i // stations) * RANGE_STEP_M from its station
 RANGE_STEP_M = 250.0
+OTHER_EXTRA_M = 1000.0  # through two gateways: a vehicle is this much further from the other one
 SEA_PA_PER_M = 1025.0 * 9.80665
+T0 = 1_700_000_000.0
+SYNC_INTERVAL = 60.0  # s: the shore's default (server.core.config.Settings.sync_interval)
 
 
 def recorded_dive() -> tuple[list[list[float | None]], list[list[float | None]]]:
@@ -89,51 +107,50 @@ class Outgoing:
     surprise_times: list[float] = field(default_factory=list)
     time_sensitive: bool = False
     checkpoint: bool = False
+    seq: int | None = None  # a data packet's number (the compressor resolves it when heard)
 
 
 @dataclass
 class Tally:
     """What one vehicle got from the channel in a run."""
 
-    airtime: float = 0.0
     polls: int = 0
     packets: int = 0
     samples_delivered: int = 0
     sample_latency: list[float] = field(default_factory=list)
     surprise_latency: list[float] = field(default_factory=list)  # the samples the shore could not predict
-    urgent_latency: list[float] = field(default_factory=list)  # of those, in time-sensitive packets
     to_ack: list[float] = field(default_factory=list)
-    to_report: list[float] = field(default_factory=list)
 
 
 class Craft:
-    """One vehicle as the channel sees it: its agent's compressor and outbox, the shore's record of it."""
+    """One vehicle: its agent's compressor and outbox, what it answers a poll, its commands' times."""
 
-    def __init__(
-        self, index: int, config: AgentConfig, command_every: float, with_imu: bool, rng: random.Random
-    ) -> None:
-        self.range_m = FIRST_RANGE_M + index * RANGE_STEP_M
-        self.record = VehicleState(
-            id=index + 1, name=f"rov{index + 1}", address=index + 2,
-            decoder=PacketDecoder(list(default_streams().values())), range_m=self.range_m,
-        )  # fmt: skip
-        # version 3: one packet in flight, as this model of the link sends them
-        self.compressor = Compressor(default_streams(), config.max_latency, config.max_silence, protocol=3)
+    def __init__(self, index: int, station: str, range_m: float, plan: Plan, rng: random.Random) -> None:
+        config = AgentConfig()
+        self.address = index + 2
+        self.station = station  # its own: its SYNCs and commands go through it
+        self.range_m = range_m
+        self.window = plan.window
+        # version 3 keeps one packet in flight; version 4 as many as the last poll's rate carries
+        self.compressor = Compressor(
+            default_streams(),
+            config.max_latency,
+            config.max_silence,
+            protocol=3 if plan.window == 1 else NEWEST,
+        )
         self.seq = 0  # the vehicle's packet counter
-        self.checkpoint_every = config.checkpoint_interval
-        self.command_every = command_every
         self.outbox: list[Outgoing] = []
-        self.in_flight: Outgoing | None = None  # the compressor's packet, until its delivery is known
-        self.next_checkpoint = config.checkpoint_interval
-        self.next_command = rng.uniform(0.0, command_every)
-        self.command_posted: float | None = None  # waiting for its slot
-        self.command_acked: float | None = None  # ACKed, waiting for the check-point that reports it
+        self.in_flight = 0  # compressed packets sent, not yet heard by a shore
+        self.next_command = rng.uniform(0.0, plan.command_every)
+        self.posted: dict[str, float] = {}  # command id -> when it was posted
         self.tally = Tally()
+        self.answers: dict[bytes, list[Outgoing]] = {}  # a frame on the air -> its packets
+        self._answer_ids = itertools.count()
         imu_rows, env_rows = recorded_dive()
         offset = rng.randrange(len(imu_rows))  # each vehicle at its own point of the dive
         self._imu = itertools.islice(itertools.cycle(imu_rows), offset, None)
         self._env = itertools.islice(itertools.cycle(env_rows), offset, None)
-        self._clock = self._samples(with_imu)
+        self._clock = self._samples(plan.imu)
         self._next = next(self._clock)
         self.samples = 0
 
@@ -150,8 +167,7 @@ class Craft:
                 yield t, Stream.ENVIRONMENTAL, next(self._env)
 
     def advance(self, now: float) -> None:
-        """The vehicle's side up to ``now``: samples measured, packets and check-points queued, commands
-        posted on the shore."""
+        """The vehicle's side up to ``now`` (s from the start): samples measured, packets queued."""
         while self._next[0] <= now:
             t, stream, values = self._next
             self.compressor.add(stream, t, values)
@@ -159,135 +175,48 @@ class Craft:
             self._queue_ready(t)
             self._next = next(self._clock)
         self._queue_ready(now)
-        if now >= self.next_checkpoint:
-            self.next_checkpoint += self.checkpoint_every
-            self.outbox.insert(0, Outgoing(urgent=True, queued_at=now, checkpoint=True))
-        if now >= self.next_command and self.command_posted is None and self.command_acked is None:
-            self.command_posted = self.next_command  # mid-slot: it waits for the slot under way to end
-            self.next_command += self.command_every
 
     def _queue_ready(self, now: float) -> None:
-        if self.in_flight is not None:
-            return
+        """Packets coded while the compressor's window has room, each on the chain the previous one
+        leaves (``vehicle_agent.compressor``); one not heard stays queued and goes again."""
         for _, encoded in self.compressor.ready(now, self.seq):
-            self.seq += 1
             urgent = encoded.packet.priority is Priority.TIME_SENSITIVE
-            packet = Outgoing(urgent, now, encoded.sample_times, encoded.surprise_times, urgent)
-            self.in_flight = packet
+            packet = Outgoing(urgent, now, encoded.sample_times, encoded.surprise_times, urgent, seq=self.seq)
+            self.seq += 1
+            self.in_flight += 1
             self.outbox.insert(sum(p.urgent for p in self.outbox) if urgent else len(self.outbox), packet)
 
-    def wants(self) -> Wants:
-        return Wants(command=self.command_posted is not None, in_flight=self.command_acked is not None)
-
-    def delivered(self, packet: Outgoing, at: float) -> None:
-        self.outbox.remove(packet)
-        self.tally.packets += 1
-        if packet.checkpoint:
-            if self.command_acked is not None:  # the check-point reports the command it holds
-                self.tally.to_report.append(at - self.command_acked)
-                self.command_acked = None
-            return
-        self.compressor.resolve(self.seq - 1, True)
-        self.in_flight = None
-        self.tally.samples_delivered += len(packet.sample_times)
-        self.tally.sample_latency.extend(at - t for t in packet.sample_times)
-        self.tally.surprise_latency.extend(at - t for t in packet.surprise_times)
-        if packet.time_sensitive:
-            self.tally.urgent_latency.extend(at - t for t in packet.surprise_times)
-        self.record.urgent = self.record.urgent or packet.time_sensitive
-
-
-class Channel:
-    """The shore's modem and the water between: slot after slot, the schedule's first vehicle."""
-
-    def __init__(self, crafts: list[Craft], bulk: bool, rng: random.Random) -> None:
-        self.crafts = {c.record.address: c for c in crafts}
-        self.bulk = bulk
-        self.rng = rng
-        self.params = ChannelParameters()
-        self.settings = Settings()
-        self.timing = Timing(self.settings)
-        self.schedule = Schedule(self.settings.command_share)
-        self.now = 0.0
-        self.idle = 0.0
-
-    def run(self, seconds: float) -> None:
-        """Slots until ``seconds``; a whole round in which nobody answered ends in the engine's idle pause."""
-        quiet = 0
-        while self.now < seconds:
-            for craft in self.crafts.values():
-                craft.advance(self.now)
-            wants = {a: (c.record, c.wants()) for a, c in self.crafts.items()}
-            record, reason = self.schedule.order(wants)[0]
-            craft = self.crafts[record.address]
-            start, idle = self.now, self.idle
-            self.now += self._command(craft) if reason is SlotReason.COMMAND else self._poll(craft)
-            self.schedule.used(record, reason)
-            craft.tally.airtime += self.now - start
-            quiet = quiet + 1 if self.idle > idle else 0
-            if quiet >= len(self.crafts):
-                quiet = 0
-                self.now += self.timing.idle_wait()
-                self.idle += self.timing.idle_wait()
-
-    def _heard(self, craft: Craft, rate: int) -> bool:
-        snr = self.params.mean_snr_db(craft.range_m) + self.rng.gauss(0.0, self.params.fading_sigma_db)
-        return self.rng.random() >= frame_error_rate(snr, rate, self.params.fer_width_db)
-
-    def _command(self, craft: Craft) -> float:
-        """A rate-0 command with ACK: cycle-init, data and ACK must all be heard."""
-        duration = cycle_with_ack_s(craft.range_m, self.params)
-        if all(self._heard(craft, 0) for _ in range(3)):
-            assert craft.command_posted is not None
-            craft.tally.to_ack.append(self.now + duration - craft.command_posted)
-            craft.command_posted, craft.command_acked = None, self.now + duration
-            craft.outbox.insert(0, Outgoing(urgent=True, queued_at=self.now, checkpoint=True))  # its report
-            return duration
-        return self.timing.ack_timeout(craft.record)
-
-    def _rate(self, craft: Craft) -> int:
-        return choose_rate(self.params.mean_snr_db(craft.range_m), False, 4) if self.bulk else 0
-
-    def _poll(self, craft: Craft) -> float:
-        """A poll: the vehicle answers with what it has, urgent first, as many packets as the rate carries;
-        each frame is heard (and ACKed) or not. Nobody answering costs the whole poll window."""
-        craft.tally.polls += 1
-        rate = self._rate(craft)
-        window = self.timing.poll_window(craft.record, rate)
-        answer = craft.outbox[: capacity(rate)]
-        if not answer or not self._heard(craft, 0):  # nothing to send, or the poll's cycle-init was lost
-            self.idle += window
-            return window
+    def answer(self, rate: int, nframes: int, now: float) -> list[bytes]:
+        """A poll's answer at ``rate``: the first queued packets, as many as the rate carries."""
+        self.compressor.follow(min(capacity(rate), self.window or MAX_WINDOW))  # as the agent does
+        self.advance(now)
+        self.tally.polls += 1
+        taken = self.outbox[: capacity(rate)]
         per_frame = packets_per_frame(rate)
-        frames = math.ceil(len(answer) / per_frame)
-        delay = craft.range_m / self.params.sound_speed
-        init = rates.airtime_s(rates.CYCLE_INIT_BITS, 0)
-        data = rates.data_airtime_s(rate, frames)
-        acks = rates.airtime_s(rates.ACK_BITS, 0)
-        duration = init + 2 * delay + rates.TURNAROUND_S + data + 2 * rates.TURNAROUND_S + acks + delay
-        heard_at = self.now + init + 2 * delay + rates.TURNAROUND_S + data
-        for k in range(frames):
-            if self._heard(craft, rate):
-                for packet in answer[k * per_frame : (k + 1) * per_frame]:
-                    craft.delivered(packet, heard_at)
-        return duration
+        frames = []
+        for k in range(0, len(taken), per_frame):
+            tag = f"{self.address}:{next(self._answer_ids)}".encode().ljust(
+                rates.rate(rate).frame_bytes, b"\0"
+            )
+            self.answers[tag] = taken[k : k + per_frame]
+            frames.append(tag)
+        return frames[:nframes]
 
-
-@dataclass(frozen=True)
-class RunResult:
-    vehicles: int
-    bulk: bool
-    seconds: float
-    idle_share: float
-    tallies: list[Tally]
-    samples: list[int]
-    ranges: list[float]
-    waiting: list[int]  # samples measured, not yet heard on the shore, at the end
-
-    def kept_up(self, bound: float) -> bool:
-        """Every vehicle's unpredictable samples reached the shore within ``bound`` (a channel that cannot
-        carry the fleet shows as latencies growing with the run's length)."""
-        return all(max(t.surprise_latency, default=0.0) <= bound for t in self.tallies)
+    def heard(self, tag: bytes, at: float) -> None:
+        """A shore heard the frame ``tag`` (a second shore hearing it delivers nothing more)."""
+        for packet in self.answers.pop(tag, []):
+            if packet not in self.outbox:
+                continue
+            self.outbox.remove(packet)
+            self.tally.packets += 1
+            if packet.checkpoint:
+                continue
+            self.in_flight -= 1
+            if packet.seq is not None:
+                self.compressor.resolve(packet.seq, True)
+            self.tally.samples_delivered += len(packet.sample_times)
+            self.tally.sample_latency.extend(at - t for t in packet.sample_times)
+            self.tally.surprise_latency.extend(at - t for t in packet.surprise_times)
 
 
 @dataclass(frozen=True)
@@ -298,19 +227,139 @@ class Plan:
     command_every: float
     imu: bool
     seed: int
+    window: int  # packets a poll's answer may carry beyond the rate's limit (0: none)
+    slot: float  # s: each gateway's TDMA slot, through two gateways
 
 
-def run(vehicles: int, bulk: bool, plan: Plan) -> RunResult:
+@dataclass(frozen=True)
+class StationResult:
+    name: str
+    airtime: dict[str, float]  # s, by exchange
+    late: int
+
+
+@dataclass(frozen=True)
+class RunResult:
+    vehicles: int
+    gateways: int
+    seconds: float
+    tallies: list[Tally]
+    samples: list[int]
+    ranges: list[float]
+    waiting: list[int]  # samples measured, not yet heard on the shore, at the end
+    stations: list[StationResult]
+
+    def kept_up(self, bound: float) -> bool:
+        """Every vehicle's unpredictable samples reached the shore within ``bound`` (a channel that cannot
+        carry the fleet shows as latencies growing with the run's length)."""
+        return all(max(t.surprise_latency, default=math.inf) <= bound for t in self.tallies)
+
+
+def run(vehicles: int, gateways: int, plan: Plan) -> RunResult:
+    """One run: ``gateways`` 1 is the single shore (no slots), 2 two gateways sharing the band in TDMA."""
     rng = random.Random(plan.seed)
-    config = AgentConfig()
-    crafts = [Craft(i, config, plan.command_every, plan.imu, rng) for i in range(vehicles)]
-    channel = Channel(crafts, bulk, rng)
-    channel.run(plan.seconds)
+    names = ["shore"] if gateways == 1 else ["gw1", "gw2"]
+    crafts = []
+    for i in range(vehicles):
+        own = names[i % len(names)]
+        crafts.append(Craft(i, own, FIRST_RANGE_M + (i // len(names)) * RANGE_STEP_M, plan, rng))
+    band = Band(ChannelParameters(seed=plan.seed))
+    by_address = {c.address: c for c in crafts}
+    for craft in crafts:
+        ranges = {n: craft.range_m + (0.0 if n == craft.station else OTHER_EXTRA_M) for n in names}
+        band.add(SeaVehicle(craft.address, ranges, answer=_answerer(craft)))
+    schedule = Schedule()
+    if gateways > 1:
+        schedule.receive(SlotPlan(T0, plan.slot, guard_for(3000.0, 0.05), tuple(names)), T0)
+    timing = Timing()
+    macs: dict[str, Mac] = {}
+
+    def reporter(report: Report) -> None:
+        craft = by_address[report.frame.address]
+        if report.final and report.outcome is Outcome.ACKED and report.frame.id in craft.posted:
+            now = asyncio.get_running_loop().time() - T0
+            craft.tally.to_ack.append(now - craft.posted.pop(report.frame.id))
+            craft.outbox.insert(0, Outgoing(urgent=True, queued_at=now, checkpoint=True))  # its report
+
+    for name in names:
+        modem = SeaModem(band, name)
+        modem.add_listener(_listener(by_address))
+        queue = Queue(timing, reporter, PING_INTERVAL)  # as `tacit gateway` runs it
+        queue.poll(c.address for c in crafts)  # every station polls every vehicle (scoring, routing)
+        for craft in crafts:  # its own gateway more often, as the center's schedule says
+            queue.share(craft.address, OWN_SHARE if gateways > 1 and craft.station == name else 1.0)
+        macs[name] = Mac(
+            name, modem, queue, schedule, timing, clock=lambda: asyncio.get_running_loop().time()
+        )
+
+    async def main() -> None:
+        tasks = [asyncio.create_task(mac.run()) for mac in macs.values()]
+        tasks += [asyncio.create_task(_vehicle(c, macs[c.station], schedule, plan)) for c in crafts]
+        await asyncio.sleep(plan.seconds)
+        for task in tasks:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+
+    run_virtual(main(), start=T0)
+    for name in names if gateways > 1 else ():
+        current = schedule.current
+        assert current is not None
+        for start, end in macs[name].transmissions:
+            if not current.owner(start) == name == current.owner(end - 1e-6):
+                sys.exit(
+                    f"measured wrongly: an exchange of {name} left its slot ({start - T0:.1f}-{end - T0:.1f} s)"
+                )
     return RunResult(
-        vehicles, bulk, channel.now, channel.idle / channel.now, [c.tally for c in crafts],
-        [c.samples for c in crafts], [c.range_m for c in crafts],
-        [c.samples - c.tally.samples_delivered for c in crafts],
+        vehicles, gateways, plan.seconds, [c.tally for c in crafts], [c.samples for c in crafts],
+        [c.range_m for c in crafts], [c.samples - c.tally.samples_delivered for c in crafts],
+        [StationResult(n, dict(m.status.airtime), m.status.late) for n, m in macs.items()],
     )  # fmt: skip
+
+
+def _answerer(craft: Craft) -> Callable[[int, int, int], list[bytes]]:
+    def answer(address: int, rate: int, nframes: int) -> list[bytes]:
+        return craft.answer(rate, nframes, asyncio.get_running_loop().time() - T0)
+
+    return answer
+
+
+def _listener(crafts: dict[int, Craft]) -> Callable[[mm.Event], None]:
+    def heard(event: mm.Event) -> None:
+        if isinstance(event, mm.ReceivedFrame) and event.src in crafts:
+            crafts[event.src].heard(event.data, event.time - T0)
+
+    return heard
+
+
+async def _vehicle(craft: Craft, mac: Mac, schedule: Schedule, plan: Plan) -> None:
+    """The vehicle's time passing, and what its own station is handed for it: a SYNC every
+    ``SYNC_INTERVAL`` stamped for the station's next slot opening, a command every ``--command-every``."""
+    loop = asyncio.get_running_loop()
+    next_sync, syncs, commands = 0.0, itertools.count(1), itertools.count(1)
+    while True:
+        now = loop.time() - T0
+        craft.advance(now)
+        if now >= next_sync:
+            next_sync += SYNC_INTERVAL
+            stamp = schedule.opening(mac.name, loop.time() + 1.0)
+            n = next(syncs)
+            mac.queue.hold(
+                Held(
+                    f"sync-{craft.address}-{n}",
+                    craft.address,
+                    bytes(32),
+                    FrameKind.SYNC,
+                    stamp=stamp,
+                    attempts=1,
+                )
+            )
+        if now >= craft.next_command:
+            craft.next_command += plan.command_every
+            command_id = f"cmd-{craft.address}-{next(commands)}"
+            craft.posted[command_id] = now
+            mac.queue.hold(Held(command_id, craft.address, bytes(32), FrameKind.COMMAND, attempts=3))
+            mac.wake()
+        await asyncio.sleep(1.0)
 
 
 def check(result: RunResult) -> None:
@@ -332,61 +381,66 @@ def p(values: list[float], q: int) -> float:
     return statistics.quantiles(values, n=100, method="inclusive")[q - 1] if len(values) > 1 else values[0]
 
 
-def table(result: RunResult) -> None:
-    mode = "rates the SNR allows" if result.bulk else "rate 0 only"
-    print(f"\n{result.vehicles} vehicle(s), {mode}: {result.seconds / 60:.0f} simulated min, "
-          f"channel idle {100 * result.idle_share:.1f} %")  # fmt: skip
-    print(f"{'vehicle':>8} {'range m':>8} {'airtime':>8} {'polls':>6} {'POST->ACK s':>12} {'min':>5} "
-          f"{'->reported s':>13} {'surprise worst s':>17} {'urgent worst s':>15} {'all p95 s':>10} {'bits/sample':>12} {'waiting':>8}")  # fmt: skip
+def where(gateways: int, plan: Plan) -> str:
+    return "one shore" if gateways == 1 else f"two gateways, {plan.slot:.0f} s slots"
+
+
+def table(result: RunResult, plan: Plan) -> None:
+    print(
+        f"\n{result.vehicles} vehicle(s), {where(result.gateways, plan)}: {result.seconds / 60:.0f} simulated min"
+    )
+    print(f"{'vehicle':>8} {'range m':>8} {'polls':>6} {'packets':>8} {'POST->ACK s':>12} {'p95':>6} {'min':>5} "
+          f"{'surprise worst s':>17} {'all p95 s':>10} {'bits/sample':>12} {'waiting':>8}")  # fmt: skip
     for i, tally in enumerate(result.tallies):
-        floor = cycle_with_ack_s(result.ranges[i])
         bits = tally.packets * PACKET_SIZE * 8 / max(1, tally.samples_delivered)
         print(
-            f"{'rov' + str(i + 1):>8} {result.ranges[i]:>8.0f} {100 * tally.airtime / result.seconds:>7.1f}% "
-            f"{tally.polls:>6} {statistics.median(tally.to_ack) if tally.to_ack else math.nan:>12.1f} "
-            f"{floor:>5.1f} {statistics.median(tally.to_report) if tally.to_report else math.nan:>13.1f} "
-            f"{max(tally.surprise_latency, default=math.nan):>17.1f} "
-            f"{max(tally.urgent_latency, default=math.nan):>15.1f} {p(tally.sample_latency, 95):>10.1f} "
-            f"{bits:>12.2f} {result.waiting[i]:>8}"
+            f"{'rov' + str(i + 1):>8} {result.ranges[i]:>8.0f} {tally.polls:>6} {tally.packets:>8} "
+            f"{statistics.median(tally.to_ack) if tally.to_ack else math.nan:>12.1f} {p(tally.to_ack, 95):>6.1f} "
+            f"{cycle_with_ack_s(result.ranges[i]):>5.1f} {max(tally.surprise_latency, default=math.nan):>17.1f} "
+            f"{p(tally.sample_latency, 95):>10.1f} {bits:>12.2f} {result.waiting[i]:>8}"
+        )  # fmt: skip
+    for station in result.stations:
+        busy = sum(station.airtime.values())
+        parts = ", ".join(
+            f"{kind} {100 * s / result.seconds:.1f} %" for kind, s in sorted(station.airtime.items())
+        )
+        print(
+            f"  {station.name}: band held {100 * busy / result.seconds:.1f} % ({parts}); late turns {station.late}"
         )
 
 
-def capacity_curve(up_to: int, plan: Plan, bound: float) -> list[RunResult]:
+def capacity_curve(up_to: int, gateways: int, plan: Plan, bound: float) -> list[RunResult]:
     results = []
-    for n in tqdm(range(1, up_to + 1), desc="capacity", leave=False):
-        results.append(run(n, True, plan))
+    for n in range(1, up_to + 1):
+        results.append(run(n, gateways, plan))
         check(results[-1])
-    print(f"\ncapacity (rates the SNR allows; unpredictable samples heard within {bound:.0f} s):")
-    print(f"{'vehicles':>9} {'idle %':>7} {'worst surprise s':>17} {'worst p95 all s':>16} {'kept up':>8}")
+    print(f"\ncapacity, {where(gateways, plan)} (unpredictable samples heard within {bound:.0f} s):")
+    print(f"{'vehicles':>9} {'worst surprise s':>17} {'worst p95 all s':>16} {'kept up':>8}")
     for r in results:
         worst = max((max(t.surprise_latency, default=0.0) for t in r.tallies), default=0.0)
         p95 = max(p(t.sample_latency, 95) for t in r.tallies)
-        print(f"{r.vehicles:>9} {100 * r.idle_share:>7.1f} {worst:>17.1f} {p95:>16.1f} {'yes' if r.kept_up(bound) else 'NO':>8}")  # fmt: skip
+        print(f"{r.vehicles:>9} {worst:>17.1f} {p95:>16.1f} {'yes' if r.kept_up(bound) else 'NO':>8}")
     carried = max((r.vehicles for r in results if r.kept_up(bound)), default=0)
-    print(f"one channel carries {carried} vehicle(s) at these sensor rates and bounds")
+    print(f"{where(gateways, plan)} carries {carried} vehicle(s) at these sensor rates and bounds")
     return results
 
 
-def plot(path: str, results: list[RunResult], bound: float, imu: bool) -> None:
+def plot(path: str, curves: dict[str, list[RunResult]], bound: float, imu: bool) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    n = [r.vehicles for r in results]
     fig, ax = plt.subplots(figsize=(7, 4))
-    ax.plot(
-        n,
-        [max(p(t.sample_latency, 95) for t in r.tallies) for r in results],
-        "o-",
-        label="all samples, worst p95",
-    )
-    ax.plot(n, [max(max(t.surprise_latency, default=0.0) for t in r.tallies) for r in results], "s-", label="unpredictable samples, worst")  # fmt: skip
+    for label, results in curves.items():
+        n = [r.vehicles for r in results]
+        worst = [max(max(t.surprise_latency, default=0.0) for t in r.tallies) for r in results]
+        ax.plot(n, worst, "o-", label=f"{label}: unpredictable samples, worst")
     ax.axhline(bound, color="grey", linestyle="--", label=f"bound {bound:.0f} s")
-    ax.set_xlabel("vehicles on one channel")
+    ax.set_xlabel("vehicles on one band")
     ax.set_ylabel("latency, measured to heard (s)")
     ax.set_yscale("log")
-    ax.set_title(("RAW_IMU 4 Hz + " if imu else "") + "Bar30 2 Hz per vehicle, rates the SNR allows")
+    ax.set_title(("RAW_IMU 4 Hz + " if imu else "") + "Bar30 2 Hz per vehicle, the MAC that ships")
     ax.legend()
     fig.tight_layout()
     fig.savefig(path)
@@ -398,33 +452,52 @@ def main() -> int:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument(
-        "--vehicles", type=int, nargs="+", default=[1, 2, 3, 4], help="fleet sizes for the tables"
+        "--vehicles", type=int, nargs="*", default=[1, 2, 4], help="fleet sizes for the tables"
     )
     parser.add_argument(
-        "--capacity", type=int, default=8, help="the capacity curve goes up to this many vehicles (0: none)"
+        "--capacity", type=int, default=6, help="the capacity curves go up to this many vehicles (0: none)"
     )
     parser.add_argument("--minutes", type=float, default=30.0, help="simulated minutes per run")
     parser.add_argument(
         "--command-every", type=float, default=300.0, help="s between each vehicle's commands"
     )
     parser.add_argument("--bound", type=float, default=60.0, help="latency bound of unpredictable samples, s")
+    parser.add_argument(
+        "--window",
+        type=int,
+        default=0,
+        help="packets a poll's answer carries at most (0: what the rate carries; 1: one packet in flight)",
+    )
+    parser.add_argument(
+        "--slot", type=float, default=20.0, help="each gateway's TDMA slot through two gateways, s"
+    )
+    parser.add_argument(
+        "--gateways",
+        type=int,
+        nargs="+",
+        default=[1, 2],
+        choices=(1, 2),
+        help="1: one shore; 2: two gateways sharing the band",
+    )
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument(
         "--no-imu", action="store_true", help="the vehicles send only the environmental stream (no RAW_IMU)"
     )
-    parser.add_argument("--plot", help="save the capacity curve to this PNG")
+    parser.add_argument("--plot", help="save the capacity curves to this PNG")
     args = parser.parse_args()
-    plan = Plan(args.minutes * 60.0, args.command_every, not args.no_imu, args.seed)
-    print("streams: " + ("RAW_IMU at 4 Hz and " if plan.imu else "") + "the Bar30 at 2 Hz, per vehicle")
-    for bulk in (False, True):
+    plan = Plan(args.minutes * 60.0, args.command_every, not args.no_imu, args.seed, args.window, args.slot)
+    print("streams: " + ("RAW_IMU at 4 Hz and " if plan.imu else "") + "the Bar30 at 2 Hz, per vehicle; "
+          + (f"at most {plan.window} packet(s) per poll" if plan.window else "a poll brings what its rate carries"))  # fmt: skip
+    curves = {}
+    for gateways in args.gateways:
         for n in args.vehicles:
-            result = run(n, bulk, plan)
+            result = run(n, gateways, plan)
             check(result)
-            table(result)
-    if args.capacity:
-        results = capacity_curve(args.capacity, plan, args.bound)
-        if args.plot:
-            plot(args.plot, results, args.bound, plan.imu)
+            table(result, plan)
+        if args.capacity:
+            curves[where(gateways, plan)] = capacity_curve(args.capacity, gateways, plan, args.bound)
+    if args.plot and curves:
+        plot(args.plot, curves, args.bound, plan.imu)
     return 0
 
 

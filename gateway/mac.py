@@ -28,15 +28,16 @@ import contextlib
 import logging
 import math
 import time
-from collections import Counter
+from collections import Counter, defaultdict
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-from gateway.queue import Exchange, Outcome, Queue, Turn
+from gateway.queue import PACKETS_PER_POLL, Exchange, Outcome, Queue, Turn
 from gateway.slots import Schedule
 from gateway.timing import Timing
 from tacit import modem as mm
+from tacit.link import choose_rate
 
 log = logging.getLogger("tacit.gateway.mac")
 
@@ -70,6 +71,9 @@ class MacStatus:
     """What the MAC says of itself (the gateway's heartbeat carries it)."""
 
     exchanges: Counter[str] = field(default_factory=Counter)  # by ``Exchange``, on the air
+    airtime: defaultdict[str, float] = field(
+        default_factory=lambda: defaultdict(float)
+    )  # s held, by ``Exchange``
     outcomes: Counter[str] = field(default_factory=Counter)  # by ``Outcome``
     late: int = 0  # turns that no longer fitted their slot when their time came: waited for the next
     refused: str = ""  # why the plan in force is refused ("" none)
@@ -78,6 +82,7 @@ class MacStatus:
         return {
             "exchanges": dict(self.exchanges),
             "outcomes": dict(self.outcomes),
+            "airtime": {kind: round(seconds, 1) for kind, seconds in self.airtime.items()},
             "late": self.late,
             "refused": self.refused,
         }
@@ -104,6 +109,23 @@ class Mac:
         self._work = asyncio.Event()
         self._heard: dict[int, asyncio.Event] = {}
         driver.add_listener(self._on_modem)
+
+    def detail(self) -> dict[str, Any]:
+        """Its status and, per vehicle it polls or holds frames for, what this station knows of it: the
+        range it measured, the rate its next poll would take, the SNR it heard, its polls (what the
+        gateway's heartbeat carries: ranges and rates per vehicle and gateway)."""
+        vehicles = {
+            str(v.address): {
+                "range_m": None if v.range_m is None else round(v.range_m, 1),
+                "rate": choose_rate(v.recent_snr, loss_sensitive=False, packets=PACKETS_PER_POLL),
+                "snr": v.recent_snr,
+                "share": v.share,
+                "polls": v.polls,
+                "answered": v.answered,
+            }
+            for v in self.queue.vehicles.values()
+        }
+        return {**self.status.detail(), "vehicles": vehicles}
 
     def wake(self) -> None:
         """Something was queued or the plan changed: look again at once."""
@@ -153,8 +175,9 @@ class Mac:
             )
             return
         started = self.clock()
-        outcome = await self._exchange(turn)
+        outcome = await self._exchange(turn, min(room - turn.duration, turn.duration / 4))
         self.transmissions.append((started, self.clock()))
+        self.status.airtime[turn.exchange] += self.clock() - started
         self.status.exchanges[turn.exchange] += outcome is not Outcome.FAILED
         self.status.outcomes[outcome] += 1
         self.queue.done(turn, outcome, self.clock())
@@ -179,28 +202,34 @@ class Mac:
 
     # --- the exchanges ------------------------------------------------------------------------------
 
-    async def _exchange(self, turn: Turn) -> Outcome:
+    async def _exchange(self, turn: Turn, spare: float) -> Outcome:
+        """``spare``: s of its slot the exchange may wait beyond its timing for a late answer (a late ACK
+        costs nothing inside the slot; up to a quarter of the exchange's length)."""
         try:
             if turn.exchange is Exchange.POLL:
-                return await self._poll(turn)
+                return await self._poll(turn, spare)
             if turn.exchange is Exchange.PING:
                 return await self._ping(turn)
-            return await self._send(turn)
+            return await self._send(turn, spare)
         except mm.ModemError as exc:
             log.info("%s: %s to %d not sent: %s", self.name, turn.exchange, turn.address, exc)
             return Outcome.FAILED
 
-    async def _send(self, turn: Turn) -> Outcome:
+    async def _send(self, turn: Turn, spare: float) -> Outcome:
         assert turn.frame is not None
         range_m = self.queue.vehicle(turn.address).range_m
         result = await self.driver.send(
-            turn.address, [turn.frame.data], rate=0, ack=True, ack_timeout=self.timing.ack_wait(range_m)
+            turn.address,
+            [turn.frame.data],
+            rate=0,
+            ack=True,
+            ack_timeout=self.timing.ack_wait(range_m) + spare,
         )
         if result.all_acked:
             return Outcome.ACKED
         return Outcome.SENT if result.transmitted else Outcome.FAILED
 
-    async def _poll(self, turn: Turn) -> Outcome:
+    async def _poll(self, turn: Turn, spare: float) -> Outcome:
         """Ask the vehicle for its data at the turn's rate; the answer's frames arrive as modem events.
         Answered once one came (the rest of one transmission come with it) and the modem has ACKed them."""
         heard = self._heard.setdefault(turn.address, asyncio.Event())
@@ -208,7 +237,7 @@ class Mac:
         range_m = self.queue.vehicle(turn.address).range_m
         await self.driver.poll(turn.address, rate=turn.rate, ack=True)
         try:
-            await asyncio.wait_for(heard.wait(), self.timing.poll_window(range_m, turn.rate))
+            await asyncio.wait_for(heard.wait(), self.timing.poll_window(range_m, turn.rate) + spare)
         except TimeoutError:
             return Outcome.SILENT
         await asyncio.sleep(self.timing.ack_tail())  # the modem's ACK of the answer leaves

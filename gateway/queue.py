@@ -11,7 +11,8 @@ in this order at each turn the MAC asks for (``Queue.next``), the first that fit
    fleet's stops back), then the center's rank, then arrival;
 3. **commands**, likewise fewest attempts first; a vehicle's commands take at most ``command_share`` of its
    turns in a row while it is polled, so a long queue never stops its data;
-4. a **ping** of the vehicle whose poll comes next, when its range is older than ``ping_interval``;
+4. a **ping** of the vehicle whose poll comes next, when its range is older than ``ping_interval`` (times
+   the highest share over its own: a vehicle polled less often is ranged less often);
 5. a **poll**, by stride scheduling: each polled vehicle has a ``share`` (changeable at run time) and a
    virtual time advancing by ``1 / share`` with each poll; the lowest, less a lead for a vehicle with a
    command held or urgent data, is polled, at the fastest rate ``tacit.link.choose_rate`` allows from the
@@ -233,10 +234,16 @@ class Queue:
         polled = self._poll_order()
         if polled:
             vehicle = polled[0]
-            if now - vehicle.last_ping >= self.ping_interval:
+            if now - vehicle.last_ping >= self._ping_interval(vehicle):
                 yield Turn(Exchange.PING, vehicle.address, self.timing.ping(vehicle.range_m))
             rate = choose_rate(vehicle.recent_snr, loss_sensitive=False, packets=PACKETS_PER_POLL)
             yield Turn(Exchange.POLL, vehicle.address, self.timing.poll(vehicle.range_m, rate), rate)
+
+    def _ping_interval(self, vehicle: Vehicle) -> float:
+        """``ping_interval`` for the vehicles of the highest share, longer in proportion for the others (a
+        vehicle polled a quarter as often is ranged a quarter as often)."""
+        top = max(self.vehicles[a].share for a in self.polled)
+        return self.ping_interval * top / vehicle.share
 
     def _frame_turn(self, exchange: Exchange, frame: Held) -> Turn:
         duration = self.timing.command(self.vehicle(frame.address).range_m)

@@ -53,7 +53,9 @@ class Shore:
         bus = Bus()
         ingest = ingest_type(db, bus, default_streams(), settings)
         vehicles = Vehicles(db)
-        commands = CommandDesk(db, bus, ingest.pose, settings.max_queued_commands)
+        commands = CommandDesk(
+            db, bus, ingest.pose, settings.max_queued_commands, withdrawable=ingest.relayed
+        )
         link = LinkEngine(settings, db, bus, ingest, commands, vehicles)
         commands.wake = link.wake  # a queued command starts the next slot at once
         operators = Operators(settings, db)

@@ -86,4 +86,13 @@ def run(main: Any, start: float = 1_700_000_000.0) -> Any:
     try:
         return loop.run_until_complete(main)
     finally:
+        left = asyncio.all_tasks(loop)  # what ``main`` left running (a modem's answer under way): ended
+        for task in left:
+            task.cancel()
+        if left:
+            loop.run_until_complete(_ended(left))
         loop.close()
+
+
+async def _ended(tasks: set[asyncio.Task[Any]]) -> None:
+    await asyncio.gather(*tasks, return_exceptions=True)

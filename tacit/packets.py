@@ -173,11 +173,6 @@ class OldVersion(PacketError):
     """A packet of the protocol version before this one: its sender needs updating, not a closer look."""
 
 
-class OtherVersion(OldVersion):
-    """A packet in a version this end speaks but its sender is not registered for (its samples are coded
-    as that version codes them): the agent's configuration and the registration must agree."""
-
-
 class FieldRangeError(PacketError):
     """A value outside the documented range of its field."""
 
@@ -210,6 +205,11 @@ class Command(enum.IntEnum):
     def from_operator(self) -> bool:
         """An operator may send it (SYNC is the shore's own heartbeat)."""
         return self is not Command.SYNC
+
+    @property
+    def stops(self) -> bool:
+        """It halts the vehicle (abort, hold): the shore sends it before every other command."""
+        return self in (Command.HOLD, Command.ABORT_MISSION)
 
     @property
     def sets_course(self) -> bool:

@@ -16,6 +16,7 @@ from hypothesis import HealthCheck, settings
 
 from launch.processes import stop
 from launch.split import throwaway_database as postgres_database
+from tests.support.sqlite import migrated
 
 # Property tests check behaviour, not speed: no per-example deadline (on a loaded machine one made a
 # round-trip test fail on time alone). Every property test inherits this profile.
@@ -80,13 +81,29 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
             item.add_marker(getattr(pytest.mark, parts[0]))
 
 
+@pytest.fixture(scope="session")
+def postgres_template(postgres_server: str) -> Iterator[str]:
+    """A database migrated once per session on ``postgres_server``, to copy (``CREATE DATABASE ...
+    TEMPLATE``): a copy costs a fraction of a second, a migration a second or more. Its name."""
+    from server.core.db import migrate
+
+    with postgres_database(postgres_server, prefix="tacit_template") as url:
+        migrate(url)  # alembic's connections are closed when it returns: the template is free to copy
+        yield url.rsplit("/", 1)[1]
+
+
 @pytest.fixture(params=["sqlite", "postgresql"])
 def database_url(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
-    """The same tests on the embedded default (a SQLite file) and on a real PostgreSQL server."""
+    """The same tests on the embedded default (a SQLite file) and on a real PostgreSQL server, each a
+    migrated store of the test's own (copies of a template migrated once: the migration test migrates
+    down to empty and up again)."""
     if request.param == "sqlite":
-        yield f"sqlite:///{tmp_path}/tacit.db"
+        yield migrated(tmp_path / "tacit.db")
     else:
-        with postgres_database(request.getfixturevalue("postgres_server")) as url:
+        from tests.support.postgres import copied_database
+
+        server = request.getfixturevalue("postgres_server")
+        with copied_database(server, request.getfixturevalue("postgres_template")) as url:
             yield url
 
 

@@ -34,6 +34,7 @@ from pathlib import Path
 
 from tacit import auth, modem
 from tacit.codec import EncodedPacket
+from tacit.codec.format import MAX_WINDOW
 from tacit.config import check_keys
 from tacit.limits import Limits
 from tacit.navigation import Pose, Target
@@ -199,6 +200,7 @@ class Agent:
         self._challenged = -1e9  # vehicle time of the last check-point sent unsynced
         self._report: CheckpointPacket | None = None  # the check-point of the last status change, until sent
         self._flying: dict[int, bytes] = {}  # priority packets in flight, by seq (to withdraw them)
+        self._vouching: set[int] = set()  # delivered packets a check-point on its way covers, by seq
         self.samples: deque[tuple[str, float, tuple]] = deque(maxlen=10_000)
         self._clocks = {"RAW_IMU": SampleClock(), "SCALED_PRESSURE2": SampleClock()}  # MAVLink thread's
         self.mav.listeners.append(self._on_mavlink)
@@ -285,7 +287,8 @@ class Agent:
             )
         if packet.param_id & SYNC_RESTART_CHAINS:
             log.warning("shore asked to restart the sample chains (it lost their state)")
-            self.compressor.restart_chains()
+            forgotten = self.compressor.restart_chains()  # they continue from states the shore lost
+            self.link.withdraw([self._flying.pop(q) for q in forgotten if q in self._flying])
         self._persist()
 
     def _on_delivered(self, packet: bytes) -> Callable[[bool], None]:
@@ -342,12 +345,17 @@ class Agent:
 
     # --- outputs --------------------------------------------------------------------------------
 
+    def _unvouched(self) -> list[int]:
+        """The seqs of the delivered packets no check-point covers yet, nor one on its way."""
+        return [u.seq for u in self.state.uncovered if u.seq not in self._vouching]
+
     def _room(self) -> int:
         """How many priority packets may be numbered now: a check-point numbered after them must still
-        reach (``COVER_BITS`` back) every delivered one it has not covered and every one in flight."""
-        outstanding = [u.seq for u in self.state.uncovered] + self.compressor.in_flight()
+        reach (``COVER_BITS`` back) every delivered one no check-point on its way covers, and every one in
+        flight (a check-point lost for good leaves those it covered out of reach: unverifiable)."""
+        outstanding = self._unvouched() + self.compressor.in_flight()
         used = max(((self.state.packet_seq - q) % 256 for q in outstanding), default=0)
-        return max(0, COVER_BITS - 2 - used)
+        return max(0, MAX_WINDOW - used)
 
     def _send_packets(self) -> None:
         self.compressor.follow(self.link.capacity)
@@ -474,7 +482,10 @@ class Agent:
             sync.challenge(frame[-CHECKPOINT_MAC_SIZE:])
             self._challenged = self.mav.telemetry.time
 
+        self._vouching.update(u.seq for u in covered)
+
         def delivered(ok: bool, done: list[Uncovered] = covered) -> None:
+            self._vouching.difference_update(u.seq for u in done)
             if ok:  # the shore holds the MAC for these now: no later check-point needs to cover them
                 self.state.uncovered = [u for u in self.state.uncovered if u not in done]
                 self._dirty = True
@@ -522,7 +533,7 @@ class Agent:
         if reported != (before["last_command"], before["command_status"]):
             self._report = self.checkpoint()  # where and when it happened (e.g. arrival), even if sent later
         self._send_packets()
-        oldest = min(((self.state.packet_seq - u.seq) % 256 for u in self.state.uncovered), default=0)
+        oldest = max(((self.state.packet_seq - q) % 256 for q in self._unvouched()), default=0)
         if oldest >= COVER_BITS - 4:  # a check-point now, while the oldest delivered packet is in reach
             self.fsm.checkpoint_due = True
         if (

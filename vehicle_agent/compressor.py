@@ -144,7 +144,11 @@ class Compressor:
         """The seqs of the packets in flight."""
         return [f.seq for f in self.encoder.in_flight]
 
-    def restart_chains(self) -> None:
+    def restart_chains(self) -> list[int]:
         """The shore lost its decoder states (its SYNC asked): the streams start again from the initial
-        state, so the next packet decodes without any history (``PacketEncoder.restart``)."""
+        state, so the next packet decodes without any history (``PacketEncoder.restart``). Returns the
+        seqs of the packets in flight it forgot (version 4 codes their samples again; the caller
+        withdraws them; version 3 forgets its one packet when it resolves)."""
+        before = self.in_flight()
         self.encoder.restart()
+        return [q for q in before if q not in self.in_flight()]

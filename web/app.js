@@ -627,7 +627,7 @@ function renderPackets() {
 
 function renderCommands() {
   const rows = [...state.commands.values()].sort((a, b) => b.id - a.id).slice(0, 10).map((c) => {
-    const history = (c.history || []).map((h) => `<span class="step status-${h.status}" data-status="${h.status}" data-at="${stepTime(h)}" title="${esc(stepTitle(h))}">${h.status} ${utc(stepTime(h))}${h.report ? ' <span class="on-board">on board</span>' : ""}</span>`).join(" → ");
+    const history = (c.history || []).map((h) => `<span class="step status-${h.status}" data-status="${h.status}" data-at="${stepTime(h)}" title="${esc(stepTitle(h))}">${h.status} ${utc(stepTime(h))}${h.report ? ' <span class="on-board">on board</span>' : ""}${h.source === "gateway" ? ` <span class="sub">via ${esc(h.via)}</span>` : ""}</span>`).join(" → ");
     const name = nameOf(c.vehicle_id);
     const cancel = c.status === "queued" ? `<button type="button" class="write cancel-command" data-cancel="${c.id}" title="Take it back: it ends cancelled and is never sent (too late once it is signed for transmission)"${state.role === "write" ? "" : " disabled"}>cancel</button>` : "";
     return `<tr data-id="${c.id}"><td>${c.id}</td><td>${swatch(name)}${esc(name)}</td><td>${esc(describe(c))}<br><span class="sub">seq ${c.seq}${c.issued_by ? ` · by ${esc(c.issued_by)}` : ""}</span></td><td class="status-${c.status}">${c.status}${cancel ? `<br>${cancel}` : ""}</td>
@@ -734,8 +734,9 @@ $("commands").addEventListener("click", async (e) => {
   try {
     const c = await api(`/commands/${id}/cancel`, { method: "POST" });
     state.commands.set(id, c);
-    $("command-result").className = "status-cancelled";
-    $("command-result").textContent = `#${id} ${describe(c)} to ${nameOf(c.vehicle_id)}: cancelled, never sent`;
+    $("command-result").className = `status-${c.status}`;
+    $("command-result").textContent = `#${id} ${describe(c)} to ${nameOf(c.vehicle_id)}: ` + (c.status === "cancelling"
+      ? "withdrawing it from the gateway that holds it: cancelled unless that gateway sent it first" : "cancelled, never sent");
   } catch (error) {
     $("command-result").className = "status-refused";
     $("command-result").textContent = `Not cancelled: ${error.message}`;

@@ -5,11 +5,12 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import Depends, HTTPException, Path, Query, Request, status
+from fastapi import Depends, Path, Query, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from server.commands.service import CommandDesk
 from server.core.config import Settings
+from server.core.errors import Forbidden, TooMany, Unauthorized, raises
 from server.core.events import Bus
 from server.core.schemas import DB_INT_MAX
 from server.core.security import Actor, Role, Throttle, open_reads
@@ -109,24 +110,21 @@ Credentials = Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)]
 BENCH = Actor("bench", Role.WRITE)  # the caller when no tokens are configured (reads only: writes need one)
 
 
-def _unauthorized(detail: str) -> HTTPException:
-    return HTTPException(status.HTTP_401_UNAUTHORIZED, detail, headers={"WWW-Authenticate": "Bearer"})
-
-
 def _actor(
     shore: Shore, request: Request, credentials: HTTPAuthorizationCredentials | None, needed: str
 ) -> Actor:
     """The caller; a missing token, a wrong one and an expired or revoked one (``Unauthorized``, saying
     when) are told apart; too many wrong ones from the caller's address are refused (``Throttle``)."""
     if credentials is None:
-        raise _unauthorized(f"{needed} is required: send Authorization: Bearer <token>")
+        raise Unauthorized(f"{needed} is required: send Authorization: Bearer <token>")
     client = request.client.host if request.client else "unknown"
     found = shore.sign_ins.actor(credentials.credentials, client)
     if found is None:
-        raise _unauthorized("this token is not accepted here (mistyped, or not one of this shore's tokens)")
+        raise Unauthorized("this token is not accepted here (mistyped, or not one of this shore's tokens)")
     return found
 
 
+@raises(Unauthorized, TooMany)
 def require_read(shore: ShoreDep, request: Request, credentials: Credentials) -> Actor:
     """Reads are open when no tokens are configured at all (a bench setup); otherwise any valid token."""
     if open_reads(shore.settings):
@@ -134,10 +132,11 @@ def require_read(shore: ShoreDep, request: Request, credentials: Credentials) ->
     return _actor(shore, request, credentials, "a bearer token")
 
 
+@raises(Unauthorized, Forbidden, TooMany)
 def require_write(shore: ShoreDep, request: Request, credentials: Credentials) -> Actor:
     found = _actor(shore, request, credentials, "an operator's bearer token")
     if found.role is not Role.WRITE:
-        raise HTTPException(status.HTTP_403_FORBIDDEN, "this token may only read")
+        raise Forbidden("this token may only read")
     return found
 
 

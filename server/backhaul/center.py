@@ -72,6 +72,7 @@ from server.backhaul.subjects import (
     EventMessage,
     PayloadError,
     ScheduleMessage,
+    WithdrawMessage,
 )
 
 if TYPE_CHECKING:
@@ -539,9 +540,9 @@ class Center:
         except (NatsError, TimeoutError) as exc:  # its next heartbeat tries again
             log.warning("backhaul: gateway %s's consumers not made: %s", heartbeat.gateway, exc)
 
-    async def send_command(self, command: CommandMessage) -> bool:
-        """Publish a signed command frame to its gateway (its id the message id); False if JetStream
-        already had it (a retry within the duplicate window)."""
+    async def send_command(self, command: CommandMessage | WithdrawMessage) -> bool:
+        """Publish a signed command frame, or the withdrawal of one, to its gateway (its id the message
+        id); False if JetStream already had it (a retry within the duplicate window)."""
         assert self.js is not None, "connect() first"
         ack = await self.js.publish(
             self.deployment.subject(subjects.commands(command.gateway)),

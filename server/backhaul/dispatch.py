@@ -50,7 +50,14 @@ from gateway.queue import FrameKind
 from gateway.slots import ATTEMPT_AIRTIME, SYNC_WINDOW, Schedule, SlotPlan
 from server.backhaul import subjects
 from server.backhaul.budget import Publish, SyncBudgets
-from server.backhaul.subjects import CommandMessage, EventMessage, GatewayState, ScheduleMessage
+from server.backhaul.subjects import (
+    CommandMessage,
+    EventMessage,
+    GatewayState,
+    ScheduleMessage,
+    WithdrawMessage,
+    WithdrawReason,
+)
 from server.commands.models import CommandRecord, CommandState, Origin, StepSource
 from server.commands.service import CommandDesk
 from server.core.config import Settings
@@ -61,13 +68,19 @@ from server.routing.models import Dispatch, DispatchState
 from server.routing.service import Route, Routing
 from server.vehicles.models import Vehicle
 from tacit import auth
+from tacit.packets import Command
 
 log = logging.getLogger("tacit.backhaul.dispatch")
 
 Kept = Callable[[], Awaitable[list[ScheduleMessage]]]  # the last schedule the stream keeps per gateway
-FINAL = {"acked": DispatchState.ACKED, "failed": DispatchState.FAILED, "expired": DispatchState.EXPIRED}
+FINAL = {
+    "acked": DispatchState.ACKED, "failed": DispatchState.FAILED, "expired": DispatchState.EXPIRED,
+    "withdrawn": DispatchState.WITHDRAWN,
+}  # fmt: skip
+UNSENT = ("withdrawn", "expired")  # a gateway's final word of a frame it never sent
 STEP = {"stored": DispatchState.STORED, "sent": DispatchState.SENT, "acked": DispatchState.SENT}
 SYNC_LEAD = 1.0  # s: a SYNC published now reaches its gateway before a slot opening this much later
+OWN_SHARE = 4.0  # a vehicle's own gateway polls it this many times as often as each other gateway
 
 
 class Dispatcher:
@@ -93,10 +106,16 @@ class Dispatcher:
         self.tick = tick
         self.coordinating = coordinating  # this process runs the routing, the slots and the SYNC budgets
         self.decoding = decoding  # by address: this process decodes the vehicle, its lease fresh
-        self.handed: tuple[tuple[str, ...], tuple[int, ...]] = ((), ())  # the last schedule's gateways, polls
+        # the last schedule's gateways, polls and (address, gateway, share) of each vehicle
+        self.handed: tuple[tuple[str, ...], tuple[int, ...], tuple[tuple[int, str, float], ...]] = (
+            (),
+            (),
+            (),
+        )
         self.kept = kept
         self.inherited: tuple[float, set[str], float] | None = None  # (read at, gateways, slot) of kept plans
         self._published: set[str] = set()  # dispatches published by this process
+        self._withdrawn: set[str] = set()  # dispatches this process withdrew (their commands cancelled)
         self.slots = Schedule()  # the TDMA frames handed out: when each gateway transmits next
         self._last_sync: dict[int, tuple[str, Sync]] = {}  # by address: the last SYNC sent, its message id
         self._answer_at: dict[int, float] = {}  # by address: the stamp of the last SYNC answering a challenge
@@ -136,12 +155,13 @@ class Dispatcher:
         now = time.time() if now is None else now
         coordinating = self.coordinating()
         if coordinating:
+            await self._withdraw(now)
             for refuted in await asyncio.to_thread(self.routing.audit, now):
                 await asyncio.to_thread(self._refuted, refuted)
             await asyncio.to_thread(self.routing.update, now)
         routes = await asyncio.to_thread(self.routing.routes, now)
         if coordinating:
-            await self._schedule(now, tuple(sorted(r.vehicle.address for r in routes)))
+            await self._schedule(now, routes)
         else:
             await self._follow(now)
         await self._syncs(routes)
@@ -256,12 +276,14 @@ class Dispatcher:
         gateway taken for down, for the next one to try."""
         if self._stale(latest, vehicle.address):
             await asyncio.to_thread(self.routing.set_dispatch, latest.id, DispatchState.SUPERSEDED)
+            await self.withdraw(latest, WithdrawReason.SUPERSEDED)  # before the new frame is there
             log.info(
                 "vehicle %s: dispatch %s signed before its answering SYNC: anew", vehicle.name, latest.id
             )
             await self._dispatch(command, vehicle, latest.gateway, tries + 1, now)
             return True
         if await self._overdue(latest, now):
+            await self.withdraw(latest, WithdrawReason.SUPERSEDED)  # the next gateway sends it, not both
             return False
         if latest.state == DispatchState.PUBLISHED and latest.id not in self._published:
             await self._publish(latest, command, vehicle)  # a restart cut it: the same id
@@ -309,6 +331,7 @@ class Dispatcher:
         if frame is None:  # cancelled by an operator since it was chosen: never published
             await asyncio.to_thread(self.routing.set_dispatch, row.id, DispatchState.WITHDRAWN)
             return
+        stops = Command[command.command.upper()].stops
         message = CommandMessage(
             row.id,
             row.gateway,
@@ -318,9 +341,18 @@ class Dispatcher:
             ack_timeout=self.ack_timeout(),
             expires_at=time.time() + subjects.COMMAND_MAX_AGE,
             start_by=row.start_by,
+            kind=FrameKind.STOP if stops else FrameKind.COMMAND,
+            rank=command.seq,  # the vehicle's commands in the order queued
         )
         await self.publish(subjects.commands(row.gateway), message.encode(), row.id)
         self._published.add(row.id)
+
+    async def withdraw(self, dispatch: Dispatch, reason: WithdrawReason) -> None:
+        """Take back the frame of ``dispatch`` from its gateway (it sends it no more). The broker keeps one
+        withdrawal per dispatch: asking twice is harmless."""
+        message = WithdrawMessage(subjects.withdraw_id(dispatch.id), dispatch.gateway, dispatch.id, reason)
+        await self.publish(subjects.commands(dispatch.gateway), message.encode(), message.id)
+        log.info("dispatch %s withdrawn from %s (%s)", dispatch.id, dispatch.gateway, reason)
 
     def ack_timeout(self) -> float:
         """The ACK wait that fits a slot with the attempt's airtime (faster in a faster simulation) and
@@ -339,10 +371,12 @@ class Dispatcher:
         else:
             await asyncio.to_thread(self.routing.seen, event.gateway, at)
         if event.kind == "attempt":
-            await asyncio.to_thread(self._attempt, event)
+            for other in await asyncio.to_thread(self._attempt, event):
+                await self.withdraw(other, WithdrawReason.ACKNOWLEDGED)
 
-    def _attempt(self, event: EventMessage) -> None:
-        """A gateway's attempt report, into the dispatch and the command's lifecycle."""
+    def _attempt(self, event: EventMessage) -> list[Dispatch]:
+        """A gateway's attempt report, into the dispatch and the command's lifecycle; the dispatches to
+        withdraw since (the command's others, once one is acknowledged)."""
         detail = event.detail
         outcome = str(detail.get("outcome", ""))
         final = bool(detail.get("final"))
@@ -351,21 +385,62 @@ class Dispatcher:
         if subjects.is_sync(str(detail.get("command", ""))):
             if final and outcome in ("expired", "failed"):
                 self._sync_lost(str(detail["command"]), expired=outcome == "expired")
-            return  # sent: the next check-point says whether it arrived
+            return []  # sent: the next check-point says whether it arrived
         report = self.routing.report(str(detail.get("command", "")), state, attempt, event.gateway)
         if report is None or report.foreign:
-            return  # unknown, or another gateway's dispatch (logged and counted by the routing)
+            return []  # unknown, or another gateway's dispatch (logged and counted by the routing)
         if report.dispatch.state == DispatchState.SUPERSEDED:
-            return  # its frame, refused by the vehicle, says nothing of the command
+            return []  # its frame, refused by the vehicle, says nothing of the command
         command, _ = self.desk.get(report.dispatch.command_id)
         said = Origin(StepSource.GATEWAY, event.gateway)
         if report.fresh_attempt:
+            lost = (
+                ": on the air before its withdrawal, the cancel lost"
+                if command.status == CommandState.CANCELLING
+                else ""
+            )
             self.desk.said(
-                said, command, CommandState.SENT, f"attempt {command.attempts + 1} via {event.gateway}",
+                said, command, CommandState.SENT, f"attempt {command.attempts + 1} via {event.gateway}{lost}",
                 at=event.at, attempts=command.attempts + 1,
             )  # fmt: skip
+        elif final and outcome in UNSENT and command.status == CommandState.CANCELLING:
+            self.desk.said(
+                said, command, CommandState.CANCELLED, f"withdrawn from {event.gateway}: never sent"
+            )
         if final and outcome == "acked":
             self.desk.said(said, command, CommandState.ACKNOWLEDGED, f"via {event.gateway}", at=event.at)
+            return self._others(report.dispatch)
+        return []
+
+    def _others(self, acked: Dispatch) -> list[Dispatch]:
+        """The command's other dispatches still held at gateways, superseded: acknowledged through
+        ``acked``'s gateway, they are withdrawn (no other gateway sends the frame again)."""
+        others = [d for d in self.routing.dispatches(acked.command_id) if d.id != acked.id and not d.final]
+        for other in others:
+            self.routing.set_dispatch(other.id, DispatchState.SUPERSEDED)
+        return others
+
+    async def _withdraw(self, now: float) -> None:
+        """The frames of the commands being cancelled taken back from the gateways that hold them (a
+        ``WithdrawMessage`` each, once; their words end the cancels, ``_attempt``); one a gateway never
+        stored before its ``start_by`` it never sends: cancelled at once."""
+        for command in await asyncio.to_thread(self.desk.cancelling):
+            for dispatch in await asyncio.to_thread(self.routing.dispatches, saved_id(command)):
+                if dispatch.state == DispatchState.PUBLISHED and now > dispatch.start_by:
+                    detail = f"{dispatch.gateway} never had it in time: never sent"
+                    shore = Origin(StepSource.SHORE)
+                    await asyncio.to_thread(self.desk.said, shore, command, CommandState.CANCELLED, detail)
+                elif not dispatch.final and dispatch.id not in self._withdrawn:
+                    message = WithdrawMessage(subjects.withdraw_id(dispatch.id), dispatch.gateway, dispatch.id,
+                                              WithdrawReason.CANCELLED)  # fmt: skip
+                    await self.publish(subjects.commands(dispatch.gateway), message.encode(), message.id)
+                    self._withdrawn.add(dispatch.id)
+                    log.info(
+                        "command %d: %s withdrawn from %s (cancelled)",
+                        command.id,
+                        dispatch.id,
+                        dispatch.gateway,
+                    )
 
     def _refuted(self, dispatch: Dispatch) -> None:
         """A gateway's ACK the vehicle's check-points refute: the command is the link's again (sent, not
@@ -376,26 +451,31 @@ class Dispatcher:
 
     # --- slots -----------------------------------------------------------------------------------
 
-    async def _schedule(self, now: float, polls: tuple[int, ...]) -> None:
-        """Hand the live gateways a new TDMA frame when they (or the vehicles they poll) change; it
-        starts two slots from now, so every gateway has it before it applies. Every gateway polls every
-        vehicle in its slots: each one's answers score the gateways that hear it."""
+    async def _schedule(self, now: float, routes: list[Route]) -> None:
+        """Hand the live gateways a new TDMA frame when they (or the vehicles they poll, or whose gateway
+        each vehicle has) change; it starts two slots from now, so every gateway has it before it
+        applies. Every gateway polls every vehicle in its slots (each one's answers score the gateways
+        that hear it); a vehicle's own gateway polls it ``OWN_SHARE`` times as often as the others, each
+        by the vehicle's share."""
         inherited, lead = await self._inherited(now)
         order = tuple(sorted(await asyncio.to_thread(self.routing.alive, now) | inherited))
-        if (order, polls) == self.handed or not order:
+        polls = tuple(sorted(r.vehicle.address for r in routes))
+        owners = tuple(sorted((r.vehicle.address, r.gateway or "", r.vehicle.share) for r in routes))
+        if (order, polls, owners) == self.handed or not order:
             return
         slot = self.settings.tdma_slot
         epoch = math.ceil((now + max(slot, lead)) / slot) * slot
         plan = hashlib.sha256(
-            repr((epoch, slot, self.settings.tdma_guard, order, polls)).encode()
+            repr((epoch, slot, self.settings.tdma_guard, order, polls, owners)).encode()
         ).hexdigest()
         self.slots.receive(SlotPlan(epoch, slot, self.settings.tdma_guard, order), now)
         for gateway in order:  # the id names the plan: another plan from the same epoch is not a duplicate
+            shares = tuple((a, share * (OWN_SHARE if own == gateway else 1.0)) for a, own, share in owners)
             message = ScheduleMessage(f"schedule-{plan[:16]}-{gateway}", gateway, epoch, slot,
-                                      self.settings.tdma_guard, order, polls)  # fmt: skip
+                                      self.settings.tdma_guard, order, polls, shares)  # fmt: skip
             await self.publish(subjects.schedule(gateway), message.encode(), message.id)
         log.info("schedule: %d gateways, %.1f s slots from %.0f, polling %s", len(order), slot, epoch, polls)
-        self.handed = (order, polls)
+        self.handed = (order, polls, owners)
 
     async def _follow(self, now: float) -> None:
         """A process that does not hand out the slots reads them from the stream, once a slot: it stamps

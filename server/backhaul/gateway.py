@@ -66,6 +66,7 @@ from tacit import modem as mm
 from tacit.packets import Command, ControlFlag, PacketError, decode_control
 
 log = logging.getLogger("tacit.backhaul.gateway")
+PING_INTERVAL = 300.0  # s: a ping holds a slot of its own; a vehicle's range changes slowly
 
 
 class Gateway:
@@ -81,9 +82,11 @@ class Gateway:
         address: int | None = None,
         deployment: Deployment = UNNAMED,
         timing: Timing | None = None,
+        ping_interval: float = PING_INTERVAL,
     ) -> None:
         """``place``: where its modem is (the screens show it); ``address``: its modem's; ``deployment``:
-        the split shore it belongs to on its broker; ``timing``: its MAC's exchange durations."""
+        the split shore it belongs to on its broker; ``timing``: its MAC's exchange durations;
+        ``ping_interval``: s between two pings of a vehicle of the highest share (``gateway.queue``)."""
         self.outbox = outbox
         self.auth = auth or BrokerAuth()
         self.deployment = deployment
@@ -102,7 +105,7 @@ class Gateway:
         self.outage: Outage | None = None  # the last outage, said in every heartbeat after it
         self._beat_now = asyncio.Event()  # a heartbeat at once: the backhaul came back
         self.schedule = Schedule()  # the center's TDMA frames; none: transmit at will
-        self.queue = Queue(timing or Timing(), self._report)
+        self.queue = Queue(timing or Timing(), self._report, ping_interval)
         self.mac = (
             None if driver is None else Mac(self.name, driver, self.queue, self.schedule, self.queue.timing)
         )
@@ -226,10 +229,12 @@ class Gateway:
             self.mac.wake()
 
     def _withdraw(self, withdrawal: WithdrawMessage) -> None:
-        """The center took a frame back: not sent again (its end reported ``withdrawn`` if it was held)."""
+        """The center took a frame back: not sent again (its end reported ``withdrawn`` if it was held; one
+        that ended already keeps its end)."""
         log.info("gateway %s: %s withdrawn (%s)", self.name, withdrawal.command, withdrawal.reason)
-        if not self.queue.withdraw(withdrawal.command):
-            self.outbox.set_command(withdrawal.command, Outcome.WITHDRAWN)
+        held = self.queue.withdraw(withdrawal.command)
+        if not held and any(c.id == withdrawal.command for c in self.outbox.commands("stored")):
+            self.outbox.set_command(withdrawal.command, Outcome.WITHDRAWN)  # kept, not sent (no modem)
 
     async def _run_mac(self, mac: Mac) -> None:
         await self._planned.wait()  # not a transmission at will before the slots it may already have
@@ -294,6 +299,8 @@ class Gateway:
                 SlotPlan(schedule.epoch, schedule.slot, schedule.guard, schedule.order), time.time()
             )
             self.queue.poll(schedule.poll)
+            for address, share in schedule.shares:
+                self.queue.share(address, share)
             if self.mac is not None:
                 self.mac.wake()
         except (PayloadError, ValueError) as exc:
@@ -399,7 +406,7 @@ class Gateway:
             self.address,
             self.place,
             self.outage,
-            link=None if self.mac is None else self.mac.status.detail(),
+            link=None if self.mac is None else self.mac.detail(),
         )
 
 
@@ -451,6 +458,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--modem-address", type=int, default=0, help="the shore modem's address (default 0)")
     parser.add_argument("--modem-log", default=None, help="append the modem's sentences to this file")
     parser.add_argument(
+        "--ping-interval",
+        type=float,
+        default=PING_INTERVAL,
+        help="s between two ranging pings of a vehicle routed through this gateway (others: in proportion "
+        "to their share; default %(default)s)",
+    )
+    parser.add_argument(
         "--time-scale",
         type=float,
         default=1.0,
@@ -498,7 +512,7 @@ def run(args: argparse.Namespace) -> int:
         gateway = Gateway(
             outbox, args.nats, driver, auth=auth, place=args.position,
             address=args.modem_address if driver else None, deployment=deployment,
-            timing=Timing(time_scale=args.time_scale),
+            timing=Timing(time_scale=args.time_scale), ping_interval=args.ping_interval / args.time_scale,
         )  # fmt: skip
         await gateway.start()
         log.info(

@@ -292,7 +292,9 @@ class ScheduleMessage:
     """The TDMA frame of the gateways sharing one band (``gateway.slots.SlotPlan``): slot ``k``
     begins at ``epoch + k * slot`` (UNIX s) and belongs to ``order[k % len(order)]``; a gateway starts a
     transmission ``guard`` s after its slot begins at the earliest and has it answered ``guard`` s before
-    the slot ends. ``poll``: the vehicles' modem addresses the gateway polls in its slots, in turn."""
+    the slot ends. ``poll``: the vehicles' modem addresses the gateway polls in its slots, each by its share
+    (``shares``: the vehicles the center routes through this gateway weigh more: their own gateway polls
+    them more often than the others do)."""
 
     id: str
     gateway: str
@@ -301,9 +303,11 @@ class ScheduleMessage:
     guard: float
     order: tuple[str, ...]
     poll: tuple[int, ...] = ()
+    shares: tuple[tuple[int, float], ...] = ()  # (address, share) of the polled vehicles; 1 when not said
 
     def encode(self) -> bytes:
-        return _dump({**asdict(self), "order": list(self.order), "poll": list(self.poll)})
+        body = {**asdict(self), "order": list(self.order), "poll": list(self.poll)}
+        return _dump({**body, "shares": {str(a): share for a, share in self.shares}})
 
     @classmethod
     def decode(cls, data: bytes) -> ScheduleMessage:
@@ -317,6 +321,9 @@ class ScheduleMessage:
                 guard=float(body["guard"]),
                 order=tuple(str(name) for name in body["order"]),
                 poll=tuple(int(address) for address in body.get("poll", ())),
+                shares=tuple(
+                    (int(a), _positive(share)) for a, share in dict(body.get("shares") or {}).items()
+                ),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise PayloadError(f"a schedule without {exc}") from exc
@@ -472,4 +479,11 @@ def _finite(value: Any) -> float:
     number = float(value)
     if not math.isfinite(number):
         raise ValueError(f"a number: {value!r}")
+    return number
+
+
+def _positive(value: Any) -> float:
+    number = _finite(value)
+    if number <= 0:
+        raise ValueError(f"a positive number: {value!r}")
     return number

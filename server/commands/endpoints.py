@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, Query
+from fastapi import APIRouter, Depends, Query, Response
 
 from server.api.deps import CommandsDep, Id, Offset, Writer, require_read
-from server.commands.models import CommandRecord, CommandStep
+from server.commands.models import CommandRecord, CommandState, CommandStep
 from server.commands.schemas import (
     CommandDetail,
     CommandIn,
@@ -15,6 +15,8 @@ from server.commands.schemas import (
     FleetCommandIn,
     FleetCommandsOut,
 )
+from server.core import errors
+from server.core.errors import Conflict
 
 router = APIRouter(prefix="/api/v1", tags=["commands"])
 
@@ -66,14 +68,20 @@ def get_command(command_id: Id, desk: CommandsDep) -> CommandDetail:
 @router.post(
     "/commands/{command_id}/cancel",
     response_model=CommandDetail,
-    responses={409: {"description": "too late: it was signed for transmission, or is past queued; the "
-                     "detail says which, and the command goes on as sent"}},
+    responses={
+        202: {"model": CommandDetail, "description": "cancelling: withdrawn from the gateway that holds it; "
+              "its word ends it, cancelled (it had not sent it) or sent (the cancel lost)"},
+        **errors.responses(Conflict),
+    },
 )  # fmt: skip
-def cancel_command(command_id: Id, desk: CommandsDep, actor: Writer) -> CommandDetail:
+def cancel_command(command_id: Id, desk: CommandsDep, actor: Writer, response: Response) -> CommandDetail:
     """Take back a queued command: it ends ``cancelled`` (the history says by whom and when) and is never
-    sent. 409 with the reason when it lost the race with a transmission (signed for one already: on the
-    air, or handed to a gateway): it goes on as sent, and its status says how it went."""
-    desk.cancel(command_id, actor.name)
+    sent (200). Through gateways, one a gateway holds already is withdrawn from it (202, ``cancelling``):
+    the gateway's word ends it, ``cancelled`` if it had not sent it, else it goes on as sent (the event
+    stream and ``GET /commands/{id}`` say which). 409 with the reason when it lost the race with a
+    transmission: it goes on as sent."""
+    if desk.cancel(command_id, actor.name).status == CommandState.CANCELLING:
+        response.status_code = 202
     command, steps = desk.get(command_id)
     return CommandDetail(**_out(command).model_dump(), history=_steps(steps))
 

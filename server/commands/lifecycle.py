@@ -6,6 +6,8 @@ report means for them. Pure rules, no I/O.
     queued / sent -> failed (no ACK after the configured attempts); superseded (a newer command
     replaced it before it ran)
     queued -> cancelled (an operator took it back before it was signed for transmission; final)
+    queued -> cancelling (one a gateway holds: withdrawn from it) -> cancelled (the gateway had not sent
+           it), or sent / acknowledged / failed (it had: the cancel lost, it goes on as sent)
 
 The states from the vehicle win over the modem's: a check-point that says "executed" is final even if
 a late ACK arrives afterwards. A failed command that a check-point shows ran after all becomes what
@@ -24,7 +26,8 @@ NOT_STARTED = (*PENDING, CommandState.ACKNOWLEDGED)  # the vehicle has not said 
 FINAL = frozenset({CommandState.EXECUTED, CommandState.REFUSED, CommandState.SUPERSEDED})
 _FROM_VEHICLE = frozenset({CommandState.EXECUTING, *FINAL})
 NEXT: Mapping[CommandState, frozenset[CommandState]] = {
-    CommandState.QUEUED: frozenset({CommandState.SENT, CommandState.FAILED, CommandState.CANCELLED, *_FROM_VEHICLE}),
+    CommandState.QUEUED: frozenset({CommandState.SENT, CommandState.FAILED, CommandState.CANCELLING, CommandState.CANCELLED, *_FROM_VEHICLE}),
+    CommandState.CANCELLING: frozenset({CommandState.CANCELLED, CommandState.SENT, CommandState.ACKNOWLEDGED, CommandState.FAILED, *_FROM_VEHICLE}),
     CommandState.SENT: frozenset({CommandState.SENT, CommandState.ACKNOWLEDGED, CommandState.FAILED, *_FROM_VEHICLE}),
     # sent again when no check-point confirmed it (the modem ACKs even when the vehicle's host is down)
     CommandState.ACKNOWLEDGED: frozenset({CommandState.SENT, *_FROM_VEHICLE}),

@@ -22,7 +22,9 @@ class CommandState(enum.StrEnum):
     REFUSED = "refused"
     SUPERSEDED = "superseded"
     FAILED = "failed"
-    CANCELLED = "cancelled"  # by an operator while queued, never signed for transmission: never sent
+    CANCELLING = "cancelling"  # an operator's cancel of a command a gateway holds: withdrawn from it,
+    # waiting for its word (cancelled if it had not sent it; else it goes on as sent)
+    CANCELLED = "cancelled"  # by an operator while queued: never sent
 
 
 class StepSource(enum.StrEnum):
@@ -44,9 +46,6 @@ class Origin:
 
     source: StepSource
     via: str = ""
-
-    def __str__(self) -> str:
-        return f"{self.source.value} {self.via}".strip()
 
 
 class CommandRecord(SQLModel, table=True):

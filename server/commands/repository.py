@@ -98,6 +98,14 @@ def cancel(s: Session, command_id: int | None, by: str) -> bool:
     return True
 
 
+def with_status(s: Session, status: CommandState) -> list[CommandRecord]:
+    return list(
+        s.exec(
+            select(CommandRecord).where(CommandRecord.status == status.value).order_by(col(CommandRecord.id))
+        )
+    )
+
+
 def queued(s: Session, vehicle_id: int) -> list[CommandRecord]:
     """The vehicle's commands not yet sent once, oldest first."""
     query = select(CommandRecord).where(

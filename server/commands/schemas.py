@@ -129,7 +129,8 @@ class CommandStepOut(BaseModel):
     """One step of a command's life, oldest first: queued; sent (one row per attempt, detail
     "attempt N"); acknowledged (the vehicle's modem ACKed); executing, executed, refused (with the vehicle's
     reason), superseded (from the vehicle's check-points, with ``report``); failed (detail: why);
-    cancelled (detail "by <operator>", ``via`` the operator, ``at`` when)."""
+    cancelled (detail "by <operator>", ``via`` the operator, ``at`` when; through gateways, cancelling
+    first, then the gateway's word: cancelled "withdrawn from <gateway>: never sent", or sent)."""
 
     status: CommandState
     detail: str = Field(

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import replace
@@ -177,6 +178,8 @@ def _uncancellable(command: CommandRecord) -> str:
         )
     if command.status in (CommandState.SENT, CommandState.ACKNOWLEDGED, CommandState.EXECUTING):
         return f"command {command.id} (seq {command.seq}) is {command.status} already: it goes on as sent"
+    if command.status == CommandState.CANCELLING:
+        return f"command {command.id} (seq {command.seq}) is being withdrawn from its gateway already"
     return f"command {command.id} (seq {command.seq}) is {command.status}: nothing left to cancel"
 
 
@@ -262,8 +265,21 @@ class CommandDesk:
     the vehicle's limits and its last reported pose, queued in one transaction, announced, and the link
     woken to send it. Also the commands' reads."""
 
-    def __init__(self, db: Engine, bus: Bus, pose: Callable[[int], Pose | None], max_queued: int) -> None:
+    def __init__(
+        self,
+        db: Engine,
+        bus: Bus,
+        pose: Callable[[int], Pose | None],
+        max_queued: int,
+        withdrawable: bool = False,
+    ) -> None:
+        """``withdrawable``: a signed command may still be taken back (a center: its gateways hold the
+        frames it hands them until they send them, and take a withdrawal); on a single shore a signed
+        command is on the air."""
         self.db = db
+        self.withdrawable = withdrawable
+        self._claims = threading.Lock()  # a single shore's: a cancel and a signing, one at a time
+        self._signed: set[int] = set()  # a single shore's commands signed for an attempt, not yet recorded
         self.bus = bus
         self.pose = pose  # by modem address: the last check-point's pose, if any
         self.max_queued = max_queued  # Settings.max_queued_commands
@@ -392,31 +408,54 @@ class CommandDesk:
             ) is not None, latest is not None and latest.status in IN_FLIGHT
 
     def frame(self, command: CommandRecord) -> bytes | None:
-        """The command signed now for its vehicle (``sign``) and kept with it, for a transmission; None if
-        an operator cancelled it meanwhile (it must not go). From here a cancel is refused."""
-        with writing(self.db) as s:
+        """The command signed now for its vehicle (``sign``), for a transmission; None if an operator
+        cancelled it meanwhile (it must not go). From here a cancel is refused. A center's processes share
+        the store, which decides (the frame kept with the command, ``repo.claim``); a single shore's one
+        process decides under its own lock, so that a transmission never waits for the store's writer."""
+        with reading(self.db) as s:
             frame = sign(command, vehicles.get(s, command.vehicle_id))
-            if not repo.claim(s, command.id, frame):
+        if self.withdrawable:
+            with writing(self.db) as s:
+                if not repo.claim(s, command.id, frame):
+                    return None
+                s.commit()
+            return frame
+        with self._claims:
+            with reading(self.db) as s:
+                current = repo.get(s, command.id)
+            if current is None or current.status == CommandState.CANCELLED:
                 return None
-            s.commit()
+            self._signed.add(saved_id(command))
         return frame
 
     def cancel(self, command_id: int, by: str) -> CommandRecord:
-        """An operator (``by``) takes back a queued command: it ends ``cancelled`` and is never sent.
-        ``Conflict`` (409) when it lost the race with a transmission: it was signed for one already (on the
-        air, or handed to a gateway), or is past queued; it goes on as sent."""
-        with writing(self.db) as s:
+        """An operator (``by``) takes back a queued command: never signed, it ends ``cancelled`` and is
+        never sent; at a center, one a gateway holds (signed, no attempt reported) is ``cancelling``: the
+        dispatcher withdraws it, and the gateway's word ends it (``cancelled`` if it had not sent it, else
+        it goes on as sent). ``Conflict`` (409) when it lost the race with a transmission: on the air, or
+        past queued; it goes on as sent."""
+        with self._claims, writing(self.db) as s:
             command = repo.get(s, command_id)
             if command is None:
                 raise NotFound(f"no command {command_id}", "command_id")
-            if not repo.cancel(s, command_id, by):
+            if command_id not in self._signed and repo.cancel(s, command_id, by):
+                status, detail = CommandState.CANCELLED, f"by {by}"
+            elif self.withdrawable and command.status == CommandState.QUEUED:
+                status, detail = CommandState.CANCELLING, f"by {by}: withdrawn from the gateway that holds it"
+                advance(s, command, status, detail, origin=Origin(StepSource.OPERATOR, by))
+            else:
                 raise Conflict(_uncancellable(command), "command_id")
             s.commit()
             command = repo.get(s, command_id)
         assert command is not None
-        log.info("command %d (seq %d) cancelled by %s", command_id, command.seq, by)
-        self.bus.publish(CommandChanged(command_id, command.seq, CommandState.CANCELLED, detail=f"by {by}"))
+        log.info("command %d (seq %d) %s by %s", command_id, command.seq, status, by)
+        self.bus.publish(CommandChanged(command_id, command.seq, status, detail=detail))
         return command
+
+    def cancelling(self) -> list[CommandRecord]:
+        """The commands whose cancel waits for a gateway's word."""
+        with reading(self.db) as s:
+            return repo.with_status(s, CommandState.CANCELLING)
 
     def unanswered(self, command_id: int | None) -> int:
         """Attempts since the command was last acknowledged: a command sent again because no check-point
@@ -460,6 +499,7 @@ class CommandDesk:
             ):
                 return False
             s.commit()
+        self._signed.discard(saved_id(command))  # its attempt recorded: its status says the rest
         self.bus.publish(CommandChanged(saved_id(command), command.seq, status, detail=detail))
         return True
 

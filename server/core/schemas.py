@@ -18,10 +18,11 @@ DB_INT_MAX = 2**31 - 1  # what every database's INTEGER holds: larger ids cannot
 
 
 class Problem(BaseModel):
-    """Every error's body: what is wrong, and the field at fault."""
+    """Every error's body: what is wrong, and the field at fault (``server.core.errors``)."""
 
     detail: str
     field: str | None = None
+    errors: list[dict[str, Any]] | None = None  # a request its schema refused: every fault found in it
 
 
 T = TypeVar("T")

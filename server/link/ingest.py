@@ -333,11 +333,6 @@ class Ingest:
             packet = packets.decode(chunk)
             if isinstance(packet, packets.ControlPacket):
                 raise PacketError("a control packet from a vehicle")
-            if isinstance(packet, PriorityPacket) and packet.version != v.protocol:
-                raise packets.OtherVersion(
-                    f"protocol version {packet.version}: {v.name} is registered as speaking version "
-                    f"{v.protocol} (its agent's protocol and its registration must agree)"
-                )
         except packets.OldVersion as exc:
             return self._old_version(batch, v, chunk, at, exc)
         except PacketError as exc:
@@ -395,12 +390,19 @@ class Ingest:
         return [heard, *events]
 
     def _old_version(
-        self, batch: Batch, v: VehicleState, chunk: bytes, at: float, exc: packets.OldVersion
+        self, batch: Batch, v: VehicleState, chunk: bytes, at: float, exc: packets.PacketError
     ) -> list[Event]:
-        """A packet of the previous protocol version, or samples in another version than the vehicle's
-        registered one: refused and counted; logged (and a ``bad_packet`` event stored) once per vehicle,
-        since such an agent sends nothing else until it or the registration is changed."""
+        """A packet of the previous protocol version: refused and counted; logged (and a ``bad_packet``
+        event stored) once per vehicle, since an old agent sends nothing else until it is updated."""
         self.stats["rejected"] += 1
+        return self._other_version(batch, v, chunk, at, exc)
+
+    def _other_version(
+        self, batch: Batch, v: VehicleState, chunk: bytes, at: float, exc: packets.PacketError
+    ) -> list[Event]:
+        """Counted, and logged (a ``bad_packet`` event stored) once per vehicle: a packet of version 2,
+        or samples in another version than the vehicle's registered one (stored, not decoded: the
+        agent's protocol and the registration must agree)."""
         self.stats["old_protocol"] += 1
         v.old_protocol += 1
         if v.old_protocol > 1:
@@ -503,6 +505,14 @@ class Ingest:
             del v.link.recent[max(v.link.recent, key=lambda q: (newest - q) % 256)]
         restart_every = self.settings.restart_min_interval / self.settings.time_scale
         late = v.last_heard is not None and row["at"] < v.last_heard  # heard before a frame stored already
+        if pp.version != v.protocol:  # stored and taken as any priority packet, its samples not decoded
+            error = PacketError(
+                f"protocol version {pp.version}: {v.name} is registered as speaking version {v.protocol} "
+                "(its agent's protocol and its registration must agree)"
+            )
+            events = self._other_version(batch, v, chunk, row["at"], error)
+            row["body"].update({"error": str(error)})
+            return packet_id, events
         decoded = decode(batch, v, pp, row["at"], packet_id, restart_every, late)
         row["body"].update(decoded.body)  # what decoding found (or why it could not)
         row["origin"] = decoded.origin

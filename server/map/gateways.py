@@ -10,9 +10,11 @@ from typing import Any
 
 import numpy as np
 
+from server.map.geometry import MIN_VIEW
 from server.screens import fleet
 
 GATEWAY_SIZE = (4.0, 4.0, 4.0)  # m: a gateway's marker, seen from a few hundred metres
+MARKER_SHRINK = 2.0  # its marker grows with the view, this many times less
 Rgb = tuple[int, int, int]
 Point = tuple[float, float, float]
 
@@ -47,6 +49,11 @@ class GatewayLayer:
         self.scene = scene
         self.colour = colour  # a vehicle's, by name
         self._links: dict[str, Any] = {}  # by vehicle name: the line to its gateway
+        self.scale = 1.0  # the markers' size: larger in a wide view, to be seen (``resize``)
+
+    def resize(self, seen: float) -> None:
+        """Size the markers for a view ``seen`` metres high (drawn so at the next ``draw``)."""
+        self.scale = max(1.0, seen / MIN_VIEW / MARKER_SHRINK)
 
     def draw(self, gateways: list[dict[str, Any]], vehicles: list[dict[str, Any]]) -> None:
         places: dict[str, Point] = {}
@@ -56,7 +63,11 @@ class GatewayLayer:
                 continue
             places[g["name"]] = here
             self.scene.add_box(
-                f"/gateways/{g['name']}", color=fleet.rgb(g["colour"]), dimensions=GATEWAY_SIZE, position=here
+                f"/gateways/{g['name']}",
+                color=fleet.rgb(g["colour"]),
+                dimensions=GATEWAY_SIZE,
+                position=here,
+                scale=self.scale,
             )
             self.scene.add_label(f"/gateways/{g['name']}/label", gateway_label(g), position=(0, 0, 3.0))
         for v in vehicles:

@@ -22,6 +22,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from server.commands.models import CommandState
 from server.commands.schemas import FLEET_COMMANDS, CommandIn
 from server.commands.service import CommandDesk
 from server.core.config import Settings
@@ -47,8 +48,7 @@ class MapOwner(Protocol):
     @property
     def estimate_cloud(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None: ...
 
-    @property
-    def view(self) -> tuple[Point, Point, float] | None: ...
+    def view_for(self, width: int | None, height: int | None) -> tuple[Point, Point, float] | None: ...
 
     def vehicle_names(self) -> list[str]: ...
 
@@ -72,13 +72,14 @@ FLEET_LABELS = {"abort_mission": "Abort all", "return_home": "Return all home", 
 assert set(FLEET_LABELS) == set(FLEET_COMMANDS), "a button for every fleet command"
 FLEET = "all:"  # a confirmation's prefix for an action that goes to every vehicle
 INPUTS = ("distance", "angle", "depth", "speed", "param_id", "param_value")
+ZOOM_OUT = 0.8  # the farthest the camera may zoom out, as a share of its far plane (the scene stays drawn)
 
 LEGEND = """\
 **In the scene** (x east, y north, z up; metres from the fleet's origin; opens top-down, north up, on every vehicle and gateway: **Fit all** returns there)
 - **red arrow from home**: north (N); **dark arrow**: east (E); grid: 5 m cells, 25 m sections
 - **depth scale**: the black line south-west of home, with its labels stepped aside
 - **fleet origin (0, 0)**: the one origin every vehicle's position is measured from (latitude, longitude when known)
-- **vehicle**: box in its colour (grey while overdue); **yellow arrow outlined in black** = its heading; label = name, state, heading, age of the report
+- **vehicle**: box in its colour (grey while overdue); **yellow arrow outlined in black** = its heading; label = name, state, age of the report (labels of vehicles close together are stacked, each joined to its vehicle by a thin line)
 - **line in the vehicle's colour**: the track it reported (check-points); the same colour as its row on the dashboard
 - **grey line**: the mission's planned waypoints; **thicker line in the vehicle's colour**: the path the separation check plans for it (queued commands, team lanes to come)
 - **dark grey outline**: a team mission's survey area (its name and state at its north-west corner), each member's lanes as a thin line in its colour
@@ -159,6 +160,10 @@ class OperatorPanel:
         self.pending_confirm: str | None = None
         self.last_sent: int | None = None
         self.estimate_handle: Any = None
+        self.unfitted = (
+            True  # the view is fitted to the fleet once, when both the fleet and the window are known
+        )
+        self.size: tuple[int, int] | None = None  # the browser's view in pixels, as its camera reports it
         self.form = command_form()
         self.ranges: dict[str, tuple[float, float]] = {}
         self._build()
@@ -292,6 +297,15 @@ class OperatorPanel:
         scene = getattr(self.client, "scene", None)
         if scene is not None and hasattr(scene, "on_click"):
             scene.on_click()(self.on_scene_click)
+        camera = getattr(self.client, "camera", None)
+        if camera is not None:
+            camera.on_update(self._camera_moved)
+
+    def _camera_moved(self, camera: Any) -> None:
+        """The browser reports its camera (and its view's size): the first time, the view is fitted."""
+        self.size = (camera.image_width, camera.image_height)
+        if self.unfitted:
+            self.fit_all()
 
     # --- sign-in -------------------------------------------------------------------------------
 
@@ -410,6 +424,11 @@ class OperatorPanel:
             command = self.map.desk.cancel(command_id, actor.name)
         except ApiError as exc:
             return self._status(f"**Not cancelled**: {exc.detail}")
+        if command.status == CommandState.CANCELLING:
+            return self._status(
+                f"Command #{command.id} seq {command.seq}: **cancelling**: withdrawn from the gateway that holds "
+                "it, cancelled unless that gateway sent it first"
+            )
         return self._status(f"Command #{command.id} seq {command.seq}: **cancelled**, never sent")
 
     def send_fleet(self, command: str) -> str:
@@ -493,9 +512,10 @@ class OperatorPanel:
         self._status(f"Target set: {command.distance:.1f} m, angle {angle:.1f} deg. Press **Send**.")
 
     def fit_all(self) -> None:
-        """Every vehicle and gateway in view (``OperatorMap.view``), the panel's side left free."""
-        view = self.map.view
+        """Every vehicle and gateway in view, for this browser's window, its panel's side left free."""
+        view = self.map.view_for(*(self.size or (None, None)))
         if view is not None:
+            self.unfitted = False
             self._look(view[0], view[1], PLAN_FOV, view[2])
 
     def top_down(self) -> None:
@@ -507,11 +527,12 @@ class OperatorPanel:
 
     def _look(self, position: Point, look_at: Point, fov: float, far: float | None = None) -> None:
         """Move this browser's camera; the far plane stays beyond the fitted view's (zooming out from a
-        close view must reach the whole fleet)."""
-        view = self.map.view
+        close view must reach the whole fleet), and zooming out stops short of it (``ZOOM_OUT``)."""
+        view = self.map.view_for(*(self.size or (None, None)))
         camera = self.client.camera
         with self.client.atomic():
             camera.far = far or (view[2] if view is not None else far_plane(position[2]))
+            camera.max_orbit_distance = ZOOM_OUT * camera.far
             camera.up_direction = (0.0, 0.0, 1.0)
             camera.fov = fov
             camera.position = position

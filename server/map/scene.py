@@ -62,8 +62,10 @@ log = logging.getLogger("tacit.server.map")
 RECENT_COMMANDS = 10
 PLANS_EVERY = 5.0  # s between drawings of the plans (each asks the separation check for every path)
 FIT_EVERY = 10.0  # s between fits of the temperature field
-LABELS_PER_VIEW = 30.0  # a label's height, as a share of the fitted view's (stacked labels are this apart)
 REFIT = 10.0  # m: the view is fitted again when the fleet's extent changes by this much
+PANEL_PX = 340  # the map's panel (viser's, at the right of the view): its width in pixels, with its margin
+LABEL_PX = 160  # room left at the right for the label of what is furthest east
+DEFAULT_ASPECT, DEFAULT_PANEL = 4 / 3, 0.35  # a view whose size is not known yet: narrow, a wide panel
 
 
 class OperatorMap:
@@ -98,8 +100,8 @@ class OperatorMap:
         self.colours: dict[str, str] = {}  # by vehicle name: as on the dashboard (server.screens.fleet)
         self.panels: dict[int, OperatorPanel] = {}  # by viser client id: one panel per browser
         self.last_pose: tuple[float, float] = (10.0, 10.0)  # north, east: where the views look
-        self.view: View | None = None  # the view fitted to the fleet (None before anything is placed)
-        self._fitted_to: tuple[tuple[float, float], ...] = ()
+        self.fitted: list[tuple[float, float]] = []  # (north, east) of every vehicle and gateway
+        self._fitted_to: tuple[tuple[int, int], ...] = ()
         self._gp_at = self._plans_at = 0.0
         self._handlers: dict[type[Event], Callable[[Any], None]] = {
             VehicleReported: self._reported,
@@ -161,8 +163,6 @@ class OperatorMap:
             return
         self.panels[client.client_id] = panel
         panel.scale_html.content = colour_scale(*(self.temperatures.range or (None, None)))
-        if self.view is not None:
-            panel.fit_all()
 
     def _gone(self, client: Any) -> None:
         self.panels.pop(client.client_id, None)
@@ -181,6 +181,18 @@ class OperatorMap:
     def focus(self) -> tuple[float, float]:
         """(north, east) the views centre on: the vehicle's last reported position."""
         return self.last_pose
+
+    def view_for(self, width: int | None, height: int | None) -> View | None:
+        """The top-down view showing every vehicle and gateway in a browser's view ``width`` x ``height``
+        pixels (unknown: a 4:3 one), the panel's ``PANEL_PX`` at its right left free; None before any is
+        known."""
+        if not self.fitted:
+            return None
+        aspect, panel = DEFAULT_ASPECT, DEFAULT_PANEL
+        if width and height:
+            aspect, panel = width / height, min(0.5, (PANEL_PX + LABEL_PX) / width)
+        position, look_at, _seen = fit(self.fitted, aspect=aspect, panel=panel)
+        return View(position, look_at, far_plane(position[2]))
 
     @property
     def suggestion(self) -> tuple[float, float] | None:
@@ -312,13 +324,18 @@ class OperatorMap:
         box = _box(points)
         if not points or box == self._fitted_to:
             return
-        self._fitted_to = box
-        position, look_at, seen = fit(points)
-        self.view = View(position, look_at, far_plane(position[2]))
-        self.vehicles.label_gap = seen / LABELS_PER_VIEW
-        self.vehicles.declutter()
+        self._fitted_to, self.fitted = box, points
+        _position, _look_at, seen = fit(points, aspect=DEFAULT_ASPECT, panel=DEFAULT_PANEL)
+        self.vehicles.resize(seen)
+        self.gateways.resize(seen)
         self.ground.cover(points)
-        self._look(self.server.initial_camera, *self.view)
+        self.ground.rescale(seen)
+        view = self.view_for(None, None)
+        if view is not None:
+            self._look(self.server.initial_camera, *view)
+        for panel in list(self.panels.values()):
+            if panel.unfitted and panel.size is not None:  # else when its camera first reports
+                panel.fit_all()
 
     @staticmethod
     def _look(camera: Any, position: Point, look_at: Point, far: float) -> None:
@@ -342,7 +359,7 @@ class View(NamedTuple):
     far: float
 
 
-def _box(points: list[tuple[float, float]]) -> tuple[tuple[float, float], ...]:
+def _box(points: list[tuple[float, float]]) -> tuple[tuple[int, int], ...]:
     """The points' bounding box, to ``REFIT`` metres: the view is refitted when it changes."""
     if not points:
         return ()

@@ -16,20 +16,22 @@ from typing import Any
 
 import numpy as np
 
-from server.map.geometry import stack
+from server.map.geometry import MIN_VIEW, stack
 from server.screens import states
 
 OVERDUE_COLOUR = (170, 170, 170)  # a vehicle's body while it is overdue (the dashboard greys its row)
 PREDICTED_COLOUR = (250, 150, 30)
 LABEL_HEIGHT = 1.2  # m above the vehicle
+LABELS_PER_VIEW = 22.0  # a label's height, as a share of the view's (stacked labels are this far apart)
+MARKER_SHRINK = 2.5  # a vehicle's marker grows with the view, this many times less (so neighbours stay apart)
 Rgb = tuple[int, int, int]
 
 
 def label_text(name: str, cp: dict[str, Any], age: float, overdue: bool) -> str:
-    """``rov1: holding, heading 90°, reported 12 s ago``; an overdue vehicle's says so."""
+    """``rov1: holding, 12 s ago`` (short: labels of a fleet seen from high above stay apart; the panel's
+    fleet list says the rest); an overdue vehicle's says so."""
     label, _hint = states.label(cp.get("state", ""))
-    late = " (OVERDUE: not heard as its schedule allows)" if overdue else ""
-    return f"{name}: {label}, heading {cp['heading']:.0f}°, reported {age:.0f} s ago{late}"
+    return f"{name}: {label}, {age:.0f} s ago" + (" (OVERDUE)" if overdue else "")
 
 
 class VehicleLayer:
@@ -39,7 +41,9 @@ class VehicleLayer:
         self._lock = threading.Lock()  # the event thread and the tick thread both move the nodes
         self._nodes: dict[str, dict[str, Any]] = {}
         self.places: dict[str, tuple[float, float]] = {}  # by name: (north, east) last reported
+        self.depths: dict[str, float] = {}  # by name: its depth last reported
         self.label_gap = 4.0  # m between stacked labels: set from the view (``OperatorMap.fit``)
+        self.scale = 1.0  # the markers' size: larger in a wide view, to be seen (``resize``)
 
     def checkpoint(self, name: str, cp: dict[str, Any]) -> None:
         """Move the vehicle to its check-point, turned to its heading."""
@@ -48,8 +52,17 @@ class VehicleLayer:
         node = self._node(name)
         node["frame"].position = (east, north, -depth)
         node["frame"].wxyz = (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
-        self.places[name] = (north, east)
+        self.places[name], self.depths[name] = (north, east), depth
         self.label(name, cp, 0.0)
+        self.declutter()
+
+    def resize(self, seen: float) -> None:
+        """Size the markers and space the labels for a view ``seen`` metres high."""
+        self.scale = max(1.0, seen / MIN_VIEW / MARKER_SHRINK)
+        self.label_gap = seen / LABELS_PER_VIEW
+        for node in list(self._nodes.values()):
+            for marker in node["markers"]:
+                marker.scale = self.scale
         self.declutter()
 
     def label(self, name: str, cp: dict[str, Any], age: float, overdue: bool = False) -> None:
@@ -58,21 +71,21 @@ class VehicleLayer:
         node["body"].color = OVERDUE_COLOUR if overdue else self.colour(name)
 
     def declutter(self) -> None:
-        """Stack the labels of vehicles closer than ``label_gap``: each label moved north of its vehicle
-        (in the vehicle's frame, turned back by its heading) with a leader line."""
+        """Stack the labels of vehicles closer than ``label_gap``: each label north of its vehicle as far as
+        it must go (``geometry.stack``), joined to it by a thin line in its colour. Labels stand in the
+        scene's frame, not the vehicle's: the vehicle's turn and size do not move them."""
         names = list(self.places)
         lifted = stack([self.places[n] for n in names], self.label_gap)
-        for name, (north, _east) in zip(names, lifted, strict=True):
+        for name, (north, east) in zip(names, lifted, strict=True):
             node = self._nodes[name]
-            rise = north - self.places[name][0]
-            w, _x, _y, z = node["frame"].wxyz
-            yaw = 2 * math.atan2(z, w)  # undo the body's turn: the label goes north on the map
-            offset = (rise * math.sin(yaw), rise * math.cos(yaw), LABEL_HEIGHT)
-            node["label"].position = offset
-            if rise > 0:
+            depth = self.depths[name]
+            node["label"].position = (east, north, -depth + LABEL_HEIGHT)
+            if north > self.places[name][0]:
                 node["leader"] = self.scene.add_line_segments(
-                    f"/vehicles/{name}/leader",
-                    np.array([[(0, 0, LABEL_HEIGHT), offset]], dtype=np.float32),
+                    f"/labels/{name}/leader",
+                    np.array(
+                        [[(east, self.places[name][0], -depth), (east, north, -depth)]], dtype=np.float32
+                    ),
                     self.colour(name),
                     thickness=0.04,
                 )
@@ -119,23 +132,35 @@ class VehicleLayer:
     def _make(self, name: str) -> dict[str, Any]:
         scene = self.scene
         frame = scene.add_frame(f"/vehicles/{name}", show_axes=False)
-        body = scene.add_box(f"/vehicles/{name}/body", color=self.colour(name), dimensions=(1.4, 0.9, 0.6))
+        body = scene.add_box(
+            f"/vehicles/{name}/body", color=self.colour(name), dimensions=(1.4, 0.9, 0.6), scale=self.scale
+        )
         # the heading: a bright arrow on a larger black one, which outlines it seen from above
-        scene.add_arrows(
+        outline = scene.add_arrows(
             f"/vehicles/{name}/heading_outline",
             np.array([[[0.5, 0, 0], [5.6, 0, 0]]], dtype=np.float32),
             (0, 0, 0),
             shaft_radius=0.4,
             head_radius=1.15,
             head_length=2.1,
+            scale=self.scale,
         )
-        scene.add_arrows(
+        heading = scene.add_arrows(
             f"/vehicles/{name}/heading",
             np.array([[[0.7, 0, 0.35], [5.1, 0, 0.35]]], dtype=np.float32),
             (255, 225, 0),
             shaft_radius=0.25,
             head_radius=0.8,
             head_length=1.6,
+            scale=self.scale,
         )
-        label = scene.add_label(f"/vehicles/{name}/label", name, position=(0, 0, LABEL_HEIGHT))
-        return {"frame": frame, "label": label, "body": body, "leader": None}
+        label = scene.add_label(
+            f"/labels/{name}", name, position=(0.0, 0.0, LABEL_HEIGHT), anchor="bottom-left"
+        )
+        return {
+            "frame": frame,
+            "label": label,
+            "body": body,
+            "markers": [body, outline, heading],
+            "leader": None,
+        }

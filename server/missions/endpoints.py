@@ -7,6 +7,8 @@ from fastapi import APIRouter, Depends
 
 from server.api.deps import Id, MissionsDep, TeamsDep, Writer, require_read, require_write
 from server.commands.schemas import CommandOut
+from server.core import errors
+from server.core.errors import Conflict
 from server.missions.models import Mission, ProposalStatus, TeamMission, TeamProposal
 from server.missions.schemas import MissionIn, MissionOut, ProposalOut, TeamIn, TeamOut
 
@@ -77,7 +79,9 @@ def get_team(team_id: Id, teams: TeamsDep) -> TeamOut:
     return _team(teams.get(team_id), teams)
 
 
-@router.post("/teams/{team_id}/start", status_code=202, response_model=TeamOut)
+@router.post(
+    "/teams/{team_id}/start", status_code=202, response_model=TeamOut, responses=errors.responses(Conflict)
+)
 def start_team(team_id: Id, teams: TeamsDep, actor: Writer) -> TeamOut:
     """Take each vehicle over (``abort_mission``, and ``set_param`` of its lost-link action if the team
     names another); its first leg follows when it reports it stopped. Refused (422, the team then
@@ -86,14 +90,21 @@ def start_team(team_id: Id, teams: TeamsDep, actor: Writer) -> TeamOut:
     return _team(teams.start(team_id, actor.name), teams)
 
 
-@router.delete("/teams/{team_id}", status_code=204, dependencies=[Depends(require_write)])
+@router.delete(
+    "/teams/{team_id}",
+    status_code=204,
+    dependencies=[Depends(require_write)],
+    responses=errors.responses(Conflict),
+)
 def delete_team(team_id: Id, teams: TeamsDep) -> None:
     """Delete a team mission that is not running (created, refused, aborted or finished) with its
     proposals; 409 while it runs (abort it first)."""
     teams.delete(team_id)
 
 
-@router.post("/teams/{team_id}/abort", status_code=202, response_model=TeamOut)
+@router.post(
+    "/teams/{team_id}/abort", status_code=202, response_model=TeamOut, responses=errors.responses(Conflict)
+)
 def abort_team(team_id: Id, teams: TeamsDep, actor: Writer) -> TeamOut:
     """Queue no more legs: each vehicle finishes the leg it has and holds."""
     return _team(teams.abort(team_id, actor.name), teams)
@@ -113,12 +124,19 @@ def proposals(teams: TeamsDep, status: ProposalStatus | None = None) -> list[Pro
     return [_proposal(p) for p in teams.proposals(None, status)]
 
 
-@router.post("/proposals/{proposal_id}/confirm", status_code=202, response_model=ProposalOut)
+@router.post(
+    "/proposals/{proposal_id}/confirm",
+    status_code=202,
+    response_model=ProposalOut,
+    responses=errors.responses(Conflict),
+)
 def confirm_proposal(proposal_id: Id, teams: TeamsDep, actor: Writer) -> ProposalOut:
     """Apply the proposal: each helper's leg to its new waypoint is queued (checked like any command)."""
     return _proposal(teams.confirm(proposal_id, actor.name))
 
 
-@router.post("/proposals/{proposal_id}/dismiss", response_model=ProposalOut)
+@router.post(
+    "/proposals/{proposal_id}/dismiss", response_model=ProposalOut, responses=errors.responses(Conflict)
+)
 def dismiss_proposal(proposal_id: Id, teams: TeamsDep, actor: Writer) -> ProposalOut:
     return _proposal(teams.dismiss(proposal_id, actor.name))

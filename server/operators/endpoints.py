@@ -5,6 +5,8 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends
 
 from server.api.deps import Id, OperatorsDep, Writer, require_write
+from server.core import errors
+from server.core.errors import Conflict
 from server.operators.models import Operator
 from server.operators.schemas import OperatorCreated, OperatorIn, OperatorOut
 
@@ -15,7 +17,9 @@ def _out(operator: Operator) -> OperatorOut:
     return OperatorOut.model_validate(operator, from_attributes=True)
 
 
-@router.post("/operators", status_code=201, response_model=OperatorCreated)
+@router.post(
+    "/operators", status_code=201, response_model=OperatorCreated, responses=errors.responses(Conflict)
+)
 def create_operator(body: OperatorIn, operators: OperatorsDep, actor: Writer) -> OperatorCreated:
     """A person's own token, which expires after ``expires_in_s`` (null: never), and never after the
     creator's own token (422 otherwise). The token is in this answer only: the shore keeps its hash, so a

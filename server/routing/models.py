@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import enum
 
+from sqlalchemy import JSON, Column
 from sqlmodel import AutoString, Field, SQLModel
 
 from server.core.db import now
@@ -69,6 +70,7 @@ class GatewayRecord(SQLModel, table=True):
     faulty_at: float | None = None  # when (the center's clock)
     foreign_reports: int = Field(default=0, sa_column_kwargs={"server_default": "0"})  # reports of
     # commands that went through another gateway: ignored, counted
+    mac: dict | None = Field(default=None, sa_column=Column(JSON, nullable=True))  # gateway.mac.Mac.detail
 
 
 class Assignment(SQLModel, table=True):

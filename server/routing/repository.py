@@ -8,7 +8,7 @@ from sqlalchemy import ColumnElement, case, func
 from sqlmodel import Session, col, select
 
 from server.backhaul.models import RelayedFrame
-from server.commands.models import CommandRecord
+from server.commands.models import CommandRecord, CommandState
 from server.core.db import now
 from server.routing.models import Assignment, Dispatch, DispatchState, GatewayRecord
 from server.telemetry.models import Packet, PacketTrust
@@ -98,10 +98,11 @@ def heard_through(s: Session, src: int, gateway: str, since: float) -> bool:
 
 
 def acked_since(s: Session, since: float) -> list[tuple[Dispatch, CommandRecord]]:
-    """The dispatches acked since ``since`` (the center's clock), with their commands."""
+    """The dispatches acked since ``since`` (the center's clock) whose commands no check-point has
+    moved on from acknowledged, with their commands."""
     query = select(Dispatch, CommandRecord).where(
         Dispatch.command_id == CommandRecord.id, Dispatch.state == DispatchState.ACKED,
-        col(Dispatch.updated_at) >= since,
+        col(Dispatch.updated_at) >= since, CommandRecord.status == CommandState.ACKNOWLEDGED,
     )  # fmt: skip
     return [(d, c) for d, c in s.exec(query.order_by(col(Dispatch.updated_at))).all()]
 

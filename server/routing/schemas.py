@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 from pydantic import BaseModel, Field
 
@@ -98,6 +99,11 @@ class GatewayOut(BaseModel):
     modem: str | None = Field(description="its modem's state (ready, not_responding, ...)")
     outbox: int | None = Field(description="messages waiting to go up, at its last heartbeat")
     last_outage: Outage | None = Field(description="its last backhaul outage; None: none since it started")
+    mac: dict[str, Any] | None = Field(
+        description="its MAC at its last heartbeat (docs/link.md): exchanges and outcomes by kind, airtime by "
+        'kind (s), late turns, why the plan in force is refused ("": it is not), and per vehicle address '
+        "the range it measured, the rate of its next poll, the SNR it heard, its share and polls; None: no modem"
+    )
     frames: int = Field(description="frames it relayed (every copy; the records retention keeps)")
     colour: str = Field(description="#rrggbb on both screens (server.screens.fleet)")
     vehicles: list[Assigned] = Field(description="the vehicles whose commands go through it")

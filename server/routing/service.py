@@ -99,6 +99,7 @@ class Routing:
                 row.beating_since = at
             place, outage = beat.place, beat.outage
             row.last_seen, row.address, row.modem, row.outbox = at, beat.address, beat.modem, beat.outbox
+            row.mac = beat.link
             row.north, row.east, row.depth = (
                 (place.north, place.east, place.depth) if place else (None, None, None)
             )
@@ -169,39 +170,19 @@ class Routing:
         ``gateway_quarantine`` s, and shown so) when
 
         * it reported a command acknowledged, and a verified check-point the vehicle stamped
-          ``ARRIVAL_SLACK`` s after the center took that report names an older command as its last
-          (the command never arrived): the dispatch is ``refuted``; these are returned, for their
-          commands to go again through another gateway;
+          ``ARRIVAL_SLACK`` s after the center took that report, and heard a frame of slots after it (a
+          check-point made before the command came has been sent at a poll by then), names an older command as
+          its last (the command never arrived): the dispatch is ``refuted``; these are returned, for
+          their commands to go again through another gateway;
         * it has held a command (stored or sent, no final outcome) for ``gateway_faulty_slots`` of its
           slots (a slot of each live gateway in turn), reported nothing of any command in that time, and
           nothing verified of the vehicle came through it: the dispatch is ``unanswered``, and the
           command goes through the next gateway."""
         now = time.time() if now is None else now
-        span = self.settings.gateway_faulty_slots * self.settings.tdma_slot * max(1, len(self.alive(now)))
-        refuted: list[Dispatch] = []
-        faults: list[tuple[str, str]] = []
+        frame = self.settings.tdma_slot * max(1, len(self.alive(now)))  # a slot of each live gateway
         with writing(self.db) as s:
-            for row, command in repo.acked_since(s, now - COMMAND_MAX_AGE):
-                last = _last_command(repo.checkpoints(s, command.vehicle_id, row.updated_at - COMMAND_MAX_AGE),
-                                     row.updated_at + ARRIVAL_SLACK)  # fmt: skip
-                if last is None or _arrived(last, command.seq):
-                    continue
-                repo.set_dispatch(s, row, DispatchState.REFUTED)
-                refuted.append(row)
-                faults.append((row.gateway, f"reported command {command.seq} acknowledged; the vehicle's "
-                               f"check-points since name command {last} as their last: it never arrived"))  # fmt: skip
-            for row, command in repo.held_since(s, now - span):
-                address = vehicle_repo.get(s, command.vehicle_id)
-                if (
-                    address is None
-                    or repo.reported_since(s, row.gateway, now - span)
-                    or repo.heard_through(s, address.address, row.gateway, now - span)
-                ):
-                    continue
-                repo.set_dispatch(s, row, DispatchState.UNANSWERED)
-                faults.append((row.gateway, f"held command {command.seq} for {span:.0f} s (its "
-                               f"{self.settings.gateway_faulty_slots} slots) without a word of it, nor a "
-                               f"verified frame of the vehicle"))  # fmt: skip
+            refuted, faults = self._refuted(s, now, max(ARRIVAL_SLACK, frame))
+            faults += self._held(s, now, self.settings.gateway_faulty_slots * frame)
             for gateway, why in faults:
                 repo.set_faulty(s, gateway, why, now)
             s.commit()
@@ -209,6 +190,41 @@ class Routing:
             log.error("gateway %s is faulty, routed around: %s", gateway, why)
             self._changed(gateway, "faulty")
         return refuted
+
+    @staticmethod
+    def _refuted(s: Tx, now: float, heard_after: float) -> tuple[list[Dispatch], list[tuple[str, str]]]:
+        """The ACKs of the commands still only acknowledged that a later verified check-point (heard
+        ``heard_after`` s after the report, stamped ``ARRIVAL_SLACK`` s after it) refutes: those
+        dispatches, and their gateways' faults."""
+        refuted, faults = [], []
+        for row, command in repo.acked_since(s, now - COMMAND_MAX_AGE):
+            checkpoints = repo.checkpoints(s, command.vehicle_id, row.updated_at + heard_after)
+            last = _last_command(checkpoints, row.updated_at + ARRIVAL_SLACK)
+            if last is None or _arrived(last, command.seq):
+                continue
+            repo.set_dispatch(s, row, DispatchState.REFUTED)
+            refuted.append(row)
+            faults.append((row.gateway, f"reported command {command.seq} acknowledged; the vehicle's "
+                           f"check-points since name command {last} as their last: it never arrived"))  # fmt: skip
+        return refuted, faults
+
+    def _held(self, s: Tx, now: float, span: float) -> list[tuple[str, str]]:
+        """The gateways that held a command for ``span`` s without a report of any command or a verified
+        frame of its vehicle: their dispatches unanswered, and their faults."""
+        faults = []
+        for row, command in repo.held_since(s, now - span):
+            vehicle = vehicle_repo.get(s, command.vehicle_id)
+            if (
+                vehicle is None
+                or repo.reported_since(s, row.gateway, now - span)
+                or repo.heard_through(s, vehicle.address, row.gateway, now - span)
+            ):
+                continue
+            repo.set_dispatch(s, row, DispatchState.UNANSWERED)
+            faults.append((row.gateway, f"held command {command.seq} for {span:.0f} s (its "
+                           f"{self.settings.gateway_faulty_slots} slots) without a word of it, nor a verified "
+                           "frame of the vehicle"))  # fmt: skip
+        return faults
 
     # --- assignment ------------------------------------------------------------------------------
 

@@ -22,7 +22,7 @@ from collections.abc import Sequence
 PALETTE = ("#0072b2", "#d55e00", "#009e73", "#cc79a7", "#e69f00", "#56b4e9", "#7a4a00", "#000000")
 #: A gateway's marker and its row: one dark colour per gateway (in order of name, none of the vehicles'
 #: colours) while its heartbeats come, light grey once it is silent.
-GATEWAYS = ("#333333", "#6a3d9a", "#8c510a", "#01665e", "#b2182b")
+GATEWAYS = ("#6a3d9a", "#8c510a", "#01665e", "#b2182b", "#333333")
 GATEWAY_SILENT = "#b0b0b0"
 OVERDUE_SLOTS = 3  # slots a vehicle may miss (a frame lost, a slot taken by a command) before it is greyed
 

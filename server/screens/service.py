@@ -234,6 +234,7 @@ class Screens:
             "latlon": None if place is None else self.latlon(place[0], place[1]),
             "address": r.address, "modem": r.modem or None, "outbox": r.outbox,
             "last_outage": None if outage is None else dict(zip(("lasted_s", "ended", "backlog"), outage, strict=True)),
+            "mac": r.mac,
             "frames": g.frames, "colour": fleet.gateway_colour(index, g.alive),
             "vehicles": [{"id": i, "name": name, "pinned": pinned} for i, name, pinned in g.vehicles],
             "faulty": g.faulty, "faulty_at": r.faulty_at, "foreign_reports": r.foreign_reports,

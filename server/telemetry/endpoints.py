@@ -77,9 +77,11 @@ its samples are."""
 
 
 def _headers(d: Dataset, suffix: str) -> dict[str, str]:
+    said = {} if d.predictable_until is None else {"Tacit-Predictable-Until": f"{d.predictable_until:.0f}"}
     return {
         "Content-Disposition": f"attachment; filename={d.spec.name}-{d.vehicle_id}.{suffix}",
         "Tacit-Error-Bounds": metadata.error_bounds(d.spec),
+        **said,
     }
 
 

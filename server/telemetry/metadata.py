@@ -56,6 +56,10 @@ TRUST_MEANINGS = {
     SampleTrust.FORGED: "its packet is not the one a check-point vouched for (left out unless "
     "include_forged=true)",
 }
+PREDICTABLE = (
+    "UNIX s: the vehicle's last verified check-point said every stream was predictable within its "
+    "error_bound up to then; a sample not in the file before it is one the vehicle did not send yet"
+)
 VERIFICATION = "; ".join(f"{trust.value}: {meaning}" for trust, meaning in TRUST_MEANINGS.items())
 
 
@@ -94,6 +98,9 @@ class Dataset:
     vehicle: str
     spec: StreamSpec
     about: About = About()
+    # the silence the vehicle's last verified check-point of the export's window said (version 4): every
+    # stream predictable within its error_bound up to then, UNIX s; None when none said it
+    predictable_until: float | None = None
 
 
 def units(channel: str) -> str:
@@ -189,6 +196,11 @@ def attributes(d: Dataset) -> Attributes:
         "stream_period_units": "s",
         "time_precision": d.spec.time_precision,  # half a period, or the stream's time tolerance
         "time_precision_units": "s",
+        **(
+            {}
+            if d.predictable_until is None
+            else {"predictable_until": d.predictable_until, "predictable_until_comment": PREDICTABLE}
+        ),
         "standard_name_vocabulary": STANDARD_NAME_VOCABULARY,
         "date_created": now,
         "history": f"{now} exported by Tacit",

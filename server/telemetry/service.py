@@ -100,6 +100,8 @@ class TelemetryReader:
         with reading(self.db) as s:
             vehicle = vehicles.get(s, vehicle_id)
             span = repo.sample_span(s, vehicle_id, stream)
+            said = repo.checkpoints(s, vehicle_id, 1, window.until)
+        mark = said[0].body.get("predictable_until") if said else None
         if span is None:
             raise Refused(f"vehicle {vehicle_id} has sent no {stream} samples yet", "stream")
         if (window.since or span[0]) > span[1] or (
@@ -123,7 +125,7 @@ class TelemetryReader:
             with reading(self.db) as s:
                 yield from repo.fixes(s, vehicle_id, window.since, window.until)
 
-        return Exported(Dataset(vehicle_id, vehicle.name, spec, self.about), rows(), fixes())
+        return Exported(Dataset(vehicle_id, vehicle.name, spec, self.about, mark), rows(), fixes())
 
 
 def whole(samples: Iterator[tuple[SampleRow, PacketTrust | None]]) -> Iterator[Sample]:

@@ -5,6 +5,8 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends
 
 from server.api.deps import Id, LinkDep, SafetyDep, VehiclesDep, require_read, require_write
+from server.core import errors
+from server.core.errors import Conflict
 from server.vehicles import keys
 from server.vehicles.models import Vehicle
 from server.vehicles.schemas import HomeIn, KeyIn, LimitsIn, ShareIn, VehicleCreated, VehicleIn, VehicleOut
@@ -21,7 +23,13 @@ def _created(vehicle: Vehicle) -> VehicleCreated:
     return VehicleCreated(**_out(vehicle).model_dump(), key=vehicle.key_hex)
 
 
-@router.post("", status_code=201, response_model=VehicleCreated, dependencies=[Depends(require_write)])
+@router.post(
+    "",
+    status_code=201,
+    response_model=VehicleCreated,
+    dependencies=[Depends(require_write)],
+    responses=errors.responses(Conflict),
+)
 def create_vehicle(body: VehicleIn, vehicles: VehiclesDep, link: LinkDep) -> VehicleCreated:
     vehicle = vehicles.create(body)
     link.vehicles_changed()
@@ -62,13 +70,23 @@ def set_home(vehicle_id: Id, body: HomeIn, vehicles: VehiclesDep, safety: Safety
     return _out(vehicles.set_home(vehicle_id, body.home))
 
 
-@router.post("/{vehicle_id}/key", response_model=VehicleCreated, dependencies=[Depends(require_write)])
+@router.post(
+    "/{vehicle_id}/key",
+    response_model=VehicleCreated,
+    dependencies=[Depends(require_write)],
+    responses=errors.responses(Conflict),
+)
 def rotate_key(vehicle_id: Id, body: KeyIn, vehicles: VehiclesDep) -> VehicleCreated:
     """Rotate the vehicle's key (at the surface: put the new key in the agent's configuration too)."""
     return _created(vehicles.rotate_key(vehicle_id, body.key))
 
 
-@router.delete("/{vehicle_id}/key/pending", response_model=VehicleOut, dependencies=[Depends(require_write)])
+@router.delete(
+    "/{vehicle_id}/key/pending",
+    response_model=VehicleOut,
+    dependencies=[Depends(require_write)],
+    responses=errors.responses(Conflict),
+)
 def cancel_key_rotation(vehicle_id: Id, vehicles: VehiclesDep) -> VehicleOut:
     """Cancel a key rotation the vehicle has not confirmed: the previous key (and its version) is current
     again. 409 if none waits. Only while the vehicle has not switched: one that said it holds the new key

@@ -152,7 +152,7 @@ def _rows(section: _Section, taken: list[_Sample]) -> list[int]:
         present = [v is not None for v in x.q]
         merged = bool(rows) and continues(before, present, x.index == tick and x.phase == phase)
         rows.append(rows[-1] if merged else len(rows) and rows[-1] + 1)
-        before = [b or p for b, p in zip(before, present, strict=True)] if merged else present
+        before = [b or p for b, p in zip(before, present, strict=True)] if merged else present  # the row's
         tick, phase = x.index, x.phase
     return rows
 

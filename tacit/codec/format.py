@@ -38,7 +38,7 @@ packet start from the initial state (base 0; the shore then forgets every older 
 from __future__ import annotations
 
 from tacit.arithmetic import pack_bits
-from tacit.packets import PAYLOAD_SIZE
+from tacit.packets import COVER_BITS, PAYLOAD_SIZE
 
 FORMAT = 3
 FORMAT_SEQS = 0  # version 4's format: states named by packet seq
@@ -48,7 +48,9 @@ CODE_BITS = CODE_BYTES * 8
 CHAIN_IDS = 63
 SEQS = 256  # version 4 names a state 1 + the seq of the packet that left it: 1..256
 MAX_BACK = 63  # the furthest back (in seqs) a version 4 payload can name its base
-MAX_WINDOW = 14  # packets in flight at most: a check-point after them still reaches them all (COVER_BITS)
+# packets in flight at most, and how far (in seqs) the vehicle numbers a packet past the oldest whose fate
+# it has not heard: a check-point numbered after them still reaches them all (COVER_BITS back)
+MAX_WINDOW = COVER_BITS - 2
 
 
 class CodecError(ValueError):

@@ -140,3 +140,23 @@ if __name__ == "__main__":
                 time.sleep(3600)
         except KeyboardInterrupt:
             pass
+
+
+@contextmanager
+def copied_database(server: str, template: str) -> Iterator[str]:
+    """A database of the caller's own on ``server``, a copy of the database ``template``; dropped
+    afterwards. Its URL."""
+    import uuid
+    from urllib.parse import urlsplit
+
+    import psycopg
+
+    name = f"tacit_{uuid.uuid4().hex[:12]}"
+    admin = server.replace("postgresql+psycopg://", "postgresql://")
+    with psycopg.connect(admin, autocommit=True) as c:
+        c.execute(f'CREATE DATABASE "{name}" TEMPLATE "{template}"')
+    try:
+        yield urlsplit(server)._replace(path=f"/{name}").geturl()
+    finally:
+        with psycopg.connect(admin, autocommit=True) as c:
+            c.execute(f'DROP DATABASE "{name}" WITH (FORCE)')

@@ -18,13 +18,12 @@ from server.vehicles.models import Vehicle
 from tacit import auth
 from tacit import modem as mm
 from tacit.packets import CheckpointPacket, MissionState
+from tests.support.sqlite import migrated
 
 
 def store_with(tmp_path: Path, *rows: SQLModel) -> Engine:
     """A migrated SQLite store of the test's own (``tacit.db``), holding ``rows`` (a vehicle first)."""
-    url = f"sqlite:///{tmp_path}/tacit.db"
-    migrate(url)
-    db = make_engine(url)
+    db = make_engine(migrated(tmp_path / "tacit.db"))
     with writing(db) as s:
         for row in rows:
             s.add(row)
@@ -37,13 +36,13 @@ def scripted_shore(tmp_path: Path, keys: list[str], **overrides: Any) -> Shore:
     """The shore with one vehicle per key (``rov1`` at modem address 2, ``rov2`` at 3, ...), loaded, each
     heard: a synced check-point of each has come (the shore commands no vehicle before it heard it)."""
     defaults: dict[str, Any] = {
-        "database_url": f"sqlite:///{tmp_path}/tacit.db",
+        "database_url": migrated(tmp_path / "tacit.db"),
         "modem_url": "",
         "time_scale": 1000.0,
         "sync_interval": 1e6,
     }
     settings = Settings(**{**defaults, **overrides})
-    migrate(settings.database_url)
+    migrate(settings.database_url)  # current unless overridden
     db = make_engine(settings.database_url)
     with writing(db) as s:
         for i, key in enumerate(keys):

@@ -77,3 +77,26 @@ def fake_server() -> SimpleNamespace:
     return SimpleNamespace(
         scene=FakeScene(), initial_camera=SimpleNamespace(position=None, look_at=None, fov=None)
     )
+
+
+class FakeCamera(SimpleNamespace):
+    """A browser's camera: what the panel sets on it is kept; ``report`` is the browser telling its view."""
+
+    def __init__(self) -> None:
+        super().__init__(position=None, look_at=None, fov=None, far=None, up_direction=None, callbacks=[])
+
+    def on_update(self, cb: Any) -> Any:
+        self.callbacks.append(cb)
+        return cb
+
+    def report(self, width: int, height: int) -> None:
+        self.image_width, self.image_height = width, height
+        for cb in self.callbacks:
+            cb(self)
+
+
+def fake_client(client_id: int = 1) -> SimpleNamespace:
+    """A browser's connection: its own GUI and camera (no scene of its own: clicks are not simulated)."""
+    return SimpleNamespace(
+        client_id=client_id, gui=FakeGui(), scene=None, camera=FakeCamera(), atomic=contextlib.nullcontext
+    )

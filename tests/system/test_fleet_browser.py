@@ -88,8 +88,8 @@ def test_the_fleet_on_both_screens(fleet: dict) -> None:
         )  # fmt: skip  (both vehicles listed, each with a report)
         rows = dashboard.locator("#fleet tbody tr")
         assert [rows.nth(i).get_attribute("data-name") for i in range(2)] == ["rov1", "rov2"]
-        colours = dashboard.eval_on_selector_all(
-            "#fleet tbody tr .swatch", "els => els.map(e => getComputedStyle(e).backgroundColor)"
+        colours = dashboard.evaluate(  # in one call: the table is drawn again every few seconds
+            "[...document.querySelectorAll('#fleet tbody tr .swatch')].map(e => getComputedStyle(e).backgroundColor)"
         )
         assert len(set(colours)) == 2  # each vehicle its own colour
         for i in range(2):

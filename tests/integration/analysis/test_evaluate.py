@@ -50,6 +50,7 @@ def test_raw_imu_fits_rate_zero_within_the_bound(real_data: Path, log: str) -> N
 
 
 def test_csv_with_loss_marks_samples_and_writes_a_plot(real_data: Path, tmp_path: Path) -> None:
+    """Version 3 declares a lost packet's samples lost; version 4 codes them again: none is lost."""
     png = tmp_path / "plot.png"
     result = evaluate(
         str(real_data / "ardusub" / "small_raw_imu.csv"),
@@ -63,11 +64,16 @@ def test_csv_with_loss_marks_samples_and_writes_a_plot(real_data: Path, tmp_path
         "--plot",
         str(png),
         "--json",
+        "--protocol",
+        "3",
     )
     assert result.returncode == 0, result.stderr
     report = json.loads(result.stdout)
     assert report["unbounded_samples"] > 0 and report["max_error_ratio"] <= 1.0
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    args = [str(real_data / "ardusub" / "small_raw_imu.csv"), "--columns", "xacc", "--eps", "0.5"]
+    four = json.loads(evaluate(*args, "--relative", "--loss", "0.3", "--json", "--protocol", "4").stdout)
+    assert four["unbounded_samples"] == 0 and four["max_error_ratio"] <= 1.0
 
 
 def test_human_table_and_clear_errors(real_data: Path, tmp_path: Path) -> None:

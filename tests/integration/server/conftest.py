@@ -8,8 +8,8 @@ from typing import TypeVar
 
 import pytest
 
-from server.core.db import migrate
 from tests.support.nats import NatsServer, Secured
+from tests.support.sqlite import migrated
 
 Server = TypeVar("Server", bound=NatsServer)
 
@@ -39,6 +39,4 @@ def secured(tmp_path: Path) -> Iterator[Secured]:
 @pytest.fixture
 def sqlite_url(tmp_path: Path) -> str:
     """A center's store: a migrated SQLite file of the test's own."""
-    url = f"sqlite:///{tmp_path}/center.db"
-    migrate(url)
-    return url
+    return migrated(tmp_path / "center.db")

@@ -88,7 +88,10 @@ def test_without_the_key_every_packet_is_unverified_and_other_bytes_are_no_packe
     human = run_cli(str(path))
     assert human.returncode == 0, human.stderr
     assert "UNVERIFIED packet (no key given" in human.stdout
-    assert f"not a Tacit packet (unknown packet version 0): {'01' * 32}" in human.stdout
+    assert (
+        f"not a Tacit packet (unknown packet version 1 (byte 1; this end speaks 3, 4)): {'01' * 32}"
+        in human.stdout
+    )
     assert human.stdout.splitlines()[-1] == (
         "10 sentences, 5 packets (5 unverified), 1 not Tacit packets, 0 malformed lines, "
         "4 modem errors (2 BAD_CRC, 1 CAERR, 1 PACKET_TIMEOUT)"

@@ -1,5 +1,6 @@
-"""bench/bench_fleet.py's model of a fleet on one channel: the real schedule shares the channel among the
-vehicles, a command never beats the channel's own minimum, and what a vehicle waits grows with the fleet."""
+"""bench/bench_fleet.py drives the MAC that ships over a scripted sea: the queue shares the band among the
+vehicles, a command never beats the channel's own minimum, what a vehicle waits grows with the fleet, and
+two gateways keep their slots (the run checks every exchange)."""
 
 from __future__ import annotations
 
@@ -20,17 +21,18 @@ def load_bench():
     return module
 
 
-def test_the_channel_is_shared_and_a_larger_fleet_waits_longer() -> None:
+def test_the_band_is_shared_and_a_larger_fleet_waits_longer() -> None:
     bench = load_bench()
-    plan = bench.Plan(seconds=480.0, command_every=120.0, imu=False, seed=3)
-    one, three = bench.run(1, False, plan), bench.run(3, False, plan)
-    for result in (one, three):
+    plan = bench.Plan(seconds=480.0, command_every=120.0, imu=False, seed=3, window=0, slot=20.0)
+    one, three = bench.run(1, 1, plan), bench.run(3, 1, plan)
+    for result in (one, three, bench.run(2, 2, plan)):
         bench.check(result)
         for tally, range_m in zip(result.tallies, result.ranges, strict=True):
             assert tally.to_ack and min(tally.to_ack) >= cycle_with_ack_s(range_m) - 1e-9
             assert tally.samples_delivered > 0 and tally.polls > 0
-    shares = [t.airtime / three.seconds for t in three.tallies]
-    assert sum(shares) <= 1.0 + 1e-9 and max(shares) < 1.5 * min(shares)  # one channel, shared fairly
+    polls = [t.polls for t in three.tallies]
+    assert max(polls) < 1.5 * min(polls)  # one band, shared fairly
     worst = [max(t.surprise_latency) for t in three.tallies]
-    assert min(worst) > max(one.tallies[0].surprise_latency)  # each waits for the others' slots
-    assert three.idle_share < one.idle_share  # more vehicles answer more of the polls
+    assert min(worst) > max(one.tallies[0].surprise_latency)  # each waits for the others' turns
+    airtime = three.stations[0].airtime
+    assert {"sync", "ping", "poll", "command"} <= set(airtime)  # the MAC's whole traffic, measured

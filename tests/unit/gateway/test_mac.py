@@ -5,15 +5,17 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import random
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 
 from gateway.mac import Mac
 from gateway.queue import Exchange, FrameKind, Held, Outcome, Queue, Report
-from gateway.slots import Schedule, SlotPlan
+from gateway.slots import Schedule, SlotPlan, guard_for
 from gateway.timing import Timing
 from simulators.sea import Band, SeaModem, SeaVehicle
 from simulators.virtual_loop import run
+from tacit import modem as mm
 
 T0 = 1_700_000_000.0
 TIMING = Timing()
@@ -103,6 +105,8 @@ def test_two_stations_on_one_band_keep_their_slots() -> None:
             assert current.room(station.name, start) >= end - start
         assert len(station.ends(Outcome.ACKED)) == 20
     assert ship.mac.status.exchanges[Exchange.PING] >= 2 and ship.queue.vehicle(2).range_m == 300.0
+    seen = ship.mac.detail()["vehicles"]  # what its heartbeat says, per vehicle at this gateway
+    assert seen["2"]["range_m"] == 300.0 and seen["2"]["rate"] == 5 and seen["4"]["range_m"] is None
 
 
 def test_a_late_turn_waits_for_the_next_slot() -> None:
@@ -220,6 +224,7 @@ def test_shares_weigh_the_polls_and_commands_never_starve_a_vehicle_of_them() ->
     polls = {a: station.queue.vehicle(a).polls for a in (2, 3)}
     assert polls[3] > 10  # its endless commands leave it polled
     assert 1.6 <= polls[2] / polls[3] <= 2.4
+    assert 10 <= station.mac.status.exchanges[Exchange.PING] <= 8 + 4  # every 120 s, every 240 s (not 16)
 
 
 def test_a_turn_is_the_first_in_order_that_fits_the_room() -> None:
@@ -238,3 +243,84 @@ def test_a_turn_is_the_first_in_order_that_fits_the_room() -> None:
     assert poll is not None and poll.exchange is Exchange.POLL and poll.rate == 1
     slower = queue.next(T0, TIMING.poll(None, 1) - 0.01)
     assert slower is not None and slower.rate == 0 and slower.duration == TIMING.poll(None, 0)
+
+
+class Stalling:
+    """A station's process that stalls (as under SIGSTOP or a CPU hog) for up to ``most`` s at random
+    points: between its MAC's last look at the clock and its modem getting the command."""
+
+    def __init__(self, modem: SeaModem, rng: random.Random, most: float) -> None:
+        self.modem, self.rng, self.most = modem, rng, most
+
+    @property
+    def state(self) -> mm.LinkState:
+        return self.modem.state
+
+    def add_listener(self, listener: Callable[[mm.Event], None]) -> None:
+        self.modem.add_listener(listener)
+
+    async def _stall(self) -> None:
+        if self.rng.random() < 0.5:
+            await asyncio.sleep(self.rng.uniform(0.0, self.most))
+
+    async def send(
+        self,
+        dest: int,
+        frames: list[bytes],
+        rate: int = 0,
+        ack: bool = True,
+        ack_timeout: float | None = None,
+    ) -> mm.TransmitResult:
+        await self._stall()
+        return await self.modem.send(dest, frames, rate, ack, ack_timeout)
+
+    async def poll(self, remote: int, rate: int = 0, ack: bool = False) -> None:
+        await self._stall()
+        await self.modem.poll(remote, rate, ack)
+
+    async def ping(self, dest: int, timeout: float = 10.0) -> float | None:
+        await self._stall()
+        return await self.modem.ping(dest, timeout)
+
+
+def stalled_runs(guard: float, runs: int, most: float = 1.0) -> list[str]:
+    """Two stations on one band, each stalling up to ``most`` s at random, for ten minutes per run: every
+    exchange on the band that left its station's own slot."""
+    crossed = []
+    for seed in range(runs):
+        band = sea(
+            SeaVehicle(2, {"ship": 400.0, "buoy": 1400.0}), SeaVehicle(3, {"ship": 1400.0, "buoy": 700.0})
+        )
+        schedule = plan("ship", "buoy", slot=20.0, guard=guard)
+        stations = []
+        for name, near in (("ship", 2), ("buoy", 3)):
+            queue = Queue(TIMING, lambda report: None)
+            modem = Stalling(SeaModem(band, name), random.Random(seed * 2 + near), most)
+            stations.append(Mac(name, modem, queue, schedule, TIMING, clock=_clock))
+            queue.poll([2, 3])
+            for n in range(10):
+                queue.hold(frame(f"cmd-{n}", near))
+
+        run(_for(600.0, stations), start=T0)
+        current = schedule.current
+        assert current is not None and len(band.busy) > 40
+        crossed += [
+            f"run {seed}: {who} {start - T0:.2f}-{end - T0:.2f} s"
+            for who, start, end in band.busy
+            if not current.owner(start) == who == current.owner(end)
+        ]
+    return crossed
+
+
+def test_two_stations_stalling_up_to_a_second_never_cross_a_slot_boundary() -> None:
+    """20 runs; the guard covers the travel across 3 km and the stall. The control, stalls far longer
+    than the guard, crosses (the check works)."""
+    assert stalled_runs(guard_for(3000.0, 0.05) + 1.0, runs=20) == []
+    assert stalled_runs(0.05, runs=3, most=4.0)
+
+
+async def _for(seconds: float, macs: list[Mac]) -> None:
+    tasks = [asyncio.create_task(mac.run()) for mac in macs]
+    await asyncio.sleep(seconds)
+    for task in tasks:
+        task.cancel()

@@ -929,3 +929,12 @@ def test_samples_of_one_tick_join_a_row_only_with_channels_it_lacks(version: int
     run.check()
     assert set(run.shore) == set(range(5))
     assert [len(s.ticks) for s in run.spans if len(s.ticks)] == [3]  # two rows at T0, one at T0 + 1
+
+
+def test_samples_of_one_tick_merge_into_a_row_only_where_the_row_lacks_their_channels() -> None:
+    """Three samples of one tick, channels alternating: the first two are one row; the third has a
+    channel that row has, so it is a row of its own (merged, its value would be lost)."""
+    nan = float("nan")
+    run = Run(spec(2, 1.0)).feed(np.full(3, T0), np.array([[nan, 2.0], [0.0, nan], [nan, 0.0]]))
+    assert run.packets[0].rows[0] == [0, 0, 1] and len(run.spans[0].ticks) == 2
+    run.check()

@@ -9,10 +9,11 @@ from fastapi.testclient import TestClient
 
 from server.app import create_app
 from server.core.config import Settings
+from tests.support.sqlite import migrated
 
 
 def test_docs_load_only_local_assets(tmp_path: Path) -> None:
-    settings = Settings(database_url=f"sqlite:///{tmp_path}/tacit.db", modem_url="", map_enabled=False)
+    settings = Settings(database_url=migrated(tmp_path / "tacit.db"), modem_url="", map_enabled=False)
     with TestClient(create_app(settings)) as client:
         page = client.get("/docs")
         assert page.status_code == 200 and "swagger-ui" in page.text

@@ -33,7 +33,7 @@ from server.core.config import Settings
 from server.vehicles.models import Vehicle as VehicleRow
 from tacit import auth
 from tacit import modem as mm
-from tacit.packets import Command, ControlFlag, ControlPacket, decode_control
+from tacit.packets import CheckpointPacket, Command, ControlFlag, ControlPacket, MissionState, decode_control
 from tests.integration.server.backhaul.test_access import client as broker_client
 from tests.integration.server.backhaul.test_frames_and_commands import ingest_on
 from tests.integration.server.backhaul.test_frames_and_commands import until as until_async
@@ -239,7 +239,9 @@ def layout(broker: NatsServer, tmp_path: Path) -> Iterator[tuple[TestClient, dic
 def test_a_budget_moves_with_its_vehicle(layout: tuple[TestClient, dict[str, Outbox]]) -> None:
     client, outboxes = layout
     vehicle_id = register(client)
-    outboxes["ship"].add_frame(ADDRESS, 0, b"rov1 heard", snr_in=20.0)
+    checkpoint = CheckpointPacket(seq=1, time=int(time.time()), state=MissionState.PREPROGRAMMED)
+    heard = auth.sign_checkpoint(checkpoint, KEY, 1, ADDRESS, [])  # the vehicle's own word: routing counts it
+    outboxes["ship"].add_frame(ADDRESS, 0, heard, snr_in=20.0)
     until(lambda: outboxes["ship"].budget_left(ADDRESS)[0], what="the ship's budget")
     count, last = outboxes["ship"].budget_left(ADDRESS)
     assert (

@@ -17,7 +17,7 @@ from server.vehicles.schemas import VehicleIn
 from server.vehicles.service import Vehicles
 from tacit import auth
 from tacit.codec import PacketEncoder
-from tacit.packets import CheckpointPacket, MissionState, cover_bitmap, with_seq
+from tacit.packets import NEWEST, CheckpointPacket, MissionState, cover_bitmap, with_seq
 from tacit.streams import default_streams
 from tests.integration.server.backhaul.test_frames_and_commands import ingest_on
 
@@ -27,7 +27,8 @@ ADDRESS = 2
 def signed(key: bytes) -> list[bytes]:
     """A priority packet of IMU samples (the codec's), then a check-point covering it, signed."""
     streams = list(default_streams().values())
-    spec, encoder, rng = streams[0], PacketEncoder(streams, max_latency=1.0), np.random.default_rng(1)
+    spec, rng = streams[0], np.random.default_rng(1)
+    encoder = PacketEncoder(streams, max_latency=1.0, protocol=NEWEST)  # as the vehicle is registered
     t0, tick = time.time() - 60, 0
     while not encoder.ready(t0 + tick * spec.period):
         encoder.push(0, t0 + tick * spec.period, rng.normal(0, 10, len(spec.channels)))

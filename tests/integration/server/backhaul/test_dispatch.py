@@ -6,7 +6,9 @@ them (``Dispatcher.on_event``):
   timeout, while no check-point confirms it (before, the late ACK left the dispatch "unanswered": the
   re-send found every gateway tried and asked to fail an acknowledged command, twice a second for ever);
 - a command whose frame was signed before a SYNC that answered the vehicle's later challenge goes again,
-  signed anew (before, the vehicle refused it while its modem ACKed it, until the confirmation timeout).
+  signed anew (before, the vehicle refused it while its modem ACKed it, until the confirmation timeout),
+  and the stale frame is withdrawn from the gateway holding it;
+- a command acknowledged through one gateway is withdrawn from every other gateway holding it.
 """
 
 from __future__ import annotations
@@ -16,14 +18,15 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from server.backhaul import subjects
 from server.backhaul.dispatch import Dispatcher
 from server.backhaul.relay import RelayIngest
-from server.backhaul.subjects import CommandMessage, EventMessage, GatewayState
+from server.backhaul.subjects import EventMessage, GatewayState, WithdrawMessage, WithdrawReason
 from server.commands.models import CommandRecord
 from server.commands.schemas import CommandIn
 from server.core.config import Settings
 from server.core.db import make_engine, migrate, saved_id
-from server.routing.models import DispatchState
+from server.routing.models import Dispatch, DispatchState
 from server.shore import Shore
 from server.vehicles.models import Vehicle
 from server.vehicles.schemas import VehicleIn
@@ -42,6 +45,7 @@ class Center:
     vehicle: Vehicle
     command: CommandRecord
     published: list[str]
+    withdrawn: list[tuple[str, str, WithdrawReason]]  # (gateway, dispatch, why)
 
     def dispatch(self, n: int) -> str:
         return f"cmd-{saved_id(self.command)}-{n}"
@@ -66,17 +70,21 @@ def center(tmp_path: Path) -> Center:
     settings = Settings(database_url=url, map_enabled=False, confirm_timeout=CONFIRM, gateway_timeout=1e6)
     shore = Shore.build(settings, make_engine(url), RelayIngest)
     published: list[str] = []
+    withdrawn: list[tuple[str, str, WithdrawReason]] = []
 
     async def publish(subject: str, payload: bytes, message_id: str) -> None:
-        assert CommandMessage.decode(payload).id == message_id
+        message = subjects.down(payload)
+        assert message.id == message_id and subject == subjects.commands(message.gateway)
         published.append(message_id)
+        if isinstance(message, WithdrawMessage):
+            withdrawn.append((message.gateway, message.command, message.reason))
 
     dispatcher = Dispatcher(shore.commands, shore.routing, settings, publish)
     shore.routing.beat("ship", time.time(), GatewayState("i1", 0, "ready"))
     vehicle = shore.vehicles.create(VehicleIn(name="rov1", address=2))
     shore.routing.pin(saved_id(vehicle), "ship")
     command = shore.commands.submit(saved_id(vehicle), CommandIn(command="hold"), "operator")
-    return Center(shore, dispatcher, vehicle, command, published)
+    return Center(shore, dispatcher, vehicle, command, published, withdrawn)
 
 
 def test_a_late_ack_wins_and_an_acknowledged_command_is_sent_again_not_failed(tmp_path: Path) -> None:
@@ -115,14 +123,15 @@ def test_a_command_signed_before_a_later_answering_sync_goes_again_signed_anew(t
     c.dispatcher._answer_at[2] = time.time() + auth.FLOOR_SLACK + 1.0  # the answer to the new challenge
     c.step()
     states = [(d.gateway, d.state) for d in c.shore.routing.dispatches(saved_id(c.command))]
-    assert c.published == [one, two]
+    assert c.published == [one, subjects.withdraw_id(one), two]  # the stale frame taken back first
+    assert c.withdrawn == [("ship", one, WithdrawReason.SUPERSEDED)]
     assert states == [("ship", DispatchState.SUPERSEDED), ("ship", DispatchState.PUBLISHED)]
     c.reports(one, ("sent", False), ("acked", True))  # the old frame went out: refused, modem-ACKed
     assert c.status() == "queued"
     c.reports(two, ("sent", False), ("acked", True))
     assert c.status() == "acknowledged"
     c.step()
-    assert c.published == [one, two]  # once each
+    assert c.published == [one, subjects.withdraw_id(one), two]  # once each
 
 
 def test_an_ack_being_recorded_starts_no_new_round(tmp_path: Path) -> None:
@@ -135,3 +144,20 @@ def test_an_ack_being_recorded_starts_no_new_round(tmp_path: Path) -> None:
     c.shore.routing.set_dispatch(c.dispatch(1), DispatchState.ACKED)  # the first of the two steps
     c.step()
     assert c.published == [c.dispatch(1)] and c.status() == "sent"
+
+
+def test_a_command_acknowledged_through_one_gateway_is_withdrawn_from_the_others(tmp_path: Path) -> None:
+    """The buoy holds a second dispatch of the command when the ship's ACK comes: the buoy's is
+    superseded and withdrawn, the command acknowledged once."""
+    c = center(tmp_path)
+    c.step()
+    other = Dispatch(
+        id=c.dispatch(2), command_id=saved_id(c.command), gateway="buoy", start_by=time.time() + 60,
+        deadline=time.time() + 600,
+    )  # fmt: skip
+    c.shore.routing.add_dispatch(other)
+    c.reports(c.dispatch(1), ("sent", False), ("acked", True))
+    assert c.status() == "acknowledged"
+    assert c.withdrawn == [("buoy", c.dispatch(2), WithdrawReason.ACKNOWLEDGED)]
+    states = {d.id: d.state for d in c.shore.routing.dispatches(saved_id(c.command))}
+    assert states == {c.dispatch(1): DispatchState.ACKED, c.dispatch(2): DispatchState.SUPERSEDED}

@@ -26,7 +26,7 @@ from server.backhaul.center import Center
 from server.backhaul.gateway import Gateway
 from server.backhaul.outbox import Outbox
 from server.backhaul.relay import RelayedIncoming, RelayIngest
-from server.backhaul.subjects import CommandMessage, FrameMessage
+from server.backhaul.subjects import CommandMessage, FrameMessage, WithdrawMessage, WithdrawReason
 from server.core.config import Settings
 from server.core.db import make_engine, migrate
 from server.core.events import Bus
@@ -329,6 +329,10 @@ def test_commands_go_down_once_and_are_kept_by_the_gateway(
             await until(lambda: bool(outbox.commands()), lambda: asyncio.sleep(0.05))
             assert outbox.commands() == [command]
             await until(lambda: outbox.depth() == 0, lambda: asyncio.sleep(0.05))  # its receipt went up
+            withdrawal = WithdrawMessage("withdraw-cmd-7-1", "ship", command.id, WithdrawReason.CANCELLED)
+            assert await center.send_command(withdrawal)
+            await until(lambda: not outbox.commands(), lambda: asyncio.sleep(0.05))
+            assert outbox.commands("withdrawn") == [command]  # kept, never to be sent
         finally:
             await center.close()
             await gateway.stop()

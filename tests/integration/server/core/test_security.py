@@ -10,13 +10,14 @@ from fastapi.testclient import TestClient
 
 from server.app import create_app
 from server.core.config import Settings, SettingsError
+from tests.support.sqlite import migrated
 
 SECRET = "very-secret-operator-token"
 
 
 def app(tmp_path: Path, **kw: object) -> TestClient:
     settings = Settings(
-        database_url=f"sqlite:///{tmp_path}/t.db", map_enabled=False, write_tokens=[SECRET], **kw
+        database_url=migrated(tmp_path / "t.db"), map_enabled=False, write_tokens=[SECRET], **kw
     )  # type: ignore[arg-type]
     return TestClient(create_app(settings))
 

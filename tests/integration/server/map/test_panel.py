@@ -8,7 +8,6 @@ from __future__ import annotations
 import itertools
 import re
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -28,7 +27,7 @@ from server.operators.schemas import OperatorIn
 from server.screens.fleet import PALETTE, rgb
 from server.vehicles.schemas import VehicleIn
 from tests.support.api import OP, offline_settings
-from tests.support.viser import FakeGui, fake_server
+from tests.support.viser import fake_client, fake_server
 
 
 @pytest.fixture
@@ -57,7 +56,7 @@ def client_post(shore: Any, body: dict) -> None:
 
 
 def panel_for(owner: OperatorMap) -> OperatorPanel:
-    return OperatorPanel(owner, SimpleNamespace(client_id=1, gui=FakeGui(), scene=None))
+    return OperatorPanel(owner, fake_client())
 
 
 def commands(shore: Any) -> list[Command]:
@@ -274,6 +273,32 @@ def test_each_vehicle_in_its_colour_and_greyed_while_overdue(shore_map: tuple) -
         and "rov2</b>: no report yet <b>(overdue)" in panel.fleet_html.content
     )
     assert "rov1</b>: waiting for its first report (due by " in panel.fleet_html.content
+
+
+def test_each_browser_s_view_opens_on_the_whole_fleet_and_zooms_out_as_far(shore_map: tuple) -> None:
+    """Vehicles not heard yet stand at their homes, 900 m apart: a browser's camera, once it reports its
+    window, looks straight down on both, left of the panel, and may zoom out beyond them (its far plane
+    further still)."""
+    shore, owner = shore_map
+    shore.vehicles.create(VehicleIn(name="rov2", address=3, home=(0.0, 600.0)))
+    shore.vehicles.set_home(1, (0.0, -300.0))
+    owner.attach(fake_server())
+    panel = owner.panels[1] = panel_for(owner)
+    owner.tick()
+    camera = panel.client.camera
+    assert camera.position is None  # the window's size not known yet: not moved
+    camera.report(1400, 1000)
+    eye, at = np.array(camera.position), np.array(camera.look_at)
+    assert eye[0] == at[0] and abs(eye[1] - at[1]) < 0.02 * eye[2]  # from above, north up
+    half_height = eye[2] * np.tan(camera.fov / 2)  # metres from the view's centre to its top edge
+    free_right = at[0] + half_height * 1400 / 1000 - 340 * (2 * half_height / 1000)  # the panel's edge
+    for east in (-300.0, 600.0):
+        assert at[0] - half_height * 1400 / 1000 < east < free_right
+    assert camera.far > camera.max_orbit_distance > 2 * eye[2]  # zooming out reaches beyond the fleet
+    assert not panel.unfitted
+    owner.server.initial_camera.position = None
+    camera.report(1400, 1000)  # the browser moving its camera after: not fitted again
+    assert tuple(camera.position) == tuple(eye)
 
 
 def test_an_operator_cancels_a_queued_command_from_the_panel(shore_map: tuple) -> None:

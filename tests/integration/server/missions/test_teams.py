@@ -27,6 +27,7 @@ from server.link.state import IncomingFrame
 from server.shore import Shore
 from tacit import auth
 from tacit.packets import CheckpointPacket, CommandStatus, MissionState, Priority, PriorityPacket, Stream
+from tests.support.sqlite import migrated
 
 OP = {"Authorization": "Bearer operator-token"}
 KEYS = {"rov1": "a1" * 32, "rov2": "b2" * 32, "rov3": "c3" * 32}
@@ -37,7 +38,7 @@ _stamps = itertools.count(int(time.time()) - 500)
 
 def make_client(tmp_path: Path, **settings: Any) -> Iterator[TestClient]:
     config = Settings(
-        database_url=f"sqlite:///{tmp_path}/tacit.db",
+        database_url=migrated(tmp_path / "tacit.db"),
         modem_url="",
         map_enabled=False,
         write_tokens=["operator-token"],

@@ -18,6 +18,7 @@ from server.core.errors import TooMany, Unauthorized
 from server.core.security import Actor, Throttle
 from server.operators import repository as repo
 from server.operators.models import Operator
+from tests.support.sqlite import migrated
 
 ROOT = {"Authorization": "Bearer root-token"}
 WATCHER = {"Authorization": "Bearer watcher-token"}
@@ -30,7 +31,7 @@ def bearer(token: str) -> dict[str, str]:
 @pytest.fixture
 def client(tmp_path: Path) -> Iterator[TestClient]:
     settings = Settings(
-        database_url=f"sqlite:///{tmp_path}/tacit.db",
+        database_url=migrated(tmp_path / "tacit.db"),
         map_enabled=False,
         write_tokens=["spare-token", "root-token"],
         read_tokens=["watcher-token"],

@@ -2,7 +2,7 @@
 arriving through the shore's ingest as the modem would deliver them: a route in two queued moves, a
 mission's start and a resume (its whole route), the fleet's "return all home" to one shared home, the
 lost-link action as the vehicle's configuration has it and as a ``set_param`` changes it, and a new home.
-Team missions' starts and legs: ``test_team_missions.py``."""
+Team missions' starts and legs: ``missions/test_teams.py``."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
-"""The screens' gateways (issue 24, item 6), integration tier: the center's app on PostgreSQL with a real
-nats-server and two gateways on the routing tests' stand-in modems (``test_routing``'s rig), each told
+"""The screens' gateways, integration tier: the center's app on PostgreSQL with a real
+nats-server and two gateways on the routing tests' stand-in modems (``routing/test_choice``'s rig), each told
 where its modem is. ``GET /api/v1/gateways`` (what the dashboard and the map both show) says each
 gateway's place, modem, outbox, backhaul state and since when, its last outage with the backlog it came
 back with, its frames and vehicles; ``GET /fleet`` each vehicle's gateway and pin; ``GET /packets`` which
@@ -27,7 +27,7 @@ from server.screens.fleet import GATEWAYS, PALETTE, rgb
 from tacit import auth
 from tacit.packets import CheckpointPacket, MissionState
 from tests.integration.server.map.test_panel import panel_for
-from tests.integration.server.routing.test_choice import OP, Layout, running_center, until
+from tests.integration.server.routing.test_choice import ADDRESS, OP, Layout, running_center, until
 from tests.support.api import offline_settings
 from tests.support.nats import NATS_SERVER, NatsServer
 from tests.support.viser import fake_server
@@ -73,6 +73,11 @@ def test_every_gateway_its_place_state_outbox_frames_and_vehicles_on_the_api_and
     assert ship["latlon"][0] == pytest.approx(40.0, abs=1e-4) and ship["latlon"][1] < -74.0  # west of it
     assert (ship["address"], ship["modem"], buoy["address"]) == (1, "ready", 101)
     assert ship["outbox"] == 0 and ship["last_outage"] is None and ship["colour"] == GATEWAYS[1]
+    until(
+        lambda: "poll" in (gateways(layout)["ship"]["mac"] or {}).get("exchanges", {}), what="the ship's MAC"
+    )
+    mac = gateways(layout)["ship"]["mac"]  # its MAC's status, from its heartbeat: polling rov1 at rate 0
+    assert mac["refused"] == "" and mac["vehicles"][str(ADDRESS)]["rate"] == 0
     assert (
         ship["vehicles"] == [{"id": vehicle_id, "name": "rov1", "pinned": False}] and buoy["vehicles"] == []
     )

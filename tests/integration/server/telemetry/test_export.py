@@ -9,6 +9,7 @@ import json
 import math
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -94,9 +95,11 @@ def add_packets(s, vehicle_id: int) -> dict[str | None, int | None]:
     return ids
 
 
-@pytest.fixture
-def client(tmp_path: Path):
-    settings = offline_settings(tmp_path, ping_interval=3600)
+@pytest.fixture(scope="module")
+def client(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]:
+    """One shore holding the samples the tests export, made once for the module: the tests only read
+    what it holds (the one that writes adds a vehicle of its own)."""
+    settings = offline_settings(tmp_path_factory.mktemp("export"), ping_interval=3600)
     with TestClient(create_app(settings)) as c:
         for name, address in (("rov1", 2), ("rov2", 3)):
             c.post("/api/v1/vehicles", json={"name": name, "address": address}, headers=OP)
@@ -362,7 +365,9 @@ def test_ticks_as_a_vehicle_counts_them_come_back_exact(
 ) -> None:
     """A stream's tick counts its periods since 1970: the IMU's (4 Hz) are over 2^32 today, past any
     32-bit integer (the NetCDF export once failed on every real stream with a 500)."""
-    vehicle = client.post("/api/v1/vehicles", json={"name": "rov3", "address": 4}, headers=OP).json()
+    address = 4 + ["csv", "parquet", "nc"].index(suffix)
+    new = {"name": f"rov{address - 1}", "address": address}
+    vehicle = client.post("/api/v1/vehicles", json=new, headers=OP).json()
     first = int(T0 / IMU_PERIOD)
     with writing(client.app.state.shore.db) as s:  # type: ignore[attr-defined]
         rows = [
@@ -388,7 +393,10 @@ def test_a_sample_sent_in_parts_is_one_row(client: TestClient, tmp_path: Path, s
     """A stream's first sample leaves in parts (its first values coded finer): the rest comes in the next
     packet, stored as a part of the row before. The export joins them: one row per sample time, as
     certain and as trusted as its least, and a second sample of the same tick stays its own row."""
-    vehicle = client.post("/api/v1/vehicles", json={"name": "rov3", "address": 4}, headers=OP).json()
+    body = {"name": f"parts-{suffix}", "address": 10 + ["csv", "parquet", "nc"].index(suffix)}
+    answer = client.post("/api/v1/vehicles", json=body, headers=OP)
+    assert answer.status_code == 201, answer.text
+    vehicle = answer.json()
     with writing(client.app.state.shore.db) as s:  # type: ignore[attr-defined]
         ids = add_packets(s, vehicle["id"])
         first = env(1, [20.0, None, None], vehicle_id=vehicle["id"], ids=ids)

@@ -9,6 +9,7 @@ from server.backhaul.subjects import (
     CommandMessage,
     FrameKind,
     PayloadError,
+    ScheduleMessage,
     WithdrawMessage,
     WithdrawReason,
 )
@@ -46,3 +47,13 @@ def test_a_withdrawal_is_told_from_a_command() -> None:
 def test_a_malformed_down_message_is_refused(payload: bytes) -> None:
     with pytest.raises(PayloadError):
         subjects.down(payload)
+
+
+def test_a_schedule_carries_the_vehicles_shares_and_refuses_one_not_positive() -> None:
+    schedule = ScheduleMessage(
+        "s1", "ship", 1000.0, 20.0, 1.0, ("ship", "buoy"), (2, 3), ((2, 4.0), (3, 1.0))
+    )
+    assert ScheduleMessage.decode(schedule.encode()) == schedule
+    bad = schedule.encode().replace(b'"2":4.0', b'"2":-1')
+    with pytest.raises(PayloadError):
+        ScheduleMessage.decode(bad)

@@ -32,14 +32,14 @@ def test_vehicles_are_placed_turned_greyed_when_overdue_and_their_labels_stacked
     assert frame.position == (20.0, 10.0, -2.0) and np.allclose(frame.wxyz, (1.0, 0.0, 0.0, 0.0))  # east
     assert scene.nodes["/vehicles/rov1/body"].color == (1, 2, 3)
     layer.label("rov1", cp(10.0, 20.0), 42.0, overdue=True)
-    assert "OVERDUE" in scene.nodes["/vehicles/rov1/label"].text
+    assert "OVERDUE" in scene.nodes["/labels/rov1"].text
     assert scene.nodes["/vehicles/rov1/body"].color == OVERDUE_COLOUR
     layer.checkpoint("rov2", cp(11.0, 21.0, heading=0.0))  # a metre away: the labels would overlap
-    first, second = scene.nodes["/vehicles/rov1/label"].position, scene.nodes["/vehicles/rov2/label"].position
-    assert first[:2] == (0, 0) and np.hypot(*second[:2]) >= 3.0 and "/vehicles/rov2/leader" in scene.nodes
+    first, second = scene.nodes["/labels/rov1"].position, scene.nodes["/labels/rov2"].position
+    assert first[:2] == (20.0, 10.0) and second[:2] == (21.0, 14.0) and "/labels/rov2/leader" in scene.nodes
     layer.checkpoint("rov2", cp(11.0, 200.0))  # far apart: back on its vehicle, without a leader
-    assert scene.nodes["/vehicles/rov2/label"].position[:2] == (0.0, 0.0)
-    assert "/vehicles/rov2/leader" not in scene.nodes
+    assert scene.nodes["/labels/rov2"].position[:2] == (200.0, 11.0)
+    assert "/labels/rov2/leader" not in scene.nodes
 
 
 def test_plans_draw_the_checked_paths_and_the_lanes_of_teams_that_may_run() -> None:

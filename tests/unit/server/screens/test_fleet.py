@@ -31,3 +31,12 @@ def test_a_silence_counts_from_the_last_frame_or_from_when_the_shore_could_first
     assert fleet.silence(990.0, listening=900.0, registered=800.0, now=1000.0) == 10.0
     assert fleet.silence(None, listening=900.0, registered=800.0, now=1000.0) == 100.0  # since it listens
     assert fleet.silence(None, listening=900.0, registered=950.0, now=1000.0) == 50.0  # since registered
+
+
+def test_each_gateway_its_own_colour_for_any_number_of_gateways_grey_once_silent() -> None:
+    colours = [fleet.gateway_colour(i, alive=True) for i in range(len(fleet.GATEWAYS))]
+    assert len(set(colours)) == len(colours) and not set(colours) & set(fleet.PALETTE)  # not a vehicle's
+    assert fleet.gateway_colour(len(fleet.GATEWAYS) + 1, alive=True) == colours[1]  # more gateways: again
+    assert (
+        fleet.gateway_colour(0, alive=False) == fleet.gateway_colour(3, alive=False) == fleet.GATEWAY_SILENT
+    )

@@ -33,7 +33,15 @@ from tacit import auth
 from tacit import modem as mm
 from tacit.packets import CheckpointPacket, MissionState
 from tacit.streams import default_streams
-from tests.integration.server.test_routing import ADDRESS, OP, StandInModem, Vehicle, settings, until
+from tests.integration.server.routing.test_choice import (
+    ADDRESS,
+    FAST,
+    OP,
+    StandInModem,
+    Vehicle,
+    settings,
+    until,
+)
 from tests.support.nats import NATS_SERVER, Secured
 
 pytestmark = pytest.mark.skipif(not Path(NATS_SERVER).exists(), reason="nats-server is not installed")
@@ -83,7 +91,7 @@ class Shore:
         self.outboxes = {name: Outbox(tmp_path / f"{name}.db", name) for name in ("ship", "buoy")}
         modems = {"ship": ship("ship", self.vehicle), "buoy": StandInModem("buoy", self.vehicle)}
         self.gateways = {
-            name: Gateway(outbox, server.url, modems[name], heartbeat=0.2,  # type: ignore[arg-type]
+            name: Gateway(outbox, server.url, modems[name], heartbeat=0.2, timing=FAST,  # type: ignore[arg-type]
                           auth=server.credentials(f"gateway-{name}"))
             for name, outbox in self.outboxes.items()
         }  # fmt: skip

@@ -4,21 +4,34 @@ refused with the reason, logged once and counted."""
 
 from __future__ import annotations
 
+import io
 import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pyarrow.parquet as pq
 from fastapi.testclient import TestClient
 
 from server.app import create_app
 from server.core.config import Settings
 from server.link.state import IncomingFrame
-from tacit import auth
+from tacit import auth, nmea
 from tacit.codec import PacketEncoder
-from tacit.packets import NEWEST, CheckpointPacket, MissionState, with_seq
+from tacit.codec.format import MAX_WINDOW
+from tacit.packets import (
+    NEWEST,
+    SYNC_RESTART_CHAINS,
+    CheckpointPacket,
+    Command,
+    ControlPacket,
+    MissionState,
+    Stream,
+    with_seq,
+)
 from tacit.streams import default_streams
 from vehicle_agent.agent import Agent, AgentConfig
+from vehicle_agent.state import Uncovered
 
 KEYS = {2: bytes(range(32)), 3: bytes(range(1, 33))}
 OP = {"Authorization": "Bearer op"}
@@ -62,12 +75,21 @@ def test_a_mixed_fleet_decodes_each_vehicle_in_its_own_version(tmp_path: Path, c
         says = CheckpointPacket(seq=200, time=int(now), state=MissionState.HOLDING, quiet=20, version=NEWEST)
         ingest.handle(IncomingFrame(2, 1, auth.sign_checkpoint(says, KEYS[2], 1, 2, []), at=now + 41))
         link = client.get("/api/v1/link", headers=OP).json()
+        parquet = client.get(
+            "/api/v1/telemetry.parquet", params={"vehicle_id": 1, "stream": "imu"}, headers=OP
+        )
+        older = client.get("/api/v1/telemetry.parquet", params={"vehicle_id": 2, "stream": "imu"}, headers=OP)
+        csv = client.get("/api/v1/telemetry.csv", params={"vehicle_id": 1, "stream": "imu"}, headers=OP)
         samples = {
             vid: client.get("/api/v1/telemetry", params={"vehicle_id": vid}, headers=OP).json()["items"]
             for vid in (1, 2)
         }
     assert link["vehicles"]["rov2"]["old_protocol"] == 0
     assert link["vehicles"]["rov1"]["checkpoint"]["predictable_until"] == int(now) - 20  # the silence said
+    said = pq.read_metadata(io.BytesIO(parquet.content)).metadata  # and the exports say it
+    assert float(said[b"predictable_until"]) == int(now) - 20
+    assert float(csv.headers["Tacit-Predictable-Until"]) == int(now) - 20
+    assert b"predictable_until" not in pq.read_metadata(io.BytesIO(older.content)).metadata  # none said
     assert link["vehicles"]["rov1"]["old_protocol"] == 3
     assert caplog.text.count("rov1 is registered as speaking version 4") == 1
     for vid, rows in samples.items():  # each decoded in its own version: the 40 ticks of both streams
@@ -93,3 +115,46 @@ def test_a_version_4_agent_says_the_silence_in_its_checkpoints_and_sends_no_pack
     old.compressor.silence_said(config.checkpoint_interval)  # version 3 cannot say it
     assert old.compressor.encoder.policy.max_silence == config.max_silence
     assert old.checkpoint().version == 3
+
+
+def test_the_agent_numbers_no_packet_a_checkpoint_could_not_cover(tmp_path: Path) -> None:
+    """A check-point covers 16 seqs back: the agent makes no priority packet that would put a delivered
+    packet not yet covered, or one in flight, out of its reach (one seq kept for the check-point); one a
+    check-point on its way covers no longer holds the window back."""
+    config = AgentConfig(
+        key=KEYS[2].hex(), state_file=str(tmp_path / "agent-state.json"), modem_url="/dev/null"
+    )
+    agent = Agent(config, config.plans(tmp_path))
+    assert agent._room() == MAX_WINDOW  # nothing outstanding: a whole window
+    agent.state.packet_seq = 10
+    agent.state.uncovered = [Uncovered(0, bytes(32))]  # delivered at seq 0, not yet covered
+    assert agent._room() == MAX_WINDOW - 10
+    agent.state.packet_seq = 20
+    assert agent._room() == 0
+    agent.state.packet_seq = 12
+    agent._send_checkpoint()  # it covers seq 0: the window opens while it is on its way
+    assert agent._room() == MAX_WINDOW
+    agent.link.queue[-1].on_result(False)  # lost for good: seq 0 needs the next check-point again
+    assert agent._room() == MAX_WINDOW - 13
+
+
+def test_a_restart_request_withdraws_the_packets_in_flight_and_codes_their_samples_again(
+    tmp_path: Path,
+) -> None:
+    config = AgentConfig(
+        key=KEYS[2].hex(), state_file=str(tmp_path / "agent-state.json"), modem_url="/dev/null"
+    )
+    agent = Agent(config, config.plans(tmp_path))
+    agent.link._answer_poll(nmea.DataRequest("000000", 2, 1, True, 256, 1))  # a rate-5 poll's frame
+    rng, now = np.random.default_rng(2), agent.now()
+    for k in range(40):  # an IMU the shore cannot predict: full packets
+        agent.compressor.add(Stream.KINEMATIC, now - 20 + 0.25 * k, list(rng.normal(0, 500, 9)))
+    agent._send_packets()
+    queued = [item.data for item in agent.link.queue]
+    assert len(queued) == 8 and len(agent.compressor.encoder.pending) < 40  # a window of 8 in flight
+    sync = ControlPacket(Command.SYNC, seq=1, time=int(now), param_id=SYNC_RESTART_CHAINS)
+    agent._on_sync(sync)
+    assert not any(data in queued for data in (item.data for item in agent.link.queue))
+    assert {x.serial for x in agent.compressor.encoder.pending} == set(
+        range(40)
+    )  # coded from the start again
