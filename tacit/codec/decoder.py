@@ -227,8 +227,10 @@ class PacketDecoder:
                     rows[-1] = np.where(np.isnan(rows[-1]), row, rows[-1])
                     held = [b or p for b, p in zip(held, present, strict=True)]
                     continue
-                first_continues = True
-            held = present
+                first_continues = True  # the rest of the last packet's last row: it holds that part's too
+                held = [b or p for b, p in zip(before, present, strict=True)]
+            else:
+                held = present
             ticks.append(index)
             phases.append(phase)
             rows.append(row)

@@ -150,9 +150,10 @@ def _rows(section: _Section, taken: list[_Sample]) -> list[int]:
     tick, phase = (base.cursor, base.phase) if section.lost is None else (None, base.phase)
     for x in taken:
         present = [v is not None for v in x.q]
-        merged = bool(rows) and continues(before, present, x.index == tick and x.phase == phase)
+        joins = continues(before, present, x.index == tick and x.phase == phase)
+        merged = bool(rows) and joins  # the first joins the last packet's last row: a row of its own here
         rows.append(rows[-1] if merged else len(rows) and rows[-1] + 1)
-        before = [b or p for b, p in zip(before, present, strict=True)] if merged else present  # the row's
+        before = [b or p for b, p in zip(before, present, strict=True)] if joins else present  # the row's
         tick, phase = x.index, x.phase
     return rows
 

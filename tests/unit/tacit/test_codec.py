@@ -938,3 +938,15 @@ def test_samples_of_one_tick_merge_into_a_row_only_where_the_row_lacks_their_cha
     run = Run(spec(2, 1.0)).feed(np.full(3, T0), np.array([[nan, 2.0], [0.0, nan], [nan, 0.0]]))
     assert run.packets[0].rows[0] == [0, 0, 1] and len(run.spans[0].ticks) == 2
     run.check()
+
+
+@pytest.mark.parametrize("version", [3, 4])
+def test_a_sample_after_one_sent_in_parts_across_packets_keeps_its_value(version: int) -> None:
+    """A sample too large for a packet goes in two parts, the second in the next packet; a second sample of
+    the same tick with a channel the first part had is a row of its own, not merged into the first's."""
+    nan = float("nan")
+    big = [0.0, 0.0, 137438953335.0, 0.0, nan, 536870913.0, 1e15, nan, nan]
+    rows = np.array([big, [nan, nan, 0.0, nan, nan, nan, nan, nan, nan]])
+    run = Run(spec(9, 1.0), protocol=version).feed(np.full(2, T0), rows)
+    assert run.enc.split >= 1 and [p.rows[0] for p in run.packets] == [[0], [0, 1]]
+    run.check()
