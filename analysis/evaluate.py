@@ -322,16 +322,36 @@ def parse_eps(text: str, names: tuple[str, ...]) -> list[float]:
     return [named.get(n, default[0] if default else 0.0) for n in names]
 
 
+DEPTH_NAMES = ("depth", "pressure", "pres")  # a channel named with one of these is the vehicle's depth
+
+
+def depth_channel(names: tuple[str, ...]) -> str | None:
+    """The channel that is the vehicle's depth (or pressure), by its name (None: none is)."""
+    found = [n for n in names if set(re.split(r"[^a-z0-9]+", n.lower())) & set(DEPTH_NAMES)]
+    return found[0] if found else None
+
+
 def make_spec(
-    series: Series, eps: float | str, relative: bool, method: str, period: float | None
+    series: Series,
+    eps: float | str,
+    relative: bool,
+    method: str,
+    period: float | None,
+    depth: str | None = "",
 ) -> StreamSpec:
+    """The stream's definition; ``depth``: its depth channel's name ("": found by name, ``depth_channel``;
+    None: none), which version 4 predicts profiles by."""
     bounds = parse_eps(str(eps), series.names)
     std = np.nanstd(series.values, axis=0) if len(series.values) else np.zeros(len(series.names))
     per_channel = tuple(float(e * s) if relative else float(e) for e, s in zip(bounds, std, strict=True))
     if any(not e > 0 for e in per_channel):
         flat = [n for n, e in zip(series.names, per_channel, strict=True) if not e > 0]
         raise ValueError(f"eps must be positive; channels with zero spread or no value: {flat}")
-    return StreamSpec("eval", Stream.KINEMATIC, series.names, per_channel, period or series.period, method)
+    if depth == "":
+        depth = depth_channel(series.names)
+    return StreamSpec(
+        "eval", Stream.KINEMATIC, series.names, per_channel, period or series.period, method, depth=depth
+    )
 
 
 def plot(path: str, spec: StreamSpec, rec: Reconstruction, title: str) -> None:
@@ -461,6 +481,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="seconds within which the shore may date a sample (default: half the period); a payload "
         "protocol 4 vehicle then keeps a wandering clock's samples a tick apart",
     )
+    parser.add_argument(
+        "--depth-channel",
+        default="",
+        help="the channel that is the vehicle's depth or pressure, which protocol 4 predicts the other "
+        "channels' profiles by (default: one named depth or pressure; 'none': no profile prediction)",
+    )
     add_protocol_option(parser)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--plot", metavar="PNG", help="write truth, reconstruction and sent points")
@@ -492,7 +518,10 @@ def evaluate(args: argparse.Namespace) -> tuple[dict[str, Any], Series, StreamSp
         f"{rows * channels - series.absent} samples, {series.absent} absent",
         file=sys.stderr,
     )
-    spec = make_spec(series, args.eps, args.relative, args.method, args.period)
+    depth = getattr(args, "depth_channel", "")
+    spec = make_spec(
+        series, args.eps, args.relative, args.method, args.period, None if depth == "none" else depth
+    )
     spec = dataclasses.replace(spec, time_tolerance=getattr(args, "time_tolerance", None))
     result, rec = run_codec(
         series,
@@ -515,6 +544,7 @@ def evaluate(args: argparse.Namespace) -> tuple[dict[str, Any], Series, StreamSp
         "eps": list(spec.eps),  # per channel, in channel units (with --relative: --eps x the channel's std)
         "eps_relative": bool(args.relative),
         "period_s": spec.period,
+        "depth_channel": spec.depth,
         "notes": list(series.notes),
         "baselines": {
             name: _baseline(baseline(series, spec, args.max_latency)) for name, baseline in baselines.items()

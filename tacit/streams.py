@@ -48,7 +48,8 @@ ENV_PERIOD = 0.5  # SCALED_PRESSURE2 (Bar30: depth, water temperature) at 2 Hz
 def default_streams(
     eps: dict[str, float] | None = None, imu_period: float = IMU_PERIOD, env_period: float = ENV_PERIOD
 ) -> dict[Stream, StreamSpec]:
-    """The kinematic (RAW_IMU) and environmental (depth, water temperature, oxygen) streams. Both ends
+    """The kinematic (RAW_IMU) and environmental (depth, water temperature, oxygen) streams; the
+    environmental stream's depth channel is what protocol 4 predicts its water's profiles by. Both ends
     date samples by the wall clock (the vehicle's when the autopilot measured them, ``tacit.sampletime``):
     a simulation run k times faster than real time delivers k samples per tick (each kept, dated within
     the tick); at real time every sample has its own tick."""
@@ -58,5 +59,5 @@ def default_streams(
                                      tuple(bounds[c] for c in IMU_CHANNELS), imu_period),
         Stream.ENVIRONMENTAL: StreamSpec("env", Stream.ENVIRONMENTAL, ENV_CHANNELS,
                                          tuple(bounds[c] for c in ENV_CHANNELS), env_period,
-                                         initial=(20.0, 0.0, 8.0)),
+                                         initial=(20.0, 0.0, 8.0), depth="depth"),
     }  # fmt: skip

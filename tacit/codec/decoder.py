@@ -80,7 +80,7 @@ class PacketDecoder:
         self.specs = list(specs)
         self.coding = coding(protocol)
         self.predictors = [Dual(s, self.coding) for s in self.specs]
-        self._initial = Chain.initial(self.specs, self.predictors)
+        self._initial = Chain.initial(self.specs, self.predictors, self.coding)
         self.snapshots: dict[int, Chain] = {}
 
     def decode(self, payload: bytes, received_at: float, seq: int | None = None) -> list[DecodedSpan]:
@@ -165,7 +165,7 @@ class PacketDecoder:
         """Take the state ``to_bytes`` saved (replacing what this decoder holds); ``CodecError`` if
         ``data`` is not such a state or was saved for other streams (the decoder is then unchanged: start
         empty, and the vehicle will be asked to restart)."""
-        self.snapshots = restore(self.specs, data)
+        self.snapshots = restore(self.specs, data, self.coding)
 
     @classmethod
     def from_bytes(cls, specs: list[StreamSpec], data: bytes, protocol: int = 3) -> PacketDecoder:
@@ -184,6 +184,7 @@ class PacketDecoder:
         phases: list[int] = []
         rows: list[np.ndarray] = []
         lost, first_continues, last_phase = None, False, base.phase
+        held: list[bool] = []  # the channels the last row holds
         while True:
             token = read_token(coder, decoder)
             if token.kind == END:
@@ -216,15 +217,20 @@ class PacketDecoder:
                 index = placed(cursor, token)
                 predictor.skip(index - cursor - 1)
                 prediction = predictor.predict()
-            before, same_tick = presence_before(coder), token.kind == SAME and phase == last_phase
-            if rows:  # a row merged from parts has the channels of each
-                before = (~np.isnan(rows[-1])).tolist()
+            # a part joins the row so far when it has none of that row's channels (not only the last part's)
+            before = held if rows else presence_before(coder)
+            same_tick = token.kind == SAME and phase == last_phase
             row = _reconstruct(predictor, prediction, read_sample(coder, decoder))
-            if continues(before, (~np.isnan(row)).tolist(), same_tick) and (rows or lost is None):
+            present = presence_before(coder)  # the channels the sample just read has
+            if continues(before, present, same_tick) and (rows or lost is None):
                 if rows:  # a part of the row before: one row
                     rows[-1] = np.where(np.isnan(rows[-1]), row, rows[-1])
+                    held = [b or p for b, p in zip(held, present, strict=True)]
                     continue
-                first_continues = True
+                first_continues = True  # the rest of the last packet's last row: it holds that part's too
+                held = [b or p for b, p in zip(before, present, strict=True)]
+            else:
+                held = present
             ticks.append(index)
             phases.append(phase)
             rows.append(row)

@@ -144,15 +144,16 @@ def _quantise(
 def _rows(section: _Section, taken: list[_Sample]) -> list[int]:
     """For each of ``taken`` (a section's samples), the row of the shore's span it is decoded into: a
     sample that is a part of the one before it in the same packet (``tacit.codec.grammar.continues``:
-    the same tick, other channels) is merged into that one's row."""
+    the same tick, none of the channels that row holds so far) is merged into that one's row."""
     base, rows = section.base, list[int]()
     before = presence_before(section.base.coder)
     tick, phase = (base.cursor, base.phase) if section.lost is None else (None, base.phase)
     for x in taken:
         present = [v is not None for v in x.q]
-        merged = bool(rows) and continues(before, present, x.index == tick and x.phase == phase)
+        joins = continues(before, present, x.index == tick and x.phase == phase)
+        merged = bool(rows) and joins  # the first joins the last packet's last row: a row of its own here
         rows.append(rows[-1] if merged else len(rows) and rows[-1] + 1)
-        before = [b or p for b, p in zip(before, present, strict=True)] if merged else present  # the row's
+        before = [b or p for b, p in zip(before, present, strict=True)] if joins else present  # the row's
         tick, phase = x.index, x.phase
     return rows
 
@@ -192,7 +193,7 @@ class PacketEncoder:
         self.coding = coding(protocol)
         self.policy = SendPolicy(max_latency, max_silence, urgent_threshold)
         self.predictors = [Dual(s, self.coding) for s in self.specs]
-        self.initial = Chain.initial(self.specs, self.predictors)
+        self.initial = Chain.initial(self.specs, self.predictors, self.coding)
         self.delivered = self.initial
         self._queues: list[list[_Sample]] = [[] for _ in self.specs]
         self.in_flight: list[_Flight] = []  # oldest first
@@ -202,6 +203,8 @@ class PacketEncoder:
         self._lost: list[int | None] = [None] * len(self.specs)
         self._serial = [0] * len(self.specs)
         self._phase = [0] * len(self.specs)  # the phase of the last processed sample's grid
+        # version 4: per stream the last tick delta, the last different one, how many in a row had the last
+        self._deltas = [(1, 2, 1)] * len(self.specs)
         self._grids: list[Grid | None] = [None] * len(self.specs)  # the grids new samples go on
         self.last_q: list[int | None] = []  # the last pushed sample's quantised residuals (None: absent)
         self.split = 0  # samples too large for an empty packet, sent as parts (channels) in one tick
@@ -267,21 +270,22 @@ class PacketEncoder:
         return self._stepped(stream, time, index, grid.phase) if self.coding.tolerance else index
 
     def _stepped(self, stream: int, time: float, index: int, phase: int) -> int:
-        """Version 4: the tick after the last sample's if it dates ``time`` within the stream's time
-        tolerance (``StreamSpec.time_precision``): a sampler whose intervals wander about the period then
-        costs a STEP, not SAME and JUMP; else ``index``, the nearest tick. A gap longer than the
-        tolerance stays a gap, exact."""
+        """Version 4: the tick the stream's last tick delta, or the last different one, leads to
+        (``tacit.codec.models.Timing``: coded for almost nothing; the one before first after a lone
+        delta) if it dates ``time`` within the stream's
+        time tolerance (``StreamSpec.time_precision``): a sampler whose intervals wander about its period
+        (or about a multiple of the tick) then costs an AGAIN, not a new delta each time; else ``index``,
+        the nearest tick. A gap longer than the tolerance stays a gap, exact."""
         spec, cursor = self.specs[stream], self._cursor[stream]
         if cursor is None:
             return index
         if phase != self._phase[stream]:
             cursor = regrid(cursor, self._phase[stream], phase)
-        following = cursor + 1
-        return (
-            following
-            if abs((following + phase / PHASES) * spec.period - time) <= spec.time_precision
-            else index
-        )
+        last, other, run = self._deltas[stream]
+        for delta in (last, other) if run > 1 else (other, last):  # a lone delta: back to the one before
+            if abs((cursor + delta + phase / PHASES) * spec.period - time) <= spec.time_precision:
+                return cursor + delta
+        return index
 
     def _process(self, stream: int, sample: _Sample, draft: bool = True) -> None:
         spec, predictor = self.specs[stream], self.predictors[stream]
@@ -290,6 +294,10 @@ class PacketEncoder:
             cursor = regrid(cursor, self._phase[stream], sample.phase)
         if cursor is not None and sample.index < cursor:
             sample.index = cursor  # out of order by less than a tick's rounding: dated with the latest tick
+        if cursor is not None:
+            last, other, run = self._deltas[stream]
+            delta = sample.index - cursor
+            self._deltas[stream] = (last, other, run + 1) if delta == last else (delta, last, 1)
         sample.state_before = predictor.state()
         if cursor is None or sample.index > cursor:
             if cursor is not None:

@@ -17,6 +17,9 @@ START  the stream's first sample (no cursor yet): the grid phase, the tick's    
        low 24 bits
 =====  ========================================================================  ==================
 
+Version 4 (``Coder.timing``) codes JUMP's n as the stream's last JUMP count, the one before, or a new
+one (an Elias-gamma count follows), and chooses the token model after a sample by its run too.
+
 A sample is then: one "all channels present" symbol; if not all, a presence symbol per channel; then q
 for each present channel: symbols -6..6, two escapes (an escaped magnitude as an Exp-Golomb code) and
 RAW (64 bits follow: the value itself, an IEEE double, exact). A residual of 2^40 steps or more (or a
@@ -37,7 +40,7 @@ import numpy as np
 from tacit.arithmetic import Decoder, Encoder
 from tacit.codec.format import CodecError
 from tacit.codec.grid import PHASE_BITS, regrid
-from tacit.codec.models import Coder
+from tacit.codec.models import NAMED, Coder
 from tacit.codec.tokens import JUMP, LOST, PHASE, SAME, START, STEP
 
 TICK_BITS = 24
@@ -70,17 +73,39 @@ class Token(NamedTuple):
 def write_token(coder: Coder, enc: Encoder, token: Token) -> None:
     enc.encode_symbol(coder.token_model(), token.kind)
     coder.previous_token = token.kind
-    if token.kind in (JUMP, LOST):
+    timing = coder.timing
+    if timing is not None and token.kind == JUMP:
+        kind = timing.jumped_by(token.n)
+        enc.encode_symbol(timing.count_model(), kind)
+        if kind == NAMED:
+            write_count(coder, enc, token.n)
+        timing.jump(kind, token.n)
+    elif token.kind in (JUMP, LOST):
         write_count(coder, enc, token.n)
     elif token.kind in (PHASE, START):
         write_bits(enc, token.phase, PHASE_BITS)
     if token.kind == START:
         write_bits(enc, token.low, TICK_BITS)
+    if timing is not None and token.kind in (SAME, STEP, JUMP):
+        timing.placed(token.n + 2 if token.kind == JUMP else int(token.kind == STEP))
 
 
 def read_token(coder: Coder, dec: Decoder) -> Token:
+    token = _read_token(coder, dec)
+    if coder.timing is not None and token.kind in (SAME, STEP, JUMP):
+        coder.timing.placed(token.n + 2 if token.kind == JUMP else int(token.kind == STEP))
+    return token
+
+
+def _read_token(coder: Coder, dec: Decoder) -> Token:
     kind = dec.decode_symbol(coder.token_model())
     coder.previous_token = kind
+    timing = coder.timing
+    if timing is not None and kind == JUMP:
+        named = dec.decode_symbol(timing.count_model())
+        n = read_count(coder, dec) if named == NAMED else timing.jumps[named]
+        timing.jump(named, n)
+        return Token(kind, n=n)
     if kind in (JUMP, LOST):
         return Token(kind, n=read_count(coder, dec))
     if kind == PHASE:

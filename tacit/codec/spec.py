@@ -35,6 +35,7 @@ class StreamSpec:
     initial: tuple[float, ...] | None = None
     cross: bool = True  # predict each channel's residual from the channels coded before it (``Dual``)
     time_tolerance: float | None = None  # s; version 4 dates each sample within this (None: period / 2)
+    depth: str | None = None  # the channel that is the vehicle's depth (or pressure): version 4's profiles
 
     def __post_init__(self) -> None:
         if len(self.eps) != len(self.channels):
@@ -45,6 +46,8 @@ class StreamSpec:
             raise ValueError("period must be positive")
         if self.time_tolerance is not None and not self.time_tolerance >= 0:
             raise ValueError("time_tolerance must be at least 0")
+        if self.depth is not None and self.depth not in self.channels:
+            raise ValueError(f"depth channel {self.depth!r} is not one of the stream's channels")
 
     @property
     def step(self) -> np.ndarray:

@@ -20,6 +20,7 @@ from tacit.codec.grid import PHASES
 from tacit.codec.models import Coder
 from tacit.codec.prediction import Dual
 from tacit.codec.spec import StreamSpec
+from tacit.codec.versions import Coding
 
 
 @dataclass
@@ -38,10 +39,10 @@ class Chain:
     streams: list[Position]
 
     @classmethod
-    def initial(cls, specs: Sequence[StreamSpec], predictors: Sequence[Dual]) -> Chain:
+    def initial(cls, specs: Sequence[StreamSpec], predictors: Sequence[Dual], coding: Coding) -> Chain:
         """The state before a vehicle run's first packet (``predictors`` freshly made)."""
         streams = zip(predictors, specs, strict=True)
-        return cls(0, [Position(p.state(), Coder.new(len(s.channels)), None) for p, s in streams])
+        return cls(0, [Position(p.state(), Coder.new(len(s.channels), coding), None) for p, s in streams])
 
 
 def save(specs: Sequence[StreamSpec], chains: Sequence[Chain]) -> bytes:
@@ -57,9 +58,9 @@ def save(specs: Sequence[StreamSpec], chains: Sequence[Chain]) -> bytes:
     return zlib.compress(json.dumps(doc, separators=(",", ":")).encode(), 6)
 
 
-def restore(specs: Sequence[StreamSpec], data: bytes) -> dict[int, Chain]:
+def restore(specs: Sequence[StreamSpec], data: bytes, coding: Coding) -> dict[int, Chain]:
     """The chains ``save`` saved, by id; ``CodecError`` if ``data`` is not such a state or was saved for
-    other streams."""
+    other streams or another payload version's coding."""
     try:
         doc = json.loads(zlib.decompress(data))
         if doc["format"] != FORMAT or doc["specs"] != _fingerprint(specs):
@@ -69,6 +70,8 @@ def restore(specs: Sequence[StreamSpec], data: bytes) -> dict[int, Chain]:
             if not (isinstance(chain_id, int) and 1 <= chain_id <= SEQS and len(streams) == len(specs)):
                 raise CodecError("saved decoder state is malformed")
             positions = [Position(_load(p), Coder.load(c), _cursor(k), _phase(f)) for p, c, k, f in streams]
+            if any((p.coder.timing is None) == coding.timing for p in positions):
+                raise CodecError("saved decoder state is for another payload version")
             chains[chain_id] = Chain(chain_id, positions)
     except CodecError:
         raise
@@ -88,6 +91,7 @@ def _fingerprint(specs: Sequence[StreamSpec]) -> list:
             s.method,
             None if s.initial is None else list(s.initial),
             s.cross,
+            *([] if s.depth is None else [s.depth]),
         ]
         for s in specs
     ]

@@ -15,10 +15,18 @@ Version 4 adds:
 - **a window** (``tacit.codec.format``, ``tacit.codec.encoder``): a packet's state is named by the
   packet's seq, so the vehicle may keep several packets in flight, each coded on the state the one before
   it leaves, and a packet coded again after a loss never shares a name with the one it replaces.
+- **timing** (``tacit.codec.models.Timing``): JUMP's count is coded as the stream's last one, the one
+  before, or a new one, and the token after a sample is modelled by how long its run of equal tick deltas
+  is (against that delta's run before); the tolerance above then prefers the tick the last delta (or,
+  after a lone one, the one before) leads to. A glider's depth-binned schedule (5, 10, 20 s on a 5 s
+  grid) and its gaps between dives cost about 40 % fewer bits beyond a regular clock's than in version 3.
 - **the line** (``tacit.codec.prediction``): each channel may also predict by extending the line through
-  its last two values (a profile's steady change with depth or time, which the Kalman filter fed
+  its last three values (a profile's steady change with depth or time, which the Kalman filter fed
   reconstructions lags and hold follows a step at a time); both ends use it while it has lately missed
   and erred 20 % less than the prediction it replaces, so the choice costs no bits.
+- **the profile** (``tacit.codec.profile``): in a stream with a depth channel (``StreamSpec.depth``),
+  each other channel may predict from the vehicle's last pass (dive or climb): its last value plus how
+  much the last pass changed between the last sample's depth and this one's, chosen the same way.
 """
 
 from __future__ import annotations
@@ -36,8 +44,10 @@ class Coding:
 
     version: int
     tolerance: bool = False  # date a sample on the next tick when within the stream's time tolerance
-    trend: bool = False  # a channel may predict by extending the line through its last two values
+    trend: bool = False  # a channel may predict by extending the line through its last three values
     window: bool = False  # states named by packet seq: several packets in flight (``tacit.codec.format``)
+    timing: bool = False  # a sample's tick delta is coded against the stream's last ones
+    profile: bool = False  # a channel may predict from its last profile (a stream with a depth channel)
 
 
 def coding(protocol: int) -> Coding:
@@ -45,5 +55,5 @@ def coding(protocol: int) -> Coding:
     if protocol == 3:
         return Coding(3)
     if protocol == 4:
-        return Coding(4, tolerance=True, trend=True, window=True)
+        return Coding(4, tolerance=True, trend=True, window=True, timing=True, profile=True)
     raise ValueError(f"protocol {protocol}: this codec codes versions {', '.join(map(str, VERSIONS))}")
