@@ -117,6 +117,8 @@ def test_a_second_plan_from_the_same_epoch_is_not_taken_for_a_duplicate() -> Non
     from server.backhaul.dispatch import Dispatcher
     from server.backhaul.subjects import ScheduleMessage
     from server.core.config import Settings
+    from server.routing.service import Route
+    from server.vehicles.models import Vehicle
 
     class Alive:
         gateways: set[str] = {"ship"}
@@ -133,10 +135,11 @@ def test_a_second_plan_from_the_same_epoch_is_not_taken_for_a_duplicate() -> Non
 
     routing = Alive()
     dispatcher = Dispatcher(None, routing, Settings(tdma_slot=10.0), publish)  # type: ignore[arg-type]
-    asyncio.run(dispatcher._schedule(1000.2, (2,)))
+    routes = [Route(Vehicle(name="rov1", address=2, key_hex="00" * 32), "ship", False, None, "heard")]
+    asyncio.run(dispatcher._schedule(1000.2, routes))
     routing.gateways = {"ship", "buoy"}
-    asyncio.run(dispatcher._schedule(1000.7, (2,)))  # the same epoch
-    asyncio.run(dispatcher._schedule(1000.9, (2,)))  # nothing changed: nothing sent
+    asyncio.run(dispatcher._schedule(1000.7, routes))  # the same epoch
+    asyncio.run(dispatcher._schedule(1000.9, routes))  # nothing changed: nothing sent
     assert [(s, m.order, m.epoch) for s, m in sent] == [
         ("tacit.v1.schedule.ship", ("ship",), 1020.0),
         ("tacit.v1.schedule.buoy", ("buoy", "ship"), 1020.0),
