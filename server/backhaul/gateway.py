@@ -386,6 +386,7 @@ class Gateway:
         """The gateway's state, every ``heartbeat`` s while connected (not stored: a heartbeat from an
         outage is stale by the time it could go)."""
         while True:
+            broker.stop_if_cancelled()  # a wait_for that ended as it was cancelled swallows the cancellation
             if self.nc is not None and self.nc.is_connected:
                 beat = EventMessage(
                     f"{self.name}-beat-{time.time():.3f}", self.name, "heartbeat", time.time(),

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from server.backhaul import subjects
+from server.backhaul import broker, subjects
 from server.backhaul.subjects import CommandMessage, EventMessage, FrameMessage, SyncBudgetMessage
 
 if TYPE_CHECKING:
@@ -329,6 +329,7 @@ class Publisher:
 
     async def run(self) -> None:
         while True:
+            broker.stop_if_cancelled()  # a wait_for that ended as it was cancelled swallows the cancellation
             self.wake.clear()
             batch = self.outbox.pending()
             if not batch:
