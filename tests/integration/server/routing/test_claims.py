@@ -28,6 +28,7 @@ from server.backhaul.outbox import Outbox
 from server.backhaul.relay import RelayIngest
 from server.core.db import make_engine, writing
 from server.core.events import Bus
+from server.routing.service import ARRIVAL_SLACK
 from server.vehicles.models import Vehicle as VehicleRow
 from tacit import auth
 from tacit import modem as mm
@@ -278,7 +279,9 @@ def test_a_gateway_whose_acks_the_vehicle_refutes_is_routed_around(
         assert shore.vehicle.received == []
         assert shore.gateway("ship")["faulty"] == ""
 
-        shore.heard({"buoy": 12.0}, at=time.time() + 10, last_command=0)  # stamped after the ACK: nothing
+        # stamped ARRIVAL_SLACK and heard a frame of slots after the ACK, and no later: the check-point
+        # dates its frame itself (a gateway's claim), so a later date would also refute the buoy's ACK
+        shore.heard({"buoy": 12.0}, at=time.time() + ARRIVAL_SLACK + 1.0, last_command=0)
         until(lambda: shore.gateway("ship")["faulty"] != "", what="the ship found faulty")
         assert "never arrived" in shore.gateway("ship")["faulty"]
         until(lambda: shore.detail(command)["status"] == "acknowledged" and shore.vehicle.received,
