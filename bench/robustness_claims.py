@@ -199,6 +199,17 @@ def future_frames(cases: int) -> Row:
     return Row("frames stamped 30 days ahead", f"{cases}", outcome, reached, TEST)
 
 
+def _found_faulty(s: Scene, command: int, start: float, how: Callable[[float], str]) -> str:
+    """Whether the ship is found faulty (``how`` it was, given the slots it took since ``start``) and the
+    command sent again through the buoy."""
+    found = until(lambda: s.gateway("ship")["faulty"] != "")
+    slots = (time.monotonic() - start) / (2 * SLOT)
+    again = until(lambda: any(d.gateway == "buoy" for d in s.dispatches(command)))
+    if not found:
+        return "NOT FOUND FAULTY"
+    return f"faulty {how(slots)} command " + ("sent again through the buoy" if again else "NOT SENT AGAIN")
+
+
 def refuted_ack() -> Row:
     """The ship says the vehicle's modem ACKed the command; the vehicle's check-points through the buoy
     say it never arrived."""
@@ -210,14 +221,11 @@ def refuted_ack() -> Row:
         claimed = until(lambda: s.status(command) == "acknowledged")
         start = time.monotonic()
         s.heard({"buoy": 12.0}, at=time.time() + 6, last_command=0)  # made after the claimed ACK
-        found = until(lambda: s.gateway("ship")["faulty"] != "")
-        slots = (time.monotonic() - start) / (2 * SLOT)
-        again = until(lambda: any(d.gateway == "buoy" for d in s.dispatches(command)))
-        outcome = (
-            f"faulty within {slots:.1f} of its slots; vehicle on {s.route()['gateway']}, command "
-            + ("sent again through the buoy" if again else "NOT SENT AGAIN")
-            if found
-            else "NOT FOUND FAULTY"
+        outcome = _found_faulty(
+            s,
+            command,
+            start,
+            lambda slots: f"within {slots:.1f} of its slots; vehicle on {s.route()['gateway']},",
         )
     reached = "the command acknowledged on its word" if claimed else "NOT MEASURED: the claim did not count"
     return Row("a gateway's ACK the vehicle refutes", "1", outcome, reached, TEST)
@@ -228,15 +236,7 @@ def held_command() -> Row:
     with scene(gateway_faulty_slots=3) as s:
         command = s.on_ship()
         start = time.monotonic()
-        found = until(lambda: s.gateway("ship")["faulty"] != "")
-        slots = (time.monotonic() - start) / (2 * SLOT)
-        again = until(lambda: any(d.gateway == "buoy" for d in s.dispatches(command)))
-        outcome = (
-            f"faulty after {slots:.1f} of its slots (N = 3); command "
-            + ("sent again through the buoy" if again else "NOT SENT AGAIN")
-            if found
-            else "NOT FOUND FAULTY"
-        )
+        outcome = _found_faulty(s, command, start, lambda slots: f"after {slots:.1f} of its slots (N = 3);")
     return Row("a gateway holding a command without a word", "1", outcome, "its receipt: stored", TEST)
 
 

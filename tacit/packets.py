@@ -162,13 +162,6 @@ class PacketError(ValueError):
     """A frame that is not a valid Tacit packet."""
 
 
-def check_version(version: int) -> int:
-    """``version`` if this end speaks it; ValueError naming the versions it speaks if not."""
-    if version not in VERSIONS:
-        raise ValueError(f"protocol version {version}: this end speaks {', '.join(map(str, VERSIONS))}")
-    return version
-
-
 class OldVersion(PacketError):
     """A packet of the protocol version before this one: its sender needs updating, not a closer look."""
 

@@ -431,16 +431,8 @@ class Dispatcher:
                     shore = Origin(StepSource.SHORE)
                     await asyncio.to_thread(self.desk.said, shore, command, CommandState.CANCELLED, detail)
                 elif not dispatch.final and dispatch.id not in self._withdrawn:
-                    message = WithdrawMessage(subjects.withdraw_id(dispatch.id), dispatch.gateway, dispatch.id,
-                                              WithdrawReason.CANCELLED)  # fmt: skip
-                    await self.publish(subjects.commands(dispatch.gateway), message.encode(), message.id)
+                    await self.withdraw(dispatch, WithdrawReason.CANCELLED)
                     self._withdrawn.add(dispatch.id)
-                    log.info(
-                        "command %d: %s withdrawn from %s (cancelled)",
-                        command.id,
-                        dispatch.id,
-                        dispatch.gateway,
-                    )
 
     def _refuted(self, dispatch: Dispatch) -> None:
         """A gateway's ACK the vehicle's check-points refute: the command is the link's again (sent, not
