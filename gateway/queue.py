@@ -273,11 +273,6 @@ class Queue:
 
         return sorted((self.vehicles[a] for a in self.polled), key=key)
 
-    def plan(self) -> list[tuple[int, Exchange]]:
-        """Whom the next polls go to, in order, and why (``urgent``-led ones say ``poll`` too): the
-        screens' schedule."""
-        return [(v.address, Exchange.POLL) for v in self._poll_order()]
-
     # --- what became of a turn ----------------------------------------------------------------------
 
     def done(self, turn: Turn, outcome: Outcome, now: float) -> None:

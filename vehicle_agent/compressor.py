@@ -151,4 +151,5 @@ class Compressor:
         withdraws them; version 3 forgets its one packet when it resolves)."""
         before = self.in_flight()
         self.encoder.restart()
-        return [q for q in before if q not in self.in_flight()]
+        kept = set(self.in_flight())
+        return [q for q in before if q not in kept]

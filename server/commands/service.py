@@ -54,10 +54,8 @@ IN_FLIGHT = (
     CommandState.EXECUTING,
 )  # a check-point will end it
 RETRY_AFTER_S = 10  # a full queue's answer: about two command attempts at the default range
-ABORTED = "by an abort before it was sent"
-MODEM = Origin(
-    StepSource.MODEM
-)  # the single shore's link records what its own modem said  # what happens to the commands an abort overtakes
+ABORTED = "by an abort before it was sent"  # what happens to the commands an abort overtakes
+MODEM = Origin(StepSource.MODEM)  # the single shore's link records what its own modem said
 
 
 class CommandRefused(Refused):
